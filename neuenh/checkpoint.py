@@ -1,0 +1,218 @@
+"""The model bundle: what a trained (or initial) enhancement state is, on disk and on the wire.
+
+A bundle directory holds
+
+* ``model.json``: model name, positions, state, module choices, latent size, parameter specs,
+  training config, provenance and metrics;
+* ``weights.safetensors``: the neural modules' weights (keys ``<position>.layers.<i>.weight``);
+* ``materials.safetensors``: per-material parameters (raw analytical values and latent), the
+  material names in its metadata. Optional: a shipped model may carry none.
+
+Loading never unpickles: safetensors and JSON only. Every file is written atomically (temporary
+file + rename) and ``model.json`` last, so a directory with a ``model.json`` is complete.
+``to_bytes``/``from_bytes`` pack the same content into one safetensors blob for transport.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors.torch import load as st_load
+from safetensors.torch import load_file, save, save_file
+
+from .graph import BRDFModel
+from .materials import MaterialTable
+from .models import get_model
+from .modules import ModuleConfig
+
+FORMAT = "neuenh-bundle"
+VERSION = 1
+MODEL_JSON, WEIGHTS, MATERIALS = "model.json", "weights.safetensors", "materials.safetensors"
+
+
+class BundleError(ValueError):
+    """A bundle that cannot be read: names the file and what is wrong."""
+
+
+@dataclass
+class Bundle:
+    model: BRDFModel
+    materials: MaterialTable | None = None
+    training: dict[str, Any] = field(default_factory=dict)
+    provenance: dict[str, Any] = field(default_factory=dict)
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def initial(
+        cls,
+        model_name: str,
+        material_names: list[str] | tuple[str, ...],
+        module_config: ModuleConfig = ModuleConfig(),
+        latent_dim: int = 27,
+    ) -> "Bundle":
+        """The all-zero analytical model with every material at the paper's initial values."""
+        model = get_model(model_name, module_config=module_config, latent_dim=latent_dim)
+        return cls(model, MaterialTable(model.specs, material_names, latent_dim))
+
+    # -- description -------------------------------------------------------------------------
+    def describe(self) -> dict[str, Any]:
+        m = self.model
+        return {
+            "format": FORMAT,
+            "version": VERSION,
+            "model": m.name,
+            "positions": list(m.positions),
+            "state": m.state,
+            "formula": m.describe(),
+            "module_config": m.module_config.to_json(),
+            "latent_dim": m.latent_dim,
+            "n_weights": m.n_weights(),
+            "param_specs": [
+                {"name": s.name, "width": s.width, "low": s.low, "high": s.high, "scale": s.scale}
+                for s in m.specs
+            ],
+            "materials": list(self.materials.names) if self.materials is not None else [],
+            "training": self.training,
+            "provenance": self.provenance,
+            "metrics": self.metrics,
+        }
+
+    # -- disk --------------------------------------------------------------------------------
+    def save(self, directory: str | os.PathLike) -> Path:
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        _atomic(directory / WEIGHTS, lambda p: save_file(_weights(self.model), p))
+        if self.materials is not None:
+            meta = {"names": json.dumps(list(self.materials.names))}
+            _atomic(directory / MATERIALS, lambda p: save_file(self.materials.tensors(), p, metadata=meta))
+        elif (directory / MATERIALS).exists():
+            (directory / MATERIALS).unlink()
+        text = json.dumps(self.describe(), indent=2, sort_keys=False) + "\n"
+        _atomic(directory / MODEL_JSON, lambda p: Path(p).write_text(text))
+        return directory
+
+    @classmethod
+    def load(cls, directory: str | os.PathLike) -> "Bundle":
+        directory = Path(directory)
+        meta_path = directory / MODEL_JSON
+        if not meta_path.is_file():
+            raise BundleError(f"{directory}: not a model bundle (no {MODEL_JSON})")
+        try:
+            meta = json.loads(meta_path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise BundleError(f"{meta_path}: not valid JSON ({exc})") from None
+        weights = _read_safetensors(directory / WEIGHTS)
+        materials = None
+        if (directory / MATERIALS).exists():
+            tensors, names = _read_materials(directory / MATERIALS)
+            materials = (tensors, names)
+        return cls._assemble(meta, weights, materials, str(directory))
+
+    # -- wire --------------------------------------------------------------------------------
+    def to_bytes(self) -> bytes:
+        tensors = {f"neural.{k}": v for k, v in _weights(self.model).items()}
+        meta = {"model.json": json.dumps(self.describe())}
+        if self.materials is not None:
+            tensors.update({f"material.{k}": v for k, v in self.materials.tensors().items()})
+            meta["names"] = json.dumps(list(self.materials.names))
+        return save(tensors, metadata=meta)
+
+    @classmethod
+    def from_bytes(cls, blob: bytes) -> "Bundle":
+        # The metadata sits in the safetensors header: 8-byte little-endian length, then JSON.
+        header_len = int.from_bytes(blob[:8], "little")
+        header = json.loads(blob[8 : 8 + header_len])
+        meta = header.get("__metadata__", {})
+        tensors = st_load(blob)
+        weights = {k[len("neural."):]: v for k, v in tensors.items() if k.startswith("neural.")}
+        materials = None
+        if "names" in meta:
+            mt = {k[len("material."):]: v for k, v in tensors.items() if k.startswith("material.")}
+            materials = (mt, json.loads(meta["names"]))
+        return cls._assemble(json.loads(meta["model.json"]), weights, materials, "<bytes>")
+
+    @classmethod
+    def _assemble(cls, meta: dict, weights: dict, materials, where: str) -> "Bundle":
+        if meta.get("format") != FORMAT:
+            raise BundleError(f"{where}: not a {FORMAT} (format {meta.get('format')!r})")
+        if meta.get("version") != VERSION:
+            raise BundleError(f"{where}: bundle version {meta.get('version')} is not supported ({VERSION})")
+        try:
+            model = get_model(
+                meta["model"],
+                state=meta["state"],
+                module_config=ModuleConfig.from_json(meta["module_config"]),
+                latent_dim=int(meta["latent_dim"]),
+            )
+        except (KeyError, ValueError, TypeError) as exc:
+            raise BundleError(f"{where}: {exc}") from None
+        saved_specs = [(p["name"], p["width"], p["low"], p["high"], p["scale"]) for p in meta["param_specs"]]
+        current = [(s.name, s.width, s.low, s.high, s.scale) for s in model.specs]
+        if saved_specs != current:
+            raise BundleError(
+                f"{where}: parameter specs differ from this version's {model.name} "
+                f"(saved {saved_specs}, current {current})"
+            )
+        expected = set(_weights(model))
+        if set(weights) != expected:
+            raise BundleError(
+                f"{where}: weights do not match state {model.state} "
+                f"(missing {sorted(expected - set(weights))}, unexpected {sorted(set(weights) - expected)})"
+            )
+        try:
+            model.neural.load_state_dict(weights, strict=True)
+        except RuntimeError as exc:
+            raise BundleError(f"{where}: {exc}") from None
+        table = None
+        if materials is not None:
+            tensors, names = materials
+            try:
+                table = MaterialTable.from_tensors(model.specs, names, tensors)
+            except ValueError as exc:
+                raise BundleError(f"{where}: {exc}") from None
+        return cls(model, table, meta.get("training", {}), meta.get("provenance", {}), meta.get("metrics", {}))
+
+
+def _weights(model: BRDFModel) -> dict[str, torch.Tensor]:
+    return {k: v.detach().contiguous() for k, v in model.neural.state_dict().items()}
+
+
+def _read_safetensors(path: Path) -> dict[str, torch.Tensor]:
+    if not path.is_file():
+        raise BundleError(f"{path}: missing")
+    try:
+        return load_file(path)
+    except Exception as exc:  # safetensors raises its own error types for corrupt files
+        raise BundleError(f"{path}: not a readable safetensors file ({exc})") from None
+
+
+def _read_materials(path: Path) -> tuple[dict[str, torch.Tensor], list[str]]:
+    from safetensors import safe_open
+
+    tensors = _read_safetensors(path)
+    with safe_open(path, framework="pt") as f:
+        meta = f.metadata() or {}
+    if "names" not in meta:
+        raise BundleError(f"{path}: material names missing from the metadata")
+    return tensors, json.loads(meta["names"])
+
+
+def _atomic(path: Path, write) -> None:
+    """Write through a temporary file in the same directory, then rename over ``path``."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        write(tmp)
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise

@@ -1,0 +1,1 @@
+"""Data: direction sampling, measured and synthetic materials, sample sets."""

@@ -1,0 +1,106 @@
+"""Sample sets: measured (or synthetic) reflectance values of several materials, as flat arrays.
+
+One row per measurement: ``wi, wo`` (local frame, unit), ``f_r`` (RGB, without the cosine) and the
+index of its material in ``names``. Training reads these; a split is seeded and reproducible.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, Sequence
+
+import torch
+
+from .sampling import sample_directions
+
+
+class Material(Protocol):
+    """What a sample set needs of a material: a name, isotropy and measured samples."""
+
+    name: str
+    isotropic: bool
+
+    def samples(self, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]: ...
+
+
+@dataclass
+class Samples:
+    """``n`` measurements of ``len(names)`` materials; tensors are float32 (int64 for material)."""
+
+    wi: torch.Tensor
+    wo: torch.Tensor
+    f_r: torch.Tensor
+    material: torch.Tensor
+    names: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        n = self.wi.shape[0]
+        for label, t, width in (("wi", self.wi, 3), ("wo", self.wo, 3), ("f_r", self.f_r, 3)):
+            if t.ndim != 2 or t.shape != (n, width):
+                raise ValueError(f"samples: {label} must have shape ({n}, {width}), got {tuple(t.shape)}")
+        if self.material.shape != (n,):
+            raise ValueError(f"samples: material must have shape ({n},), got {tuple(self.material.shape)}")
+        if n and (int(self.material.min()) < 0 or int(self.material.max()) >= len(self.names)):
+            raise ValueError("samples: material indices out of range of names")
+
+    def __len__(self) -> int:
+        return self.wi.shape[0]
+
+    def subset(self, index: torch.Tensor) -> "Samples":
+        return Samples(self.wi[index], self.wo[index], self.f_r[index], self.material[index], self.names)
+
+    def of_material(self, i: int) -> "Samples":
+        return self.subset(torch.nonzero(self.material == i).squeeze(1))
+
+    def split(self, val_fraction: float, seed: int) -> tuple["Samples", "Samples"]:
+        """Seeded random split into (train, validation); every material keeps its share."""
+        if not 0.0 <= val_fraction < 1.0:
+            raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
+        generator = torch.Generator().manual_seed(seed)
+        train_idx, val_idx = [], []
+        for i in range(len(self.names)):
+            rows = torch.nonzero(self.material == i).squeeze(1)
+            rows = rows[torch.randperm(len(rows), generator=generator)]
+            n_val = int(round(val_fraction * len(rows)))
+            val_idx.append(rows[:n_val])
+            train_idx.append(rows[n_val:])
+        return self.subset(torch.cat(train_idx).sort().values), self.subset(torch.cat(val_idx).sort().values)
+
+    @staticmethod
+    def concat(parts: Sequence["Samples"]) -> "Samples":
+        names: list[str] = []
+        materials = []
+        for part in parts:
+            materials.append(part.material + len(names))
+            names.extend(part.names)
+        return Samples(
+            torch.cat([p.wi for p in parts]),
+            torch.cat([p.wo for p in parts]),
+            torch.cat([p.f_r for p in parts]),
+            torch.cat(materials),
+            tuple(names),
+        )
+
+
+def sample_materials(materials: Sequence[Material], n: int, seed: int) -> Samples:
+    """``n`` samples of each material, seeded per material so adding one changes no other."""
+    wis, wos, fs, ids = [], [], [], []
+    for i, material in enumerate(materials):
+        wi, wo, f = material.samples(n, seed=seed * 100_003 + i)
+        wis.append(wi)
+        wos.append(wo)
+        fs.append(f)
+        ids.append(torch.full((len(wi),), i, dtype=torch.long))
+    return Samples(
+        torch.cat(wis).float(),
+        torch.cat(wos).float(),
+        torch.cat(fs).float(),
+        torch.cat(ids),
+        tuple(m.name for m in materials),
+    )
+
+
+def rusinkiewicz_samples(evaluate, n: int, seed: int, isotropic: bool):
+    """Helper for continuous materials: Rusinkiewicz-uniform directions and their values."""
+    wi, wo = sample_directions(n, seed=seed, anisotropic=not isotropic)
+    return wi, wo, evaluate(wi, wo)

@@ -1,0 +1,49 @@
+"""Analytical BRDF models as graphs, and the registry behind ``get_model``.
+
+>>> from neuenh.models import get_model
+>>> ggx = get_model("ggx")
+>>> ggx.positions[:6], ggx.param_names
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+from ..graph import BRDFModel, Graph
+from ..modules import ModuleConfig
+from ..params import ParamSpecs
+from . import blinn_phong, cook_torrance, ggx, ward
+
+_BUILDERS: dict[str, Callable[[], tuple[Graph, ParamSpecs]]] = {
+    "ggx": ggx.build,
+    "cook_torrance": cook_torrance.build,
+    "ward": ward.build,
+    "blinn_phong": blinn_phong.build,
+}
+
+
+def available_models() -> tuple[str, ...]:
+    return tuple(_BUILDERS)
+
+
+def get_model(
+    name: str,
+    *,
+    state: str | None = None,
+    module_config: ModuleConfig = ModuleConfig(),
+    latent_dim: int = 27,
+    seed: int = 0,
+) -> BRDFModel:
+    """The analytical model ``name`` as a graph, in the all-zero state unless ``state`` is given
+    (its modules then freshly initialised from ``seed``)."""
+    try:
+        builder = _BUILDERS[name]
+    except KeyError:
+        raise ValueError(f"unknown model {name!r}; available: {', '.join(_BUILDERS)}") from None
+    graph, specs = builder()
+    return BRDFModel(
+        name, graph, specs, state=state, module_config=module_config, latent_dim=latent_dim, seed=seed
+    )
+
+
+__all__ = ["available_models", "get_model", "BRDFModel"]

@@ -1,0 +1,108 @@
+"""Neural modules: the small MLPs that replace a term or an operator, and their configuration.
+
+Paper, Sec. 3 and Fig. 4: a 4-layer fully connected network (hidden widths 16, 32, 16), LeakyReLU
+after every layer but the last, Xavier initialisation. Its input depends on what it replaces:
+
+* a node that reads directions: all analytical parameters + latent + ``wi, wo`` (12 + 27 + 6 = 45
+  for GGX's D);
+* a node that does not: all analytical parameters + latent (39);
+* an operator: its two operands, concatenated.
+
+Its output has the width of what it replaces (1 or 3).
+
+Digits of an enhancement state select a *choice* per position: 0 is the original term, digit k >= 1
+is ``ModuleConfig.choices[k - 1]`` (the paper's m-ary extension). The default offers one choice,
+the paper's module, so states are binary; add choices (e.g. another width) for m-ary searches.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+
+@dataclass(frozen=True)
+class ModuleConfig:
+    """Which neural module each non-zero digit stands for."""
+
+    choices: tuple[tuple[int, ...], ...] = ((16, 32, 16),)
+    negative_slope: float = 0.01  # LeakyReLU slope (PyTorch default; the paper does not say)
+
+    def __post_init__(self) -> None:
+        if not self.choices:
+            raise ValueError("ModuleConfig needs at least one module choice")
+        for hidden in self.choices:
+            if not hidden or any(int(w) < 1 for w in hidden):
+                raise ValueError(f"module hidden widths must be positive, got {hidden}")
+
+    @property
+    def digits(self) -> int:
+        """m of the m-ary enhancement state: the original term plus one digit per choice."""
+        return 1 + len(self.choices)
+
+    def hidden(self, digit: int) -> tuple[int, ...]:
+        if not 1 <= digit < self.digits:
+            raise ValueError(f"digit {digit} selects no module; this config allows 1..{self.digits - 1}")
+        return tuple(self.choices[digit - 1])
+
+    def to_json(self) -> dict:
+        return {"choices": [list(c) for c in self.choices], "negative_slope": self.negative_slope}
+
+    @classmethod
+    def from_json(cls, data: dict) -> "ModuleConfig":
+        return cls(
+            choices=tuple(tuple(int(w) for w in c) for c in data["choices"]),
+            negative_slope=float(data.get("negative_slope", 0.01)),
+        )
+
+
+def module_seed(seed: int, position: str, digit: int) -> int:
+    """A stable per-(seed, position, digit) seed: the same candidate gets the same fresh module in
+    every process, and different positions never share an initialisation."""
+    return zlib.crc32(f"{seed}:{position}:{digit}".encode()) & 0x7FFFFFFF
+
+
+class NeuralModule(nn.Module):
+    """An MLP ``in -> hidden... -> out`` with LeakyReLU between layers and Xavier init."""
+
+    def __init__(
+        self,
+        in_features: int,
+        out_features: int,
+        hidden: tuple[int, ...] = (16, 32, 16),
+        negative_slope: float = 0.01,
+        generator: torch.Generator | None = None,
+    ):
+        super().__init__()
+        widths = [in_features, *hidden, out_features]
+        self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in zip(widths[:-1], widths[1:]))
+        self.negative_slope = negative_slope
+        for layer in self.layers:
+            nn.init.xavier_uniform_(layer.weight, generator=generator)
+            nn.init.zeros_(layer.bias)
+
+    @property
+    def in_features(self) -> int:
+        return self.layers[0].in_features
+
+    @property
+    def out_features(self) -> int:
+        return self.layers[-1].out_features
+
+    @property
+    def hidden(self) -> tuple[int, ...]:
+        return tuple(layer.out_features for layer in self.layers[:-1])
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        dtype = x.dtype
+        x = x.to(self.layers[0].weight.dtype)
+        for layer in self.layers[:-1]:
+            x = nn.functional.leaky_relu(layer(x), self.negative_slope)
+        return self.layers[-1](x).to(dtype)
+
+    def flops_per_sample(self) -> int:
+        """Multiply-adds counted as two FLOPs, activations ignored."""
+        return sum(2 * layer.in_features * layer.out_features for layer in self.layers)
