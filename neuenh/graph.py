@@ -21,7 +21,7 @@ from typing import Callable, Literal, Mapping, Sequence
 import torch
 from torch import nn
 
-from .modules import ModuleConfig, NeuralModule, module_seed
+from .modules import ModuleConfig, NeuralModule, module_seed, run_modules
 from .params import ParamSpecs
 from .shading import Shading, make_shading
 
@@ -276,24 +276,12 @@ class BRDFModel(nn.Module):
         """
         digits = self.digits if digits is None else digits
         shading = make_shading(wi, wo, values)
-        node_input: dict[bool, torch.Tensor] = {}
-
-        def module_input(reads_directions: bool) -> torch.Tensor:
-            if reads_directions not in node_input:
-                parts = [self.specs.unit_vector(values).to(wi.dtype)]
-                if self.latent_dim:
-                    parts.append(latent.to(wi.dtype))
-                if reads_directions:
-                    parts += [shading.wi, shading.wo]
-                node_input[reads_directions] = torch.cat(parts, dim=-1)
-            return node_input[reads_directions]
+        neural_terms = self._neural_term_outputs(digits, shading, values, latent)
 
         def run(expr: Expr) -> torch.Tensor:
             digit = digits[self.graph.index[expr.name]]
             if isinstance(expr, Term):
-                if digit:
-                    return self.neural[expr.name](module_input(expr.reads_directions))
-                return expr.formula(shading)
+                return neural_terms[expr.name] if digit else expr.formula(shading)
             left, right = run(expr.left), run(expr.right)
             if digit:
                 return self.neural[expr.name](
@@ -303,6 +291,30 @@ class BRDFModel(nn.Module):
 
         out = run(self.graph.root).expand(-1, 3)
         return torch.where(shading.above, out, torch.zeros_like(out))
+
+    def _neural_term_outputs(
+        self,
+        digits: Sequence[int],
+        shading: Shading,
+        values: Mapping[str, torch.Tensor],
+        latent: torch.Tensor | None,
+    ) -> dict[str, torch.Tensor]:
+        """Outputs of the modules replacing terms. Modules that read the same input (with or
+        without directions) run together through ``run_modules``, which may fuse them."""
+        groups: dict[bool, list[str]] = {}
+        for expr, digit in zip(self.graph.positions, digits):
+            if digit and isinstance(expr, Term):
+                groups.setdefault(expr.reads_directions, []).append(expr.name)
+        if not groups:
+            return {}
+        base = [self.specs.unit_vector(values).to(shading.wi.dtype)]
+        if self.latent_dim:
+            base.append(latent.to(shading.wi.dtype))
+        out: dict[str, torch.Tensor] = {}
+        for reads_directions, names in groups.items():
+            x = torch.cat(base + ([shading.wi, shading.wo] if reads_directions else []), dim=-1)
+            out.update(zip(names, run_modules([self.neural[n] for n in names], x)))
+        return out
 
     def _held_digits(self, state: str) -> tuple[int, ...]:
         digits = self.graph.parse_state(state, self.module_config.digits)

@@ -106,3 +106,8 @@ class NeuralModule(nn.Module):
     def flops_per_sample(self) -> int:
         """Multiply-adds counted as two FLOPs, activations ignored."""
         return sum(2 * layer.in_features * layer.out_features for layer in self.layers)
+
+
+def run_modules(modules: list[NeuralModule], x: torch.Tensor) -> list[torch.Tensor]:
+    """Evaluate several modules on the same input ``x``; returns their outputs in order."""
+    return [module(x) for module in modules]
