@@ -60,8 +60,10 @@ class MaterialTable(nn.Module):
 
     def gather(self, material: torch.Tensor) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """Per-sample physical values and latent for material indices ``material`` (n,)."""
-        values = {name: v[material] for name, v in self.values().items()}
-        return values, self.latent[material]
+        # index_select, not v[material]: the backward of advanced indexing accumulates with a
+        # thread-order-dependent sum on CPU, which would break bit-identical training.
+        values = {name: torch.index_select(v, 0, material) for name, v in self.values().items()}
+        return values, torch.index_select(self.latent, 0, material)
 
     def subset(self, indices: Sequence[int]) -> "MaterialTable":
         index = torch.as_tensor(list(indices), dtype=torch.long)

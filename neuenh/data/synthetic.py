@@ -109,7 +109,7 @@ CONDUCTORS = {
 
 # -- the zoo ---------------------------------------------------------------------------------
 def _conductor(g: torch.Generator, i: int) -> AnalyticMaterial:
-    metal = list(CONDUCTORS)[i % len(CONDUCTORS)]
+    metal = list(CONDUCTORS)[int(torch.randint(len(CONDUCTORS), (1,), generator=g))]
     eta, k = (torch.tensor(v, dtype=torch.float64) for v in CONDUCTORS[metal])
     ax, ay = _log_uniform(g, 0.03, 0.4, 2)
     t_theta = _uniform(g, -math.pi / 2, math.pi / 2)
@@ -134,7 +134,8 @@ def _two_lobes(g: torch.Generator, i: int) -> AnalyticMaterial:
         a, s = _ggx_lobe(wi, wo, sharp, sharp)
         b, _ = _ggx_lobe(wi, wo, haze, haze)
         fresnel = f0 + (1 - f0) * (1 - s.cos_d) ** 5
-        return colour / math.pi + fresnel * ((1 - weight) * a + weight * b)
+        # The diffuse part gets what the specular layer leaves (1 - f0): albedo stays below 1.
+        return (1 - f0) * colour / math.pi + fresnel * ((1 - weight) * a + weight * b)
 
     return AnalyticMaterial(f"two-lobes-{i:03d}", f, isotropic=True,
                             metadata={"family": "two_lobes", "alpha": (sharp, haze)})
@@ -178,7 +179,7 @@ def _retro(g: torch.Generator, i: int) -> AnalyticMaterial:
     """Retro-reflective paint: Lambertian plus a lobe around wo = wi (exp((wi.wo - 1) / s))."""
     colour = torch.rand(3, generator=g, dtype=torch.float64) * 0.5
     width = _log_uniform(g, 0.02, 0.1, 1)[0]
-    strength = _uniform(g, 0.5, 3.0)
+    strength = _uniform(g, 0.1, 0.5)  # the lobe's albedo is about strength * cos_i
 
     def f(wi, wo):
         back = (wi * wo).sum(-1, keepdim=True)

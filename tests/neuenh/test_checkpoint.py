@@ -1,0 +1,86 @@
+import json
+import os
+
+import pytest
+import torch
+
+from neuenh.checkpoint import Bundle, BundleError
+from neuenh.data.sampling import sample_directions
+from neuenh.materials import MaterialTable
+from neuenh.models import get_model
+
+
+@pytest.fixture()
+def bundle():
+    model = get_model("ggx", state="00011100100", seed=2)
+    table = MaterialTable(model.specs, ["a", "b"], model.latent_dim)
+    with torch.no_grad():
+        for p in table.parameters():
+            p.add_(torch.randn(p.shape, generator=torch.Generator().manual_seed(1)))
+    return Bundle(model, table, training={"epochs": 3}, metrics={"val_loss": 0.1})
+
+
+def _same(a: Bundle, b: Bundle):
+    assert a.model.state == b.model.state and a.materials.names == b.materials.names
+    for key, value in a.model.neural.state_dict().items():
+        assert torch.equal(value, b.model.neural.state_dict()[key])
+    for key, value in a.materials.tensors().items():
+        assert torch.equal(value, b.materials.tensors()[key])
+    wi, wo = sample_directions(100, seed=0)
+    params = a.materials.as_params(1)
+    assert torch.equal(a.model.evaluate(wi.float(), wo.float(), params),
+                       b.model.evaluate(wi.float(), wo.float(), b.materials.as_params(1)))
+
+
+def test_directory_round_trip_is_exact(bundle, tmp_path):
+    bundle.save(tmp_path / "m")
+    assert sorted(os.listdir(tmp_path / "m")) == ["materials.safetensors", "model.json", "weights.safetensors"]
+    loaded = Bundle.load(tmp_path / "m")
+    _same(bundle, loaded)
+    assert loaded.metrics == {"val_loss": 0.1} and loaded.training == {"epochs": 3}
+    meta = json.loads((tmp_path / "m" / "model.json").read_text())
+    assert meta["state"] == "00011100100" and meta["latent_dim"] == 27 and len(meta["positions"]) == 11
+
+
+def test_bytes_round_trip_is_exact(bundle):
+    _same(bundle, Bundle.from_bytes(bundle.to_bytes()))
+
+
+def test_saving_leaves_no_temporary_files(bundle, tmp_path):
+    bundle.save(tmp_path)
+    bundle.save(tmp_path)
+    assert not [f for f in os.listdir(tmp_path) if f.startswith(".")]
+
+
+def test_a_bundle_without_materials(tmp_path):
+    Bundle(get_model("ward")).save(tmp_path)
+    loaded = Bundle.load(tmp_path)
+    assert loaded.materials is None and loaded.model.name == "ward"
+
+
+@pytest.mark.parametrize(
+    "damage,match",
+    [
+        (lambda d: (d / "model.json").unlink(), "not a model bundle"),
+        (lambda d: (d / "model.json").write_text("{"), "not valid JSON"),
+        (lambda d: (d / "weights.safetensors").write_bytes(b"\x00" * 20), "weights.safetensors"),
+        (lambda d: (d / "weights.safetensors").unlink(), "weights.safetensors: missing"),
+        (lambda d: _edit_json(d, state="00000000000"), "weights do not match"),
+        (lambda d: _edit_json(d, model="nope"), "unknown model"),
+        (lambda d: _edit_json(d, param_specs=[]), "parameter specs differ"),
+        (lambda d: _edit_json(d, format="zip"), "not a neuenh-bundle"),
+    ],
+    ids=["no-json", "bad-json", "corrupt-weights", "no-weights", "state-mismatch", "unknown-model",
+         "spec-mismatch", "format"],
+)
+def test_damaged_bundles_raise_a_clear_error(bundle, tmp_path, damage, match):
+    bundle.save(tmp_path)
+    damage(tmp_path)
+    with pytest.raises(BundleError, match=match):
+        Bundle.load(tmp_path)
+
+
+def _edit_json(directory, **changes):
+    meta = json.loads((directory / "model.json").read_text())
+    meta.update(changes)
+    (directory / "model.json").write_text(json.dumps(meta))

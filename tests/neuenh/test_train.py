@@ -1,0 +1,86 @@
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+from neuenh.checkpoint import Bundle
+from neuenh.data.samples import Samples
+from neuenh.train import TrainConfig, TrainingData, log_l1, train_candidate
+
+PAPER_STATE = "00011100100"
+QUICK = TrainConfig(epochs=3, batch_size=2000)
+
+
+def test_loss_is_the_papers_log_l1():
+    g = np.random.default_rng(0)
+    wi = g.normal(size=(500, 3))
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    target, pred = g.uniform(0, 50, (500, 3)), g.uniform(0, 50, (500, 3))
+    cos = np.clip(wi[:, 2:3], 0, None)
+    expected = np.abs(np.log(1 + target * cos) - np.log(1 + pred * cos)).mean(axis=1)
+    got = log_l1(*(torch.as_tensor(a) for a in (pred, target, wi)))
+    assert np.allclose(got.numpy(), expected, rtol=1e-12)
+
+
+def test_loss_is_finite_with_a_gradient_for_negative_predictions():
+    pred = torch.tensor([[-5.0, -0.5, 2.0]], requires_grad=True)
+    loss = log_l1(pred, torch.ones(1, 3), torch.tensor([[0.0, 0.0, 1.0]])).sum()
+    loss.backward()
+    assert torch.isfinite(loss) and torch.isfinite(pred.grad).all()
+    assert (pred.grad[0, :2] < 0).all()  # descent raises the negative predictions
+
+
+def test_training_is_a_pure_function_of_its_inputs(small_data):
+    parent = Bundle.initial("ggx", small_data.names)
+    a = train_candidate(parent, PAPER_STATE, small_data, QUICK, seed=5)
+    b = train_candidate(parent, PAPER_STATE, small_data, QUICK, seed=5)
+    assert (a.train_loss, a.val_loss, a.epoch_losses) == (b.train_loss, b.val_loss, b.epoch_losses)
+    for key, value in a.bundle.model.neural.state_dict().items():
+        assert torch.equal(value, b.bundle.model.neural.state_dict()[key])
+    c = train_candidate(parent, PAPER_STATE, small_data, QUICK, seed=6)
+    assert c.val_loss != a.val_loss
+
+
+def test_modules_latent_and_analytical_parameters_train_jointly(small_data):
+    parent = Bundle.initial("ggx", small_data.names)
+    before = copy.deepcopy(parent)
+    result = train_candidate(parent, PAPER_STATE, small_data, QUICK, seed=0)
+    assert result.ok and result.epochs == 3 and result.state == PAPER_STATE
+    trained = result.bundle
+    assert not torch.equal(trained.materials.latent, before.materials.latent)
+    for name in ("rho_d", "alpha_x", "f0"):
+        assert not torch.equal(trained.materials.raw[name], before.materials.raw[name])
+    fresh = parent.model.enhance(PAPER_STATE, seed=0)
+    assert not torch.equal(trained.model.neural["F"].layers[0].weight, fresh.neural["F"].layers[0].weight)
+    # The parent is untouched: candidates train in isolation.
+    assert torch.equal(parent.materials.latent, before.materials.latent)
+
+
+def test_training_lowers_the_validation_loss(small_data):
+    parent = Bundle.initial("ggx", small_data.names)
+    untrained = train_candidate(parent, "0" * 11, small_data, TrainConfig(epochs=0), seed=0)
+    config = TrainConfig(epochs=10, batch_size=1000, lr=1e-2)
+    trained = train_candidate(parent, "0" * 11, small_data, config, seed=0)
+    assert trained.val_loss < 0.8 * untrained.val_loss
+
+
+def test_candidates_continue_from_the_parents_training(small_data):
+    parent = Bundle.initial("ggx", small_data.names)
+    round1 = train_candidate(parent, "00010000000", small_data, QUICK, seed=0).bundle
+    stay = train_candidate(round1, "00010000000", small_data, TrainConfig(epochs=0), seed=1)
+    assert stay.val_loss == pytest.approx(round1.metrics["val_loss"], rel=1e-6)
+
+
+def test_a_diverging_candidate_is_reported_not_raised(small_data):
+    bad_f = small_data.train.f_r.clone()
+    bad_f[0] = float("nan")
+    t = small_data.train
+    data = TrainingData(Samples(t.wi, t.wo, bad_f, t.material, t.names), small_data.val)
+    result = train_candidate(Bundle.initial("ggx", data.names), PAPER_STATE, data, QUICK, seed=0)
+    assert not result.ok and "epoch 1" in result.error
+
+
+def test_parent_materials_must_match_the_data(small_data):
+    with pytest.raises(ValueError, match="parent bundle's materials"):
+        train_candidate(Bundle.initial("ggx", ["other"]), PAPER_STATE, small_data, QUICK, seed=0)
