@@ -1,0 +1,1 @@
+"""Command-line interfaces: ``neuenh`` (local work) and, later, ``neuenh-client``."""
