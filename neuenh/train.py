@@ -24,6 +24,8 @@ import torch
 
 from .checkpoint import Bundle
 from .data.samples import Samples
+from .graph import BRDFModel
+from .materials import MaterialTable
 
 
 @dataclass(frozen=True)
@@ -90,14 +92,14 @@ def log_l1(pred: torch.Tensor, target: torch.Tensor, wi: torch.Tensor) -> torch.
     return (torch.log1p(target * cos_i) - slog1p(pred * cos_i)).abs().mean(dim=1)
 
 
-def predict(bundle_model, materials, samples: Samples, index: torch.Tensor | slice) -> torch.Tensor:
-    material = samples.material[index]
-    values, latent = materials.gather(material)
-    return bundle_model(samples.wi[index], samples.wo[index], values, latent)
+def predict(model: BRDFModel, materials: MaterialTable, samples: Samples, index: torch.Tensor | slice) -> torch.Tensor:
+    """The model's raw f_r (n, 3) for rows ``index`` of ``samples``, each with its material's parameters."""
+    values, latent = materials.gather(samples.material[index])
+    return model(samples.wi[index], samples.wo[index], values, latent)
 
 
 @torch.no_grad()
-def evaluate_loss(model, materials, samples: Samples, batch_size: int = 200_000) -> float:
+def evaluate_loss(model: BRDFModel, materials: MaterialTable, samples: Samples, batch_size: int = 200_000) -> float:
     """Mean log-L1 over ``samples``."""
     if len(samples) == 0:
         return float("nan")
