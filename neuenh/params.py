@@ -73,7 +73,7 @@ class ParamSpec:
 
     def check(self, value: torch.Tensor) -> None:
         """Raise a ValueError naming this parameter if ``value`` is non-finite or out of range."""
-        if value.shape[-1] != self.width:
+        if value.shape[-1] not in (1, self.width):
             raise ValueError(
                 f"parameter {self.name!r} has width {self.width}, got a tensor of shape "
                 f"{tuple(value.shape)}"

@@ -8,9 +8,10 @@ The shading normal is tilted by the two ``normal`` angles (slopes along x and y:
 The tangent is the geometric x axis carried along by the smallest rotation taking z to n, then
 rotated about n by ``t_theta``.
 
-Directions below either horizon (geometric or shading) give a BRDF of exactly zero. All cosines
-read by the terms are clamped to ``COS_EPS`` first, so formulas are evaluated only on safe values
-and both values and gradients stay finite; the mask is applied afterwards.
+Directions below either horizon (geometric or shading) give a BRDF of exactly zero; on those rows
+the terms see normal incidence and exitance. All cosines read by the terms are clamped to
+``COS_EPS`` first, so formulas are evaluated only on safe values and both values and gradients
+stay finite; the mask is applied afterwards.
 """
 
 from __future__ import annotations
@@ -88,13 +89,17 @@ def make_shading(
     frame = shading_frame(params.get("normal"), params.get("t_theta"), wi)
     wi_s, wo_s = to_frame(wi, frame), to_frame(wo, frame)
     above = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0) & (wi_s[:, 2:3] > 0) & (wo_s[:, 2:3] > 0)
+    # Rows below a horizon are masked to zero, but their terms are still evaluated (and
+    # differentiated): give them normal incidence and exitance. Otherwise a half vector pointing
+    # into the surface (e.g. wi = wo = -n) leaves h_z clamped to COS_EPS with h_x = h_y = 0, GGX's
+    # D = 1/(pi a_x a_y COS_EPS^4) and its derivative overflow in float32, and the mask's zero
+    # gradient times that inf poisons every parameter with NaN.
+    up = torch.zeros_like(wi_s)
+    up[:, 2] = 1.0
+    wi_s, wo_s = torch.where(above, wi_s, up), torch.where(above, wo_s, up)
+    # Both directions are now above the shading horizon, so wi + wo never vanishes.
     half = wi_s + wo_s
-    # wi = -wo makes the half vector undefined; it is below a horizon anyway, so use z instead.
-    length = torch.linalg.vector_norm(half, dim=-1, keepdim=True)
-    degenerate = length < 1e-12
-    z = torch.zeros_like(half)
-    z[:, 2] = 1.0
-    h = torch.where(degenerate, z, half / torch.where(degenerate, torch.ones_like(length), length))
+    h = half / torch.linalg.vector_norm(half, dim=-1, keepdim=True)
     return Shading(
         wi=wi_s,
         wo=wo_s,

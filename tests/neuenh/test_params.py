@@ -45,3 +45,12 @@ def test_log_scale_gradient_is_finite_at_tiny_roughness():
     spec.from_raw(raw).sum().backward()
     assert torch.isfinite(raw.grad).all()
     assert math.isclose(float(spec.from_raw(raw.detach())[0]), 1e-4, rel_tol=1e-6)
+
+
+def test_scalars_broadcast_to_the_parameter_width():
+    ggx = get_model("ggx")
+    wi = torch.tensor([[0.0, 0.6, 0.8]])
+    wo = torch.tensor([[0.0, -0.6, 0.8]])
+    base = {s.name: torch.full((s.width,), s.init) for s in ggx.specs}
+    scalar = {**base, "rho_d": torch.tensor(0.5), "rho_s": torch.tensor([0.5])}
+    assert torch.equal(ggx.evaluate(wi, wo, scalar), ggx.evaluate(wi, wo, base))
