@@ -1,0 +1,61 @@
+"""PREPARING: materialise a job's training data once, cached in the ArtifactStore by the content
+hash of what determines it (the data sources, the split, the code's data version)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+from safetensors.torch import load, save
+
+from neuenh.data.samples import Samples
+from neuenh.data.sources import materialise
+from neuenh.train import TrainingData
+
+from .spec import JobSpec
+
+# Bump when sampling or synthetic materials change, so stale cached datasets are not reused.
+DATA_VERSION = 1
+_FIELDS = ("wi", "wo", "f_r", "material")
+
+
+def dataset_key(spec: JobSpec) -> str:
+    recipe = {
+        "version": DATA_VERSION,
+        "data": [s.model_dump(mode="json") for s in spec.data],
+        "val_fraction": spec.train.val_fraction,
+        "split_seed": spec.train.seed,
+    }
+    digest = hashlib.sha256(json.dumps(recipe, sort_keys=True).encode()).hexdigest()
+    return f"datasets/{digest}.safetensors"
+
+
+def to_bytes(data: TrainingData) -> bytes:
+    tensors = {f"{part}.{f}": getattr(getattr(data, part), f).contiguous()
+               for part in ("train", "val") for f in _FIELDS}
+    return save(tensors, metadata={"names": json.dumps(list(data.names))})
+
+
+def from_bytes(blob: bytes) -> TrainingData:
+    header_len = int.from_bytes(blob[:8], "little")
+    names = tuple(json.loads(json.loads(blob[8 : 8 + header_len])["__metadata__"]["names"]))
+    tensors = load(blob)
+    parts = {part: Samples(*(tensors[f"{part}.{f}"] for f in _FIELDS), names) for part in ("train", "val")}
+    return TrainingData(parts["train"], parts["val"])
+
+
+def prepare_dataset(spec: JobSpec, artifacts) -> tuple[TrainingData, str]:
+    """The job's data, built or read from the cache; returns it with its artifact key."""
+    key = dataset_key(spec)
+    if artifacts.exists(key):
+        return from_bytes(artifacts.get(key)), key
+    data = materialise(spec.data, spec.train.val_fraction, spec.train.seed)
+    artifacts.put(key, to_bytes(data))
+    return data, key
+
+
+def memory_bytes(data: TrainingData) -> int:
+    return sum(getattr(getattr(data, part), f).nbytes for part in ("train", "val") for f in _FIELDS)
+
+
+__all__ = ["dataset_key", "prepare_dataset", "to_bytes", "from_bytes", "memory_bytes"]

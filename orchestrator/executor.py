@@ -1,0 +1,73 @@
+"""The Executor contract: how the orchestrator has candidates trained, without knowing by whom.
+
+An executor receives the job's training data once (``put_dataset``), then batches of candidate
+tasks, each naming its parent bundle (bytes) by index so a round ships its parent once. It yields
+a ``CandidateReport`` per task as each finishes, in completion order. A task that raises or whose
+loss is not finite comes back as a report with ``error`` set (the round goes on); an executor
+retries a task whose worker died. When ``cancelled()`` turns true the executor stops the tasks
+still running and stops yielding.
+
+Implementations: ``workers.ray_executor.RayExecutor`` (the real one) and
+``workers.inline.InlineExecutor`` (in-process, for fast unit tests).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Callable, Iterator, Sequence
+
+from neuenh.train import TrainConfig, TrainingData
+
+
+@dataclass(frozen=True)
+class Resources:
+    """What one candidate asks of the cluster (the job spec's ``resources``)."""
+
+    cpus: float = 1.0
+    gpus: float = 0.0
+
+
+@dataclass(frozen=True)
+class CandidateTask:
+    state: str
+    seed: int
+    epochs: int
+    parent: int = 0  # index into the ``parents`` of the batch
+
+
+@dataclass
+class CandidateReport:
+    task: CandidateTask
+    train_loss: float
+    val_loss: float
+    epochs: int
+    wall_s: float
+    node: str
+    error: str | None = None
+    bundle: bytes | None = None  # the trained candidate, None when it failed
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+class Executor(ABC):
+    @abstractmethod
+    def put_dataset(self, data: TrainingData) -> object:
+        """Make the data available to workers once; returns an opaque handle for ``train``."""
+
+    @abstractmethod
+    def train(
+        self,
+        dataset: object,
+        parents: Sequence[bytes],
+        tasks: Sequence[CandidateTask],
+        config: TrainConfig,
+        resources: Resources = Resources(),
+        cancelled: Callable[[], bool] = lambda: False,
+    ) -> Iterator[CandidateReport]:
+        """Train every task (``config.epochs`` is replaced by each task's ``epochs``)."""
+
+    def close(self) -> None:
+        """Release what the executor holds (cluster connections, worker processes)."""

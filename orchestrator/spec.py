@@ -1,0 +1,136 @@
+"""The job spec (DESIGN §4): what a user submits, validated with a message that names the field.
+
+    model: ggx
+    search: {radius: 1, epochs_per_round: 30, max_rounds: 20, max_neural: null, fixed: {},
+             complexity_weight: 0.0, min_improvement: 0.0, prune: none}
+    module: {hidden: [16, 32, 16]}
+    latent_dim: 27
+    train: {optimizer: rmsprop, lr: 1.0e-3, batch_size: 100000, val_fraction: 0.1, seed: 0}
+    data:
+      - {source: synthetic_zoo, materials: 32, samples: 20000, seed: 1}
+    resources: {cpus_per_candidate: 1, gpus_per_candidate: 0}
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from neuenh.data.sources import DataSource
+from neuenh.models import available_models, get_model
+from neuenh.modules import ModuleConfig
+from neuenh.search import Constraints
+from neuenh.train import TrainConfig
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class SearchSpec(_Strict):
+    radius: int = Field(1, ge=0, le=4)
+    epochs_per_round: int = Field(30, ge=1)
+    max_rounds: int = Field(20, ge=1)
+    max_neural: int | None = Field(None, ge=0)
+    fixed: dict[str, int] = Field(default_factory=dict, description="position name -> digit it keeps")
+    allowed: dict[str, list[int]] = Field(default_factory=dict, description="position name -> digits it may take")
+    complexity_weight: float = Field(0.0, ge=0.0, description="score = val_loss + weight x (neural weights / 1000)")
+    min_improvement: float = Field(0.0, ge=0.0, lt=1.0, description="relative gain a change must bring over stay")
+    prune: Literal["none", "halving"] = "none"
+    halving_fraction: float = Field(0.34, gt=0.0, lt=1.0, description="share of the epochs before halving")
+
+
+class ModuleSpec(_Strict):
+    hidden: list[int] = Field(default_factory=lambda: [16, 32, 16], min_length=1)
+    alternatives: list[list[int]] = Field(default_factory=list, description="digits 2, 3, ...: other widths")
+
+    def config(self) -> ModuleConfig:
+        return ModuleConfig(choices=tuple(tuple(h) for h in (self.hidden, *self.alternatives)))
+
+
+class TrainSpec(_Strict):
+    optimizer: Literal["rmsprop"] = "rmsprop"
+    lr: float = Field(1e-3, gt=0.0)
+    batch_size: int = Field(100_000, ge=1)
+    val_fraction: float = Field(0.1, gt=0.0, lt=1.0)
+    seed: int = 0
+
+
+class ResourcesSpec(_Strict):
+    cpus_per_candidate: float = Field(1.0, gt=0.0)
+    gpus_per_candidate: float = Field(0.0, ge=0.0)
+
+
+class JobSpec(_Strict):
+    name: str | None = None
+    model: str = "ggx"
+    search: SearchSpec = Field(default_factory=SearchSpec)
+    module: ModuleSpec = Field(default_factory=ModuleSpec)
+    latent_dim: int = Field(27, ge=0)
+    train: TrainSpec = Field(default_factory=TrainSpec)
+    data: list[DataSource] = Field(min_length=1)
+    resources: ResourcesSpec = Field(default_factory=ResourcesSpec)
+
+    @model_validator(mode="after")
+    def _check(self) -> "JobSpec":
+        if self.model not in available_models():
+            raise ValueError(f"unknown model {self.model!r}; available: {', '.join(available_models())}")
+        m = self.digits()
+        self.constraints()  # raises on unknown position names
+        for name, digit in self.search.fixed.items():
+            if not 0 <= digit < m:
+                raise ValueError(f"search.fixed: digit {digit} for {name} is not in 0..{m - 1}")
+        for name, digits in self.search.allowed.items():
+            if any(not 0 <= d < m for d in digits):
+                raise ValueError(f"search.allowed: digits {digits} for {name} are not all in 0..{m - 1}")
+        return self
+
+    # -- what the orchestrator needs ---------------------------------------------------------
+    def positions(self) -> tuple[str, ...]:
+        return get_model(self.model).positions
+
+    def constraints(self) -> Constraints:
+        return Constraints.from_names(
+            self.positions(), fixed=self.search.fixed, allowed=self.search.allowed,
+            max_neural=self.search.max_neural,
+        )
+
+    def digits(self) -> int:
+        return self.module.config().digits
+
+    def train_config(self, epochs: int | None = None) -> TrainConfig:
+        return TrainConfig(epochs=self.search.epochs_per_round if epochs is None else epochs,
+                           lr=self.train.lr, batch_size=self.train.batch_size)
+
+
+class SpecError(ValueError):
+    """An invalid job spec; the message lists each problem with its field path."""
+
+
+def parse_spec(data: dict) -> JobSpec:
+    try:
+        return JobSpec.model_validate(data)
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in e['loc']) or 'spec'}: {e['msg']}" for e in exc.errors()
+        )
+        raise SpecError(f"invalid job spec: {problems}") from None
+
+
+def load_spec(path: str | Path) -> JobSpec:
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise SpecError(f"{path}: no such file") from None
+    except yaml.YAMLError as exc:
+        raise SpecError(f"{path}: not valid YAML ({exc})") from None
+    if not isinstance(data, dict):
+        raise SpecError(f"{path}: a job spec is a mapping, got {type(data).__name__}")
+    try:
+        return parse_spec(data)
+    except SpecError as exc:
+        raise SpecError(f"{path}: {exc}") from None

@@ -1,0 +1,311 @@
+"""The job store: jobs, their committed rounds (with every candidate) and their event log.
+
+This module holds the contract (``JobStore``), the job state machine and the read models. A backend
+(``storage.sqlite.SQLiteJobStore`` today) is built by whoever starts the service and handed to the
+orchestrator and the API through their constructors.
+
+Conventions shared by every backend:
+
+* **Times** are UTC epoch seconds as ``float`` (``time.time()``), everywhere: records, events,
+  round start/finish. Format them at the edge (API, CLI).
+* **JSON** (job spec, event payloads, round/candidate ``extra``) must be strict JSON: no NaN or
+  infinity, keys are strings. It is checked before anything is written (``InvalidRecordError``).
+* **Losses** are finite floats or ``None``: a non-finite loss (a diverged candidate) is stored as
+  ``None``, and the candidate's ``error`` says why.
+* **Records** are frozen dataclasses; rows never leave the backend.
+"""
+
+from __future__ import annotations
+
+import enum
+import json
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from .errors import IllegalTransitionError, InvalidRecordError
+
+
+class JobStatus(enum.StrEnum):
+    QUEUED = "QUEUED"
+    PREPARING = "PREPARING"
+    RUNNING = "RUNNING"
+    CONVERGED = "CONVERGED"
+    STOPPED = "STOPPED"
+    CANCELLED = "CANCELLED"
+    FAILED = "FAILED"
+
+    @property
+    def terminal(self) -> bool:
+        return not TRANSITIONS[self]
+
+
+_ENDS = {JobStatus.CANCELLED, JobStatus.FAILED}
+
+#: The job state machine: status -> statuses it may move to. Terminal statuses map to nothing.
+TRANSITIONS: Mapping[JobStatus, frozenset[JobStatus]] = {
+    JobStatus.QUEUED: frozenset({JobStatus.PREPARING, *_ENDS}),
+    JobStatus.PREPARING: frozenset({JobStatus.RUNNING, *_ENDS}),
+    JobStatus.RUNNING: frozenset({JobStatus.CONVERGED, JobStatus.STOPPED, *_ENDS}),
+    JobStatus.CONVERGED: frozenset(),
+    JobStatus.STOPPED: frozenset(),
+    JobStatus.CANCELLED: frozenset(),
+    JobStatus.FAILED: frozenset(),
+}
+
+UNFINISHED: frozenset[JobStatus] = frozenset(s for s in JobStatus if not s.terminal)
+
+#: Event kinds the store writes itself; the orchestrator may append any other kind.
+EVENT_STATUS = "status"  # payload {"status", "previous", "error"}; also written on creation
+EVENT_ROUND = "round"    # payload {"round", "winner_state", "winner_val_loss", "artifact_key"}
+
+
+def check_transition(job_id: str, old: JobStatus, new: JobStatus) -> None:
+    """Raise ``IllegalTransitionError`` unless ``old -> new`` is an edge of ``TRANSITIONS``."""
+    if new not in TRANSITIONS[old]:
+        allowed = ", ".join(sorted(s.value for s in TRANSITIONS[old])) or "nothing (terminal)"
+        raise IllegalTransitionError(
+            f"job {job_id}: cannot move from {old.value} to {new.value}; "
+            f"{old.value} may move to {allowed}")
+
+
+def canonical_json(value: Any, what: str) -> str:
+    """Strict, canonical JSON text (sorted keys): equal values give equal text."""
+    try:
+        return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    except (TypeError, ValueError) as exc:
+        raise InvalidRecordError(f"{what} is not strict JSON: {exc}") from None
+
+
+def _json_roundtrip(value: Any, what: str) -> Any:
+    return json.loads(canonical_json(value, what))
+
+
+def _finite_or_none(x: float | None) -> float | None:
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+# --------------------------------------------------------------------------------- read models
+
+
+@dataclass(frozen=True)
+class JobRecord:
+    id: str
+    spec: dict[str, Any]
+    status: JobStatus
+    created_at: float
+    updated_at: float
+    error: str | None = None
+    idempotency_key: str | None = None
+    last_round: int | None = None      # index of the last committed round; None before round 0
+    current_state: str | None = None   # B_c: winner of ``last_round``; None before round 0
+
+    @property
+    def terminal(self) -> bool:
+        return self.status.terminal
+
+    @property
+    def next_round(self) -> int:
+        """Index of the round to run (and commit) next."""
+        return 0 if self.last_round is None else self.last_round + 1
+
+
+@dataclass(frozen=True)
+class JobPage:
+    jobs: tuple[JobRecord, ...]
+    next_cursor: str | None  # pass to ``list_jobs(cursor=...)``; None on the last page
+
+
+@dataclass(frozen=True)
+class CandidateRecord:
+    """One trained candidate of a round. Input of ``commit_round`` and part of its read model."""
+
+    state: str
+    train_loss: float | None
+    val_loss: float | None
+    epochs: int
+    wall_s: float
+    node: str | None = None     # where it trained (Ray node id / hostname)
+    error: str | None = None    # set when the candidate failed (non-finite loss, exception, pruned)
+    seed: int | None = None     # seed of its fresh modules: an interrupted round re-runs with it
+    extra: dict[str, Any] = field(default_factory=dict)  # e.g. epoch_losses, cost, pruned_at
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.state, str) or not self.state:
+            raise InvalidRecordError(f"candidate state must be a non-empty string, got {self.state!r}")
+        object.__setattr__(self, "train_loss", _finite_or_none(self.train_loss))
+        object.__setattr__(self, "val_loss", _finite_or_none(self.val_loss))
+        object.__setattr__(self, "epochs", int(self.epochs))
+        object.__setattr__(self, "wall_s", float(self.wall_s))
+        object.__setattr__(self, "extra", _json_roundtrip(dict(self.extra), f"candidate {self.state} extra"))
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None and self.val_loss is not None
+
+
+@dataclass(frozen=True)
+class RoundRecord:
+    """One committed round: the parent state, every candidate and the winner (whose checkpoint is
+    stored under ``artifact_key`` in the ArtifactStore). ``winner_state`` must be one of the
+    candidates' states and that candidate must have a finite ``val_loss``."""
+
+    index: int
+    parent_state: str
+    winner_state: str
+    candidates: tuple[CandidateRecord, ...]
+    started_at: float
+    finished_at: float
+    artifact_key: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)  # e.g. pruning info, selection rule
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "index", int(self.index))
+        object.__setattr__(self, "candidates", tuple(self.candidates))
+        object.__setattr__(self, "started_at", float(self.started_at))
+        object.__setattr__(self, "finished_at", float(self.finished_at))
+        object.__setattr__(self, "extra", _json_roundtrip(dict(self.extra), f"round {self.index} extra"))
+        if self.index < 0:
+            raise InvalidRecordError(f"round index must be >= 0, got {self.index}")
+        if not self.candidates:
+            raise InvalidRecordError(f"round {self.index} has no candidates")
+        winner = self.winner  # raises if absent
+        if winner.val_loss is None:
+            raise InvalidRecordError(
+                f"round {self.index}: winner {self.winner_state} has no finite validation loss")
+
+    @property
+    def winner(self) -> CandidateRecord:
+        for c in self.candidates:
+            if c.state == self.winner_state:
+                return c
+        raise InvalidRecordError(
+            f"round {self.index}: winner {self.winner_state} is not one of its candidates")
+
+    @property
+    def winner_val_loss(self) -> float:
+        return self.winner.val_loss  # type: ignore[return-value]  # checked finite on creation
+
+
+@dataclass(frozen=True)
+class EventRecord:
+    job_id: str
+    seq: int      # 1, 2, 3, ... per job, without gaps
+    time: float
+    kind: str
+    payload: dict[str, Any]
+
+
+# ------------------------------------------------------------------------------------ contract
+
+
+class JobStore(ABC):
+    """Durable record of search jobs. Every backend honours this contract (and
+    ``tests/storage/test_job_store.py`` checks it against each one):
+
+    * **Jobs.** ``create_job`` stores a spec as ``QUEUED`` under a fresh id. With an
+      ``idempotency_key`` that is already stored, it returns that job (``created=False``) if the
+      spec is equal, and raises ``ConflictError`` if it differs. ``get_job`` raises
+      ``NotFoundError`` for an unknown id (every method taking a ``job_id`` does).
+    * **Status** follows ``TRANSITIONS`` (QUEUED -> PREPARING -> RUNNING -> CONVERGED | STOPPED |
+      CANCELLED | FAILED, and QUEUED/PREPARING -> CANCELLED | FAILED). ``set_status`` checks the
+      edge and writes atomically, so of two racing changes (cancel vs. converge) exactly one wins
+      and the other gets ``IllegalTransitionError``. An ``error`` reason is only accepted with a
+      terminal status. Every change (and the creation) appends a ``"status"`` event.
+    * **Rounds.** ``commit_round`` writes the round, all its candidates, the job's
+      ``last_round``/``current_state`` and a ``"round"`` event in ONE transaction: a reader sees a
+      round complete or not at all. Rounds are committed in order (index = ``job.next_round``) and
+      only while the job is RUNNING. Re-committing a stored index is idempotent by content: the
+      identical record returns the stored one and writes nothing; a different one raises
+      ``ConflictError``. Committed rounds never change.
+    * **Events** are numbered 1, 2, 3, ... per job without gaps, in commit order, also when
+      appended from many threads.
+    * **Threads and processes.** One store object may be used from many threads at once; several
+      processes may open the same store (one writer at a time, readers never blocked for long).
+    """
+
+    @abstractmethod
+    def create_job(self, spec: Mapping[str, Any], *,
+                   idempotency_key: str | None = None) -> tuple[JobRecord, bool]:
+        """Store a new QUEUED job; returns ``(job, created)``. ``created`` is False when an
+        existing job was returned for a repeated ``idempotency_key``."""
+
+    @abstractmethod
+    def get_job(self, job_id: str) -> JobRecord:
+        """The job, or ``NotFoundError``."""
+
+    @abstractmethod
+    def list_jobs(self, *, status: JobStatus | Iterable[JobStatus] | None = None,
+                  limit: int = 50, cursor: str | None = None) -> JobPage:
+        """Jobs newest first, optionally only those with the given status(es). ``cursor`` is the
+        ``next_cursor`` of the previous page (opaque); pages are stable while jobs are added."""
+
+    @abstractmethod
+    def unfinished_jobs(self) -> list[JobRecord]:
+        """Every job that is not terminal, oldest first: what to resume after a restart."""
+
+    @abstractmethod
+    def set_status(self, job_id: str, status: JobStatus, *, error: str | None = None) -> JobRecord:
+        """Move the job to ``status`` (see the state machine); returns the updated job."""
+
+    @abstractmethod
+    def commit_round(self, job_id: str, record: RoundRecord) -> RoundRecord:
+        """Atomically store a complete round (see the class docstring); returns it as stored."""
+
+    @abstractmethod
+    def rounds(self, job_id: str, *, since_round: int = 0) -> list[RoundRecord]:
+        """Committed rounds with ``index >= since_round``, in order, each with its candidates in
+        the order they were committed."""
+
+    @abstractmethod
+    def last_round(self, job_id: str) -> RoundRecord | None:
+        """The last committed round, or None before the first commit."""
+
+    @abstractmethod
+    def append_event(self, job_id: str, kind: str,
+                     payload: Mapping[str, Any] | None = None) -> EventRecord:
+        """Append an event to the job's log; returns it with its ``seq`` and ``time``."""
+
+    @abstractmethod
+    def events(self, job_id: str, *, after_seq: int = 0, limit: int | None = None) -> list[EventRecord]:
+        """Events with ``seq > after_seq``, in order (at most ``limit``)."""
+
+    def close(self) -> None:
+        """Release connections. The store must not be used afterwards."""
+
+    def __enter__(self) -> "JobStore":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def status_filter(status: JobStatus | Iterable[JobStatus] | None) -> list[JobStatus] | None:
+    """Normalise ``list_jobs``'s ``status`` argument (one status, several, or None)."""
+    if status is None:
+        return None
+    if isinstance(status, (str, JobStatus)):
+        return [JobStatus(status)]
+    return [JobStatus(s) for s in status]
+
+
+def validate_error(job_id: str, status: JobStatus, error: str | None) -> None:
+    if error is not None and not status.terminal:
+        raise InvalidRecordError(
+            f"job {job_id}: an error reason is only recorded with a terminal status, not {status.value}")
+
+
+def round_payload(record: RoundRecord) -> dict[str, Any]:
+    return {"round": record.index, "winner_state": record.winner_state,
+            "winner_val_loss": record.winner_val_loss, "artifact_key": record.artifact_key}
+
+
+__all__ = [
+    "JobStatus", "TRANSITIONS", "UNFINISHED", "EVENT_STATUS", "EVENT_ROUND", "JobRecord", "JobPage",
+    "CandidateRecord", "RoundRecord", "EventRecord", "JobStore", "check_transition",
+]

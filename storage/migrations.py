@@ -1,0 +1,141 @@
+"""Forward-only schema migrations of the SQLite job store.
+
+``MIGRATIONS`` is an append-only list: step ``n`` upgrades a database from version ``n - 1`` to
+``n``. Never edit a released step; add a new one. ``migrate`` applies every pending step, and the
+version bump, in ONE transaction (SQLite DDL is transactional), so a database is always at a
+released version. The version lives in the one-row table ``schema_version``; a database without
+that table is version 0 (new, or empty).
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from .errors import SchemaVersionError, StorageError
+
+
+@dataclass(frozen=True)
+class Migration:
+    version: int
+    description: str
+    statements: tuple[str, ...]
+
+
+MIGRATIONS: tuple[Migration, ...] = (
+    Migration(1, "jobs, rounds, candidates, events", (
+        """CREATE TABLE jobs (
+            seq             INTEGER PRIMARY KEY AUTOINCREMENT,  -- creation order, for paging
+            id              TEXT    NOT NULL UNIQUE,
+            spec            TEXT    NOT NULL,                   -- canonical JSON
+            status          TEXT    NOT NULL,                   -- checked in Python (JobStatus)
+            created_at      REAL    NOT NULL,                   -- UTC epoch seconds
+            updated_at      REAL    NOT NULL,
+            error           TEXT,
+            idempotency_key TEXT    UNIQUE,
+            last_round      INTEGER,
+            current_state   TEXT
+        )""",
+        """CREATE TABLE rounds (
+            job_id          TEXT    NOT NULL REFERENCES jobs(id) ON DELETE CASCADE,
+            round_index     INTEGER NOT NULL CHECK (round_index >= 0),
+            parent_state    TEXT    NOT NULL,
+            winner_state    TEXT    NOT NULL,
+            winner_val_loss REAL    NOT NULL,
+            started_at      REAL    NOT NULL,
+            finished_at     REAL    NOT NULL,
+            artifact_key    TEXT,
+            extra           TEXT    NOT NULL DEFAULT '{}',
+            PRIMARY KEY (job_id, round_index)
+        )""",
+        """CREATE TABLE candidates (
+            job_id          TEXT    NOT NULL,
+            round_index     INTEGER NOT NULL,
+            position        INTEGER NOT NULL,                   -- order within the round
+            state           TEXT    NOT NULL CHECK (length(state) > 0),
+            train_loss      REAL,                               -- NULL: not finite
+            val_loss        REAL,
+            epochs          INTEGER NOT NULL CHECK (epochs >= 0),
+            wall_s          REAL    NOT NULL CHECK (wall_s >= 0),
+            node            TEXT,
+            error           TEXT,
+            seed            INTEGER,
+            extra           TEXT    NOT NULL DEFAULT '{}',
+            PRIMARY KEY (job_id, round_index, position),
+            UNIQUE (job_id, round_index, state),
+            FOREIGN KEY (job_id, round_index)
+                REFERENCES rounds(job_id, round_index) ON DELETE CASCADE
+        )""",
+        """CREATE TABLE events (
+            job_id          TEXT    NOT NULL REFERENCES jobs(id) ON DELETE CASCADE,
+            seq             INTEGER NOT NULL CHECK (seq >= 1),
+            time            REAL    NOT NULL,
+            kind            TEXT    NOT NULL,
+            payload         TEXT    NOT NULL DEFAULT '{}',
+            PRIMARY KEY (job_id, seq)
+        )""",
+    )),
+    Migration(2, "index for listing jobs by status", (
+        "CREATE INDEX jobs_by_status ON jobs(status, seq)",
+    )),
+)
+
+SCHEMA_VERSION = MIGRATIONS[-1].version
+
+
+def schema_version(conn: sqlite3.Connection) -> int:
+    """The database's version (0 for a database without a ``schema_version`` table)."""
+    has_table = conn.execute(
+        "SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'schema_version'").fetchone()
+    if not has_table:
+        return 0
+    row = conn.execute("SELECT version FROM schema_version").fetchone()
+    return 0 if row is None else int(row[0])
+
+
+def migrate(conn: sqlite3.Connection, migrations: Sequence[Migration] = MIGRATIONS) -> int:
+    """Bring the database up to the last of ``migrations``; returns the version it is now at.
+
+    ``conn`` must be in autocommit mode (``isolation_level=None``): this function opens its own
+    ``BEGIN IMMEDIATE`` transaction, which also serialises processes that open a new database at
+    the same time (the second one finds it migrated). Raises ``SchemaVersionError`` for a database
+    newer than the code.
+    """
+    for i, m in enumerate(migrations, start=1):
+        if m.version != i:
+            raise ValueError(f"migration #{i} has version {m.version}; versions must be 1, 2, 3, ...")
+    latest = len(migrations)
+    if _check(conn, latest) == latest:  # fast path: no write lock when up to date
+        return latest
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        current = _check(conn, latest)
+        if current < latest:
+            conn.execute("CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL)")
+            for m in migrations[current:]:
+                for statement in m.statements:
+                    try:
+                        conn.execute(statement)
+                    except sqlite3.Error as exc:
+                        raise StorageError(
+                            f"schema migration {m.version} ({m.description}) failed: {exc}; the "
+                            f"database is left unchanged at version {current}") from exc
+            conn.execute("DELETE FROM schema_version")
+            conn.execute("INSERT INTO schema_version (version) VALUES (?)", (latest,))
+        conn.execute("COMMIT")
+    except BaseException:
+        if conn.in_transaction:
+            conn.execute("ROLLBACK")
+        raise
+    return latest
+
+
+def _check(conn: sqlite3.Connection, latest: int) -> int:
+    current = schema_version(conn)
+    if current > latest:
+        raise SchemaVersionError(
+            f"the job database has schema version {current}, but this neuenh only knows versions up "
+            f"to {latest}: it was written by a newer neuenh. Upgrade neuenh (or use another "
+            f"database file); the database was not modified.")
+    return current

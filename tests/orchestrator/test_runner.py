@@ -1,0 +1,167 @@
+"""The job state machine with the inline executor (the Ray executor has its own tests)."""
+
+import pytest
+
+from neuenh.checkpoint import Bundle
+from orchestrator.runner import Orchestrator
+from storage import JobStatus
+from workers.inline import InlineExecutor
+
+from orchestrator_kit import tiny_spec
+
+
+def _path(jobs, job_id):
+    return [(r.index, r.parent_state, r.winner_state, r.winner_val_loss,
+             tuple((c.state, c.val_loss) for c in r.candidates)) for r in jobs.rounds(job_id)]
+
+
+def test_a_job_walks_the_state_machine_and_commits_every_round(orchestrator, stores):
+    jobs, artifacts = stores
+    job, created = orchestrator.submit(tiny_spec())
+    assert created and job.status == JobStatus.QUEUED
+    final = orchestrator.run(job.id)
+    assert final.status in (JobStatus.CONVERGED, JobStatus.STOPPED) and final.error is None
+    statuses = [e.payload["status"] for e in jobs.events(job.id) if e.kind == "status"]
+    assert statuses[:4] == ["QUEUED", "PREPARING", "RUNNING", final.status]
+    rounds = jobs.rounds(job.id)
+    assert [r.index for r in rounds] == list(range(len(rounds)))
+    for previous, current in zip(rounds, rounds[1:]):
+        assert current.parent_state == previous.winner_state
+    for r in rounds:
+        assert len(r.candidates) == 12  # radius 1 around an 11-position state
+        bundle = Bundle.from_bytes(artifacts.get(r.artifact_key))
+        assert bundle.model.state == r.winner_state
+        assert bundle.metrics["val_loss"] == pytest.approx(r.winner_val_loss)
+    if final.status == JobStatus.CONVERGED:
+        assert rounds[-1].winner_state == rounds[-1].parent_state
+    else:
+        assert len(rounds) == 3
+
+
+def test_same_spec_same_path_and_losses(orchestrator, stores):
+    jobs, _ = stores
+    a = orchestrator.run(orchestrator.submit(tiny_spec())[0].id)
+    b = orchestrator.run(orchestrator.submit(tiny_spec(), idempotency_key="other")[0].id)
+    assert a.id != b.id
+    assert _path(jobs, a.id) == _path(jobs, b.id)
+
+
+class _Crash(BaseException):
+    """Stands for the process dying: not an Exception, so nothing in the orchestrator catches it."""
+
+
+class CrashingExecutor(InlineExecutor):
+    def __init__(self, after: int):
+        self.after = after
+        self.seen = 0
+
+    def train(self, *args, **kwargs):
+        for report in super().train(*args, **kwargs):
+            self.seen += 1
+            if self.seen > self.after:
+                raise _Crash()
+            yield report
+
+
+def test_resume_after_a_crash_equals_an_uninterrupted_run(stores):
+    jobs, artifacts = stores
+    reference = Orchestrator(jobs, artifacts, InlineExecutor())
+    expected = _path(jobs, reference.run(reference.submit(tiny_spec(), idempotency_key="ref")[0].id).id)
+
+    crashing = Orchestrator(jobs, artifacts, CrashingExecutor(after=12 + 5))  # mid round 1
+    job, _ = crashing.submit(tiny_spec())
+    with pytest.raises(_Crash):
+        crashing.run(job.id)
+    assert jobs.get_job(job.id).status == JobStatus.RUNNING and jobs.get_job(job.id).last_round == 0
+
+    resumed = Orchestrator(jobs, artifacts, InlineExecutor())
+    assert resumed.resume_all() == [job.id]
+    assert _path(jobs, job.id) == expected
+
+
+class CancellingExecutor(InlineExecutor):
+    """Cancels the job (as the API would, through the store) in the middle of round 1."""
+
+    def __init__(self, jobs):
+        self.jobs = jobs
+        self.seen = 0
+
+    def train(self, dataset, parents, tasks, config, resources=None, cancelled=lambda: False):
+        for report in super().train(dataset, parents, tasks, config, cancelled=cancelled):
+            self.seen += 1
+            if self.seen == 15:
+                self.jobs.set_status(report_job_id(self.jobs), JobStatus.CANCELLED)
+            yield report
+
+
+def report_job_id(jobs):
+    (job,) = jobs.list_jobs(status=JobStatus.RUNNING).jobs
+    return job.id
+
+
+def test_cancel_mid_round_keeps_the_committed_rounds(stores):
+    jobs, artifacts = stores
+    o = Orchestrator(jobs, artifacts, CancellingExecutor(jobs))
+    job = o.run(o.submit(tiny_spec())[0].id)
+    assert job.status == JobStatus.CANCELLED
+    assert [r.index for r in jobs.rounds(job.id)] == [0]
+
+
+class FailingExecutor(InlineExecutor):
+    """Candidates whose state is in ``fail`` come back failed, as a crashed task would."""
+
+    def __init__(self, fail):
+        self.fail = fail
+
+    def train(self, *args, **kwargs):
+        for report in super().train(*args, **kwargs):
+            if report.task.state in self.fail or "*" in self.fail:
+                report.error, report.bundle, report.val_loss = "RuntimeError: boom", None, float("nan")
+            yield report
+
+
+def test_failed_candidates_are_recorded_and_the_round_goes_on(stores):
+    jobs, artifacts = stores
+    o = Orchestrator(jobs, artifacts, FailingExecutor({"10000000000", "01000000000"}))
+    job = o.run(o.submit(tiny_spec(max_rounds=1))[0].id)
+    assert job.status in (JobStatus.STOPPED, JobStatus.CONVERGED)
+    (round0,) = jobs.rounds(job.id)
+    failed = {c.state: c.error for c in round0.candidates if not c.ok}
+    assert failed == {"10000000000": "RuntimeError: boom", "01000000000": "RuntimeError: boom"}
+    assert round0.winner_state not in failed
+
+
+def test_a_round_where_every_candidate_fails_fails_the_job(stores):
+    jobs, artifacts = stores
+    o = Orchestrator(jobs, artifacts, FailingExecutor({"*"}))
+    job = o.run(o.submit(tiny_spec())[0].id)
+    assert job.status == JobStatus.FAILED and "every candidate failed" in job.error
+    assert jobs.rounds(job.id) == []
+
+
+def test_successive_halving_is_recorded(orchestrator, stores):
+    jobs, _ = stores
+    spec = tiny_spec(max_rounds=1, prune="halving", epochs_per_round=3)
+    job = orchestrator.run(orchestrator.submit(spec)[0].id)
+    (round0,) = jobs.rounds(job.id)
+    assert round0.extra["prune"] == "halving" and round0.extra["first_epochs"] == 1
+    pruned = [c for c in round0.candidates if c.error == "pruned by successive halving"]
+    assert len(pruned) == 6 and {c.state for c in pruned} == set(round0.extra["pruned"])
+    assert round0.winner_state not in round0.extra["pruned"]
+
+
+def test_constraints_bound_every_candidate(orchestrator, stores):
+    jobs, _ = stores
+    spec = tiny_spec(max_rounds=2, max_neural=1, fixed={"M": 0})
+    job = orchestrator.run(orchestrator.submit(spec)[0].id)
+    for r in jobs.rounds(job.id):
+        for c in r.candidates:
+            assert c.state.count("1") <= 1 and c.state[0] == "0"
+
+
+def test_the_dataset_is_built_once_per_recipe(orchestrator, stores):
+    jobs, artifacts = stores
+    a = orchestrator.run(orchestrator.submit(tiny_spec(max_rounds=1))[0].id)
+    b = orchestrator.run(orchestrator.submit(tiny_spec(max_rounds=1), idempotency_key="b")[0].id)
+    keys = {e.payload["key"] for j in (a, b) for e in jobs.events(j.id) if e.kind == "dataset"}
+    assert len(keys) == 1 and artifacts.exists(keys.pop())

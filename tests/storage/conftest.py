@@ -1,0 +1,74 @@
+"""Backends under test. Each contract test class runs once per entry of ``JOB_BACKENDS`` /
+``ARTIFACT_BACKENDS``; a new backend (S3, Postgres) plugs in here with a harness and nothing else."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from storage import ArtifactStore, JobStore, LocalArtifactStore, SQLiteJobStore
+
+
+@dataclass
+class Harness:
+    """Opens stores of one backend on one location (each ``open()`` is a fresh handle on the same
+    data, like a restarted process) and closes them all at the end."""
+
+    opener: Callable[[], object]
+    overwrite_raw: Callable[[str, bytes], None] | None = None  # bypass the store (bit rot)
+    opened: list = field(default_factory=list)
+
+    def open(self):
+        store = self.opener()
+        self.opened.append(store)
+        return store
+
+    def close_all(self) -> None:
+        for store in self.opened:
+            close = getattr(store, "close", None)
+            if close is not None:
+                close()
+
+
+def _sqlite(tmp_path: Path) -> Harness:
+    return Harness(lambda: SQLiteJobStore(tmp_path / "jobs.sqlite3"))
+
+
+def _local(tmp_path: Path) -> Harness:
+    root = tmp_path / "artifacts"
+
+    def overwrite_raw(key: str, data: bytes) -> None:
+        (root / key).write_bytes(data)
+
+    return Harness(lambda: LocalArtifactStore(root), overwrite_raw)
+
+
+JOB_BACKENDS = {"sqlite": _sqlite}
+ARTIFACT_BACKENDS = {"local": _local}
+
+
+@pytest.fixture(params=sorted(JOB_BACKENDS))
+def job_backend(request, tmp_path) -> Harness:
+    harness = JOB_BACKENDS[request.param](tmp_path)
+    yield harness
+    harness.close_all()
+
+
+@pytest.fixture
+def job_store(job_backend) -> JobStore:
+    return job_backend.open()
+
+
+@pytest.fixture(params=sorted(ARTIFACT_BACKENDS))
+def artifact_backend(request, tmp_path) -> Harness:
+    harness = ARTIFACT_BACKENDS[request.param](tmp_path)
+    yield harness
+    harness.close_all()
+
+
+@pytest.fixture
+def artifact_store(artifact_backend) -> ArtifactStore:
+    return artifact_backend.open()

@@ -1,0 +1,96 @@
+"""What only the local-directory backend has: its file layout and the temp-file protocol."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+import storage
+from storage import ConflictError, LocalArtifactStore
+from storage.local import TEMP_PREFIX
+
+REPO = Path(storage.__file__).resolve().parents[1]
+
+
+def files(root: Path) -> list[str]:
+    return sorted(p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file())
+
+
+def test_layout_and_no_temp_files_left(tmp_path):
+    store = LocalArtifactStore(tmp_path / "a")
+    store.put("jobs/j/rounds/0000/checkpoint.safetensors", b"0")
+    store.put("jobs/j/rounds/0000/checkpoint.safetensors", b"00")
+    store.put("jobs/j/rounds/0001/checkpoint.safetensors", b"1")
+    key = store.put_content(b"data")
+    store.put_content(b"data")
+    digest = hashlib.sha256(b"data").hexdigest()
+    assert key == f"sha256/{digest[:2]}/{digest}"
+    assert files(tmp_path / "a") == sorted(["jobs/j/rounds/0000/checkpoint.safetensors",
+                                            "jobs/j/rounds/0001/checkpoint.safetensors", key])
+    assert (tmp_path / "a" / key).stat().st_mode & 0o777 == 0o644
+
+
+def test_put_content_writes_once(tmp_path):
+    store = LocalArtifactStore(tmp_path)
+    key = store.put_content(b"x" * 1000)
+    before = (tmp_path / key).stat()
+    store.put_content(b"x" * 1000)
+    after = (tmp_path / key).stat()
+    assert (before.st_ino, before.st_mtime_ns) == (after.st_ino, after.st_mtime_ns)
+
+
+def test_a_key_cannot_be_both_file_and_directory(tmp_path):
+    store = LocalArtifactStore(tmp_path)
+    store.put("a/b", b"x")
+    with pytest.raises(ConflictError, match="prefix"):
+        store.put("a/b/c", b"y")
+    with pytest.raises(ConflictError, match="under it"):
+        store.put("a", b"y")
+    assert store.get("a/b") == b"x" and files(tmp_path) == ["a/b"]
+
+
+WRITER = textwrap.dedent("""
+    import sys
+    from storage import LocalArtifactStore
+    store = LocalArtifactStore(sys.argv[1])
+    old, new = b"A" * (8 << 20), b"B" * (8 << 20)
+    store.put("k/checkpoint", old)
+    print("ready", flush=True)
+    i = 0
+    while True:
+        store.put("k/checkpoint", new if i % 2 == 0 else old)
+        i += 1
+""")
+
+
+@pytest.mark.parametrize("delay_s", [0.05, 0.2])
+def test_a_writer_killed_mid_write_leaves_old_or_new(tmp_path, delay_s):
+    """SIGKILL a process that keeps rewriting an 8 MiB artifact: the key holds one whole version,
+    and whatever the writer left behind is a temp file no key can name, which the sweep removes."""
+    root = tmp_path / "store"
+    writer = subprocess.Popen([sys.executable, "-c", WRITER, str(root)], cwd=REPO,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert writer.stdout.readline().strip() == "ready"
+        store = LocalArtifactStore(root)
+        time.sleep(delay_s)  # the writer is somewhere in its put loop
+        os.kill(writer.pid, signal.SIGKILL)
+    finally:
+        writer.kill()
+        writer.wait()
+        writer.stdout.close()
+    data = store.get("k/checkpoint")
+    assert data in (b"A" * (8 << 20), b"B" * (8 << 20))
+    leftovers = [f for f in files(root) if f != "k/checkpoint"]
+    assert all(Path(f).name.startswith(TEMP_PREFIX) for f in leftovers)
+    assert store.remove_stale_temp_files(older_than_s=3600) == 0  # young: maybe still being written
+    assert store.remove_stale_temp_files(older_than_s=-1) == len(leftovers)
+    assert files(root) == ["k/checkpoint"] and store.get("k/checkpoint") == data

@@ -1,0 +1,36 @@
+"""What a worker runs for one candidate: a pure call of ``neuenh.train.train_candidate`` that
+turns every outcome, exceptions included, into a ``CandidateReport``."""
+
+from __future__ import annotations
+
+import dataclasses
+import socket
+import time
+
+from neuenh.checkpoint import Bundle
+from neuenh.train import TrainConfig, TrainingData, train_candidate
+from orchestrator.executor import CandidateReport, CandidateTask
+
+
+def run_candidate(
+    parent: bytes, data: TrainingData, task: CandidateTask, config: TrainConfig, node: str | None = None
+) -> CandidateReport:
+    start = time.perf_counter()
+    node = node or socket.gethostname()
+    try:
+        result = train_candidate(
+            Bundle.from_bytes(parent), task.state, data, dataclasses.replace(config, epochs=task.epochs), task.seed
+        )
+    except Exception as exc:  # a candidate's failure must not end the round
+        return CandidateReport(task, float("nan"), float("nan"), 0, time.perf_counter() - start, node,
+                               error=f"{type(exc).__name__}: {exc}")
+    return CandidateReport(
+        task,
+        result.train_loss,
+        result.val_loss,
+        result.epochs,
+        result.wall_s,
+        node,
+        error=result.error,
+        bundle=result.bundle.to_bytes() if result.ok else None,
+    )

@@ -1,0 +1,101 @@
+"""The Ray executor: one Ray task per candidate (DESIGN §3).
+
+* The training data is put in the object store once per job, each round's parent bundle once per
+  round; tasks receive references, so nothing is copied per candidate on a node.
+* Each task asks for the job's ``cpus_per_candidate`` (and fractional ``gpus_per_candidate``) and
+  runs torch with that many threads. Before a round the executor asks the cluster for the round's
+  parallelism (``ray.autoscaler.sdk.request_resources``), so a larger radius runs on more workers
+  where the cluster can grow; what does not fit is queued by Ray.
+* A worker process or node that dies is retried (``max_retries``); a task that raises or diverges
+  comes back as a failed report and the round goes on.
+* Embedded default: a local Ray with bounded object-store memory and no dashboard. With
+  ``address`` (or ``RAY_ADDRESS``) it joins an existing cluster instead.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Callable, Iterator, Sequence
+
+import ray
+from ray.autoscaler.sdk import request_resources
+from ray.exceptions import RayError
+
+from neuenh.train import TrainConfig, TrainingData
+from orchestrator.executor import CandidateReport, CandidateTask, Executor, Resources
+
+from .candidate import run_candidate
+
+
+@ray.remote
+def _train_candidate(parent: bytes, data: TrainingData, task: CandidateTask, config: TrainConfig,
+                     threads: int) -> CandidateReport:
+    import torch
+
+    torch.set_num_threads(threads)
+    node = ray.get_runtime_context().get_node_id()
+    return run_candidate(parent, data, task, config, node=node)
+
+
+class RayExecutor(Executor):
+    def __init__(
+        self,
+        *,
+        address: str | None = None,
+        num_cpus: int | None = None,
+        object_store_memory: int = 512 * 1024**2,
+        max_retries: int = 3,
+        poll_s: float = 0.25,
+    ):
+        self.max_retries = max_retries
+        self.poll_s = poll_s
+        self._owns_ray = False
+        if not ray.is_initialized():
+            address = address or os.environ.get("RAY_ADDRESS")
+            if address:
+                ray.init(address=address, log_to_driver=False)
+            else:
+                ray.init(num_cpus=num_cpus, object_store_memory=object_store_memory,
+                         include_dashboard=False, log_to_driver=False)
+            self._owns_ray = True
+
+    def put_dataset(self, data: TrainingData) -> ray.ObjectRef:
+        return ray.put(data)
+
+    def train(
+        self,
+        dataset: ray.ObjectRef,
+        parents: Sequence[bytes],
+        tasks: Sequence[CandidateTask],
+        config: TrainConfig,
+        resources: Resources = Resources(),
+        cancelled: Callable[[], bool] = lambda: False,
+    ) -> Iterator[CandidateReport]:
+        bundle = {"CPU": resources.cpus, **({"GPU": resources.gpus} if resources.gpus else {})}
+        request_resources(bundles=[bundle] * len(tasks))
+        parent_refs = [ray.put(p) for p in parents]
+        threads = max(1, int(resources.cpus))
+        remote = _train_candidate.options(num_cpus=resources.cpus, num_gpus=resources.gpus,
+                                          max_retries=self.max_retries)
+        pending = {remote.remote(parent_refs[t.parent], dataset, t, config, threads): t for t in tasks}
+        try:
+            while pending:
+                if cancelled():
+                    for ref in pending:
+                        ray.cancel(ref, force=True)
+                    return
+                ready, _ = ray.wait(list(pending), num_returns=1, timeout=self.poll_s)
+                for ref in ready:
+                    task = pending.pop(ref)
+                    try:
+                        yield ray.get(ref)
+                    except RayError as exc:  # the worker or its node died beyond retries
+                        yield CandidateReport(task, float("nan"), float("nan"), 0, 0.0, "unknown",
+                                              error=f"worker lost: {type(exc).__name__}: {exc}".splitlines()[0])
+        finally:
+            request_resources(bundles=[])
+
+    def close(self) -> None:
+        if self._owns_ray and ray.is_initialized():
+            ray.shutdown()
+            self._owns_ray = False
