@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import fit
+from . import fit, search
 
 
 class UsageError(Exception):
@@ -23,6 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"neuenh {_version()}")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     fit.add_parser(commands)
+    search.add_parser(commands)
     return parser
 
 

@@ -7,7 +7,7 @@ from orchestrator.runner import Orchestrator
 from storage import JobStatus
 from workers.inline import InlineExecutor
 
-from orchestrator_kit import tiny_spec
+from jobspecs import tiny_spec
 
 
 def _path(jobs, job_id):

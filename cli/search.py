@@ -1,0 +1,168 @@
+"""``neuenh search SPEC.yaml``: run a search job in this process on embedded Ray.
+
+    neuenh search examples/quickstart.yaml [--data-dir DIR] [--out DIR] [--json]
+
+The job is stored in ``DATA_DIR/jobs.sqlite`` (artifacts in ``DATA_DIR/artifacts``) under a key
+derived from the spec's content, so running the same spec again resumes an interrupted job from
+its last committed round (or reports a finished one; ``--new`` starts afresh). At the end the
+final bundle and the search history are written to ``--out`` (default ``DATA_DIR/results/<job>``),
+and plain GGX is trained for the same total number of epochs so the gain is measured, not assumed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from neuenh.checkpoint import Bundle
+from neuenh.train import train_candidate
+from orchestrator.dataset import prepare_dataset
+from orchestrator.runner import Orchestrator, Progress
+from orchestrator.spec import load_spec
+from storage import JobStatus, LocalArtifactStore, SQLiteJobStore
+
+SUCCESS = {JobStatus.CONVERGED, JobStatus.STOPPED}
+
+
+def add_parser(commands) -> None:
+    p = commands.add_parser("search", help="run a search job in-process on embedded Ray",
+                            description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("spec", type=Path, metavar="SPEC.yaml")
+    p.add_argument("--data-dir", type=Path, default=Path(os.environ.get("NEUENH_DATA_DIR", "neuenh-data")),
+                   help="job store and artifacts (default: $NEUENH_DATA_DIR or ./neuenh-data)")
+    p.add_argument("--out", type=Path, help="where to write the final bundle and history.json")
+    p.add_argument("--cpus", type=int, default=None, help="CPUs of the embedded Ray (default: all)")
+    p.add_argument("--ray-address", default=os.environ.get("RAY_ADDRESS"),
+                   help="join an existing Ray cluster instead of starting one ($RAY_ADDRESS)")
+    p.add_argument("--new", action="store_true", help="start a new job even if this spec ran before")
+    p.add_argument("--no-baseline", action="store_true",
+                   help="skip training plain GGX for the same epochs at the end")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    spec = load_spec(args.spec)
+    args.data_dir.mkdir(parents=True, exist_ok=True)
+    jobs = SQLiteJobStore(args.data_dir / "jobs.sqlite")
+    artifacts = LocalArtifactStore(args.data_dir / "artifacts")
+    key = "spec-" + hashlib.sha256(json.dumps(spec.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()[:32]
+    if args.new:
+        key += f"-{time.time_ns()}"
+    from workers.ray_executor import RayExecutor  # Ray only when a job really runs
+
+    display = ProgressDisplay(sys.stderr)
+    executor = RayExecutor(address=args.ray_address, num_cpus=args.cpus)
+    try:
+        orchestrator = Orchestrator(jobs, artifacts, executor, on_progress=display)
+        job, created = orchestrator.submit(spec, idempotency_key=key)
+        display.note(f"job {job.id} {'submitted' if created else 'found: ' + job.status.lower()}"
+                     f" ({args.data_dir / 'jobs.sqlite'})")
+        job = orchestrator.run(job.id)
+        display.done()
+        summary = summarise(job, jobs, artifacts, spec, args, baseline=not args.no_baseline)
+    finally:
+        executor.close()
+        jobs.close()
+    print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
+    return 0 if job.status in SUCCESS else 1
+
+
+def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
+    rounds = jobs.rounds(job.id)
+    summary: dict = {"job": job.id, "status": job.status.value, "error": job.error, "rounds": len(rounds)}
+    if not rounds:
+        return summary
+    out = args.out or args.data_dir / "results" / job.id
+    out.mkdir(parents=True, exist_ok=True)
+    bundle = Bundle.from_bytes(artifacts.get(rounds[-1].artifact_key))
+    bundle.provenance.update({"job": job.id, "spec": spec.model_dump(mode="json")})
+    bundle.save(out / "model")
+    history = {"job": job.id, "status": job.status.value, "spec": spec.model_dump(mode="json"),
+               "rounds": [_round_json(r) for r in rounds]}
+    tmp = out / ".history.json.tmp"
+    tmp.write_text(json.dumps(history, indent=2) + "\n")
+    tmp.replace(out / "history.json")
+    final = rounds[-1].winner
+    stay0 = next(c for c in rounds[0].candidates if c.state == rounds[0].parent_state)
+    summary.update({
+        "state": final.state,
+        "formula": bundle.model.describe(),
+        "weights": bundle.model.n_weights(),
+        "val_loss": final.val_loss,
+        "path": [r.winner_state for r in rounds],
+        "round0_plain_val_loss": stay0.val_loss,
+        "bundle": str(out / "model"),
+        "history": str(out / "history.json"),
+    })
+    if baseline:
+        epochs = sum(r.winner.epochs for r in rounds)
+        data, _ = prepare_dataset(spec, artifacts)
+        plain = train_candidate(Bundle.initial(spec.model, data.names, spec.module.config(), spec.latent_dim),
+                                "0" * len(bundle.model.positions), data, spec.train_config(epochs), spec.train.seed)
+        summary["plain_val_loss_same_epochs"] = plain.val_loss
+        summary["plain_epochs"] = epochs
+        summary["improvement"] = 1.0 - final.val_loss / plain.val_loss
+    return summary
+
+
+def _round_json(r) -> dict:
+    return {"round": r.index, "parent_state": r.parent_state, "winner_state": r.winner_state,
+            "winner_val_loss": r.winner_val_loss, "started_at": r.started_at, "finished_at": r.finished_at,
+            "extra": r.extra,
+            "candidates": [{"state": c.state, "train_loss": c.train_loss, "val_loss": c.val_loss,
+                            "epochs": c.epochs, "wall_s": c.wall_s, "node": c.node, "error": c.error,
+                            "seed": c.seed} for c in r.candidates]}
+
+
+def format_summary(s: dict) -> str:
+    lines = [f"job {s['job']}: {s['status']} after {s['rounds']} round(s)"]
+    if s.get("error"):
+        lines.append(f"  error: {s['error']}")
+    if "state" in s:
+        lines += [
+            f"  final state   {s['state']}  {s['formula']}  ({s['weights']} weights)",
+            f"  path          {' -> '.join(s['path'])}",
+            f"  val log-L1    {s['val_loss']:.5f} (plain GGX after round 0: {s['round0_plain_val_loss']:.5f})",
+        ]
+        if "plain_val_loss_same_epochs" in s:
+            lines.append(f"  plain GGX trained the same {s['plain_epochs']} epochs: {s['plain_val_loss_same_epochs']:.5f}"
+                         f"  -> enhancement lowers the validation loss by {100 * s['improvement']:.1f}%")
+        lines += [f"  bundle        {s['bundle']}", f"  history       {s['history']}"]
+    return "\n".join(lines)
+
+
+class ProgressDisplay:
+    """One live line on a terminal (round, candidates done/total, best loss, elapsed); a line per
+    committed round otherwise."""
+
+    def __init__(self, stream):
+        self.stream = stream
+        self.live = stream.isatty()
+
+    def __call__(self, p: Progress) -> None:
+        best = f"{p.best_val_loss:.5f}" if p.best_val_loss is not None else "-"
+        text = (f"round {p.round}  candidates {p.done}/{p.total}  best val {best}  "
+                f"{_clock(p.elapsed_s)}  {p.message}")
+        if self.live:
+            self.stream.write("\r\033[K" + text)
+            self.stream.flush()
+        elif p.message in ("committed", "converged", "cancelled"):
+            self.stream.write(f"round {p.round}: {p.message}, winner {p.state} val {best} at {_clock(p.elapsed_s)}\n")
+
+    def note(self, text: str) -> None:
+        self.stream.write(text + "\n")
+
+    def done(self) -> None:
+        if self.live:
+            self.stream.write("\n")
+
+
+def _clock(seconds: float) -> str:
+    m, s = divmod(int(seconds), 60)
+    return f"{m:02d}:{s:02d}"

@@ -1,0 +1,85 @@
+"""``neuenh search`` as a user runs it, on embedded Ray: killed with SIGKILL mid-round and started
+again, it finishes with the same states and losses as an uninterrupted run, and no committed
+round is lost."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import yaml
+
+from storage import SQLiteJobStore
+
+SPEC = {
+    "search": {"epochs_per_round": 3, "max_rounds": 3},
+    "train": {"batch_size": 1000, "lr": 5e-3},
+    "data": [{"source": "synthetic_zoo", "materials": 3, "samples": 1200, "seed": 1}],
+}
+
+
+def search(spec, data_dir, *extra, wait=True):
+    cmd = [sys.executable, "-m", "cli.main", "search", str(spec), "--data-dir", str(data_dir), "--cpus", "2",
+           "--no-baseline", "--json", *extra]
+    if not wait:
+        return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+
+
+def history(data_dir):
+    with SQLiteJobStore(data_dir / "jobs.sqlite") as jobs:
+        (job,) = jobs.list_jobs().jobs
+        return job, [(r.index, r.winner_state, r.winner_val_loss, sorted((c.state, c.val_loss) for c in r.candidates))
+                     for r in jobs.rounds(job.id)]
+
+
+@pytest.fixture(scope="module")
+def spec_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("spec") / "job.yaml"
+    path.write_text(yaml.safe_dump(SPEC))
+    return path
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(spec_file, tmp_path_factory):
+    data_dir = tmp_path_factory.mktemp("ref")
+    out = search(spec_file, data_dir)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout), history(data_dir)[1]
+
+
+def _wait_for_round_1_in_progress(data_dir, proc, timeout=180):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        assert proc.poll() is None, proc.stderr.read().decode()
+        if (data_dir / "jobs.sqlite").exists():
+            with SQLiteJobStore(data_dir / "jobs.sqlite") as jobs:
+                page = jobs.list_jobs().jobs
+                if page and page[0].last_round == 0:
+                    done = [e for e in jobs.events(page[0].id) if e.kind == "candidate" and e.payload["round"] == 1]
+                    if len(done) >= 2:
+                        return
+        time.sleep(0.05)
+    raise AssertionError("round 1 never started")
+
+
+def test_sigkill_mid_round_then_resume(spec_file, uninterrupted, tmp_path):
+    summary, expected = uninterrupted
+    proc = search(spec_file, tmp_path, wait=False)
+    _wait_for_round_1_in_progress(tmp_path, proc)
+    os.killpg(proc.pid, signal.SIGKILL)  # the orchestrator and its embedded Ray, without warning
+    proc.wait(timeout=30)
+    job, committed = history(tmp_path)
+    assert job.status == "RUNNING" and [r[0] for r in committed] == [0]
+    assert committed[0] == expected[0]
+
+    again = search(spec_file, tmp_path)  # the same spec finds the same job and resumes it
+    assert again.returncode == 0, again.stderr
+    resumed = json.loads(again.stdout)
+    assert resumed["job"] == job.id
+    assert history(tmp_path)[1] == expected
+    assert (resumed["state"], resumed["val_loss"]) == (summary["state"], summary["val_loss"])
+    assert json.loads((tmp_path / "results" / job.id / "history.json").read_text())["rounds"][0]["round"] == 0

@@ -1,0 +1,94 @@
+"""The Ray executor on an embedded local Ray: same results as in-process, failures as reports,
+cancellation, and a whole job."""
+
+import threading
+
+import pytest
+import ray
+import torch
+
+from neuenh.checkpoint import Bundle
+from neuenh.data.sources import SyntheticZoo, materialise
+from neuenh.train import TrainConfig
+from orchestrator.executor import CandidateTask
+from orchestrator.runner import Orchestrator
+from jobspecs import tiny_spec
+from storage import JobStatus, LocalArtifactStore, SQLiteJobStore
+from workers.inline import InlineExecutor
+from workers.ray_executor import RayExecutor
+
+CONFIG = TrainConfig(epochs=1, batch_size=1000, lr=5e-3)
+
+
+@pytest.fixture(scope="module")
+def executor():
+    if ray.is_initialized():
+        ray.shutdown()
+    ex = RayExecutor(num_cpus=2, object_store_memory=100 * 1024**2)
+    yield ex
+    ex.close()
+
+
+@pytest.fixture(scope="module")
+def data():
+    return materialise([SyntheticZoo(source="synthetic_zoo", materials=2, samples=300, seed=1)], 0.1, 0)
+
+
+def _tasks(*states, epochs=1):
+    return [CandidateTask(s, seed=i, epochs=epochs) for i, s in enumerate(states)]
+
+
+def test_ray_matches_in_process_training(executor, data):
+    parent = Bundle.initial("ggx", data.names).to_bytes()
+    tasks = _tasks("00000000000", "00010000000", "00000100000")
+    remote = {r.task.state: r for r in executor.train(executor.put_dataset(data), [parent], tasks, CONFIG)}
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # the Ray tasks ran with one thread each (cpus_per_candidate = 1)
+    local = {r.task.state: r for r in InlineExecutor().train(data, [parent], tasks, CONFIG)}
+    torch.set_num_threads(threads)
+    assert set(remote) == set(local)
+    node_ids = {n["NodeID"] for n in ray.nodes()}
+    for state, r in remote.items():
+        assert r.ok and r.node in node_ids
+        assert (r.train_loss, r.val_loss) == (local[state].train_loss, local[state].val_loss)
+
+
+def test_a_failing_candidate_comes_back_as_a_report(executor, data):
+    parent = Bundle.initial("ggx", data.names).to_bytes()
+    reports = list(executor.train(executor.put_dataset(data), [parent],
+                                  _tasks("00000000000", "99999999999"), CONFIG))
+    by_state = {r.task.state: r for r in reports}
+    assert by_state["00000000000"].ok
+    bad = by_state["99999999999"]
+    assert not bad.ok and bad.bundle is None and bad.error.startswith("ValueError") and "digit '9'" in bad.error
+
+
+def test_cancellation_stops_the_remaining_candidates(executor, data):
+    parent = Bundle.initial("ggx", data.names).to_bytes()
+    flag = threading.Event()
+    tasks = _tasks(*(["00011100100"] * 1 + [f"{'0' * i}1{'0' * (10 - i)}" for i in range(11)]), epochs=30)
+    got = []
+    for report in executor.train(executor.put_dataset(data), [parent], tasks, CONFIG, cancelled=flag.is_set):
+        got.append(report)
+        flag.set()
+    assert 1 <= len(got) < len(tasks)
+
+
+def test_a_job_on_ray_takes_the_same_path_as_in_process(executor, tmp_path):
+    def run(ex, where):
+        jobs = SQLiteJobStore(tmp_path / f"{where}.sqlite")
+        o = Orchestrator(jobs, LocalArtifactStore(tmp_path / where), ex)
+        job = o.run(o.submit(tiny_spec(max_rounds=2))[0].id)
+        path = [(r.winner_state, r.winner_val_loss, sorted((c.state, c.val_loss) for c in r.candidates))
+                for r in jobs.rounds(job.id)]
+        nodes = {c.node for r in jobs.rounds(job.id) for c in r.candidates}
+        return job, path, nodes
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    _, local_path, _ = run(InlineExecutor(), "inline")
+    torch.set_num_threads(threads)
+    job, ray_path, nodes = run(executor, "ray")
+    assert job.status in (JobStatus.CONVERGED, JobStatus.STOPPED)
+    assert ray_path == local_path
+    assert nodes <= {n["NodeID"] for n in ray.nodes()}
