@@ -16,8 +16,9 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# The main job on the embedded default: local Ray, SQLite and artifacts under runs/demo.
 demo: $(STAMP)
-	$(PY) examples/core_demo.py
+	$(VENV)/bin/neuenh search examples/quickstart.yaml --data-dir runs/demo
 
 test: $(STAMP)
 	$(PY) -m pytest -q
