@@ -15,10 +15,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .errors import DataError
 from .samples import Samples
 
 
-class TableError(ValueError):
+class TableError(DataError):
     """A measurement table that cannot be used; the message names the file and the problem."""
 
 
@@ -37,7 +38,11 @@ def read_table(path: str | os.PathLike, name: str | None = None) -> Samples:
     n = None
     for key in ("wi", "wo", "f_r"):
         a = arrays[key]
-        if a.ndim != 2 or a.shape[1] != 3 or not np.issubdtype(a.dtype, np.number):
+        if not isinstance(a, np.ndarray):  # a member that is not a .npy array comes back as bytes
+            raise TableError(f"{path}: {key} is not an array")
+        if a.ndim != 2 or a.shape[1] != 3 or not (
+            np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)
+        ):
             raise TableError(f"{path}: {key} must be a numeric (n, 3) array, got {a.dtype}{a.shape}")
         if n is not None and a.shape[0] != n:
             raise TableError(f"{path}: wi, wo and f_r must have the same length, got {arrays['wi'].shape[0]}, "

@@ -42,13 +42,14 @@ def _nan(a):
     [
         (_with(f_r=None), r"missing array\(s\) \['f_r'\]"),
         (_with(wi=lambda a: a[:, :2]), "wi must be a numeric"),
+        (_with(f_r=lambda a: a.astype(np.complex64)), "f_r must be a numeric"),
         (_with(wo=lambda a: a[:10]), "same length"),
         (_with(f_r=_nan), "f_r has non-finite values .first at row 3"),
         (_with(f_r=lambda a: -a), "negative"),
         (_with(wi=lambda a: 2 * a), "wi must hold unit vectors"),
         (_with(wi=lambda a: a[:0], wo=lambda a: a[:0], f_r=lambda a: a[:0]), "empty"),
     ],
-    ids=["missing", "shape", "length", "nan", "negative", "non-unit", "empty"],
+    ids=["missing", "shape", "complex", "length", "nan", "negative", "non-unit", "empty"],
 )
 def test_bad_tables_name_the_file_and_the_problem(tmp_path, arrays, match):
     path = tmp_path / "bad.npz"
@@ -62,4 +63,16 @@ def test_not_an_npz(tmp_path):
     path = tmp_path / "junk.npz"
     path.write_bytes(b"PK\x03\x04 not really a zip")
     with pytest.raises(TableError, match="junk.npz: not a readable .npz"):
+        read_table(path)
+
+
+def test_a_member_that_is_not_an_array(tmp_path):
+    import zipfile
+
+    path = tmp_path / "raw.npz"
+    arrays = _good()
+    np.savez(path, wi=arrays["wi"], wo=arrays["wo"])
+    with zipfile.ZipFile(path, "a") as z:
+        z.writestr("f_r", b"not a npy file")  # np.load returns raw bytes for non-.npy members
+    with pytest.raises(TableError, match="raw.npz: f_r is not an array"):
         read_table(path)

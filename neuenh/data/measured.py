@@ -1,0 +1,147 @@
+"""``load_measured``: one entry point for measured reflectance files, recognised by content.
+
+=========================  ====================================  ==================================
+content                    recognised by                         material
+=========================  ====================================  ==================================
+RGL ``.bsdf``              the ``tensor_file`` magic             ``RGLMaterial`` (continuous)
+MERL ``.binary``           the int32 header (90, 90, 180)        ``MERLMaterial`` (continuous)
+NBRDF weights ``.npz``     a zip whose arrays are ``names`` and  ``NBRDFMaterial`` (continuous);
+                           ``<name>/W1`` ...                     ``name`` picks the network
+measurement table ``.npz`` a zip with arrays ``wi, wo, f_r``     ``TableMaterial`` (its samples)
+=========================  ====================================  ==================================
+
+The file name and extension play no part. Every material has ``.name``, ``.isotropic``,
+``.metadata`` and ``.samples(n, seed)``; continuous ones also ``.evaluate(wi, wo)`` -> f_r (n, 3)
+without the cosine, and their samples are Rusinkiewicz-uniform. ``name`` renames an RGL, MERL or
+table material (default: the file's stem) and *selects* the network of an NBRDF file, where it is
+required unless the file holds a single network. Anything else is a ``DataError`` naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .errors import DataError
+from .merl import MERLMaterial, looks_like_merl, merl_from_table, parse_merl
+from .nbrdf import NBRDFMaterial, is_nbrdf_keys, nbrdf_material, nbrdf_names
+from .rgl import RGLMaterial, is_tensor_file, parse_tensor_file, rgl_from_fields
+from .samples import Samples
+from .table import TableError, read_table
+
+_ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
+_TABLE_KEYS = {"wi", "wo", "f_r"}
+
+
+@dataclass
+class TableMaterial:
+    """A measurement table: no continuous evaluation, only its stored samples.
+
+    ``samples(n, seed)`` returns every row when ``n`` is at least the table's length, else a
+    seeded random subset of ``n`` rows (in stored order). Isotropy is unknown, so ``False``.
+    """
+
+    name: str
+    table: Samples = field(repr=False)
+    metadata: dict = field(default_factory=dict)
+    isotropic: bool = False
+
+    def __len__(self) -> int:
+        return len(self.table)
+
+    def samples(self, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        if n < 0:
+            raise ValueError(f"number of samples must be >= 0, got {n}")
+        t = self.table
+        if n >= len(t):
+            return t.wi, t.wo, t.f_r
+        generator = torch.Generator().manual_seed(seed)
+        rows = torch.randperm(len(t), generator=generator)[:n].sort().values
+        return t.wi[rows], t.wo[rows], t.f_r[rows]
+
+
+MeasuredMaterial = RGLMaterial | MERLMaterial | NBRDFMaterial | TableMaterial
+
+
+def detect_format(path: str | os.PathLike) -> str:
+    """``"rgl"``, ``"merl"``, ``"nbrdf"`` or ``"table"`` from the content of ``path``."""
+    return _detect(Path(path))[0]
+
+
+def _detect(path: Path) -> tuple[str, bytes | None]:
+    if not path.exists():
+        raise DataError(f"{path}: no such file")
+    if not path.is_file():
+        raise DataError(f"{path}: not a regular file")
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            head = f.read(64)
+    except OSError as exc:
+        raise DataError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if is_tensor_file(head):
+        return "rgl", head
+    if looks_like_merl(head, size):
+        return "merl", head
+    if head[:4] in _ZIP_MAGIC:
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                keys = list(npz.files)
+        except Exception as exc:  # noqa: BLE001 - numpy/zipfile raise many types for a corrupt archive
+            raise DataError(f"{path}: a zip archive but not a readable .npz ({type(exc).__name__}: {exc})") from None
+        if is_nbrdf_keys(keys):
+            return "nbrdf", head
+        if _TABLE_KEYS <= set(keys):
+            return "table", head
+        shown = ", ".join(keys[:10]) + (", ..." if len(keys) > 10 else "")
+        raise DataError(f"{path}: an .npz that is neither NBRDF weights (names, <name>/W1, ...) nor a "
+                        f"measurement table (wi, wo, f_r); it holds [{shown}]")
+    raise DataError(f"{path}: unrecognised content (not an RGL tensor_file, a MERL .binary, "
+                    f"NBRDF weights or a measurement table); first bytes {head[:16]!r}")
+
+
+def _check_table_members(path: Path) -> None:
+    """``read_table`` expects real numeric arrays; reject anything else here, first."""
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            members = {key: npz[key] for key in sorted(_TABLE_KEYS)}
+    except Exception as exc:  # noqa: BLE001 - numpy/zipfile/zlib raise many types for a corrupt archive
+        raise DataError(f"{path}: not a readable .npz table ({type(exc).__name__}: {exc})") from None
+    for key, a in members.items():
+        if not isinstance(a, np.ndarray):  # numpy hands back raw bytes for a member that is no .npy
+            raise DataError(f"{path}: member {key!r} is not a .npy array")
+        if a.dtype.kind not in "iuf":
+            raise DataError(f"{path}: {key} must be a real numeric array, got {a.dtype}")
+
+
+def load_measured(path: str | os.PathLike, name: str | None = None) -> MeasuredMaterial:
+    """The measured material in the file at ``path``, whatever its format (see the module doc)."""
+    path = Path(path)
+    kind, _ = _detect(path)
+    if kind in ("rgl", "merl"):
+        try:
+            content = path.read_bytes()
+        except OSError as exc:
+            raise DataError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+        if kind == "rgl":
+            return rgl_from_fields(parse_tensor_file(content, path), path, name)
+        return merl_from_table(parse_merl(content, path), path, name)
+    if kind == "nbrdf":
+        if name is None:
+            names = nbrdf_names(path)
+            if len(names) != 1:
+                shown = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
+                raise DataError(f"{path}: holds {len(names)} NBRDF networks; choose one with "
+                                f"name=... ({shown})")
+            name = names[0]
+        return nbrdf_material(path, name)
+    _check_table_members(path)
+    try:
+        table = read_table(path, name)
+    except TableError as exc:
+        raise DataError(str(exc)) from None
+    return TableMaterial(table.names[0], table, {"source": "table", "path": str(path), "rows": len(table)})
