@@ -16,6 +16,7 @@ the job at its last committed round.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import time
@@ -168,9 +169,9 @@ class Orchestrator:
                       for i, r in enumerate(by_state[Graph.format_state(s)] for s in survivors)]
             late = self._train(job_id, k, dataset, [by_state[t.state].bundle for t in second], second,
                                config, resources, start, phase="continue")
-            late_states = {r.task.state for r in late}
-            pruned = [r for r in early if r.task.state not in late_states]
-            reports = late + pruned
+            late = {r.task.state: dataclasses.replace(r, epochs=r.epochs + first) for r in late}
+            pruned = [r for r in early if r.task.state not in late]
+            reports = [late.get(r.task.state, r) for r in early]
             extra = {"prune": "halving", "first_epochs": first,
                      "pruned": [r.task.state for r in pruned],
                      "early_val_loss": {r.task.state: r.val_loss for r in early}}
@@ -200,7 +201,8 @@ class Orchestrator:
         if len(reports) < len(tasks):
             self._check_cancel(job_id)
             raise RuntimeError(f"round {k}: the executor returned {len(reports)} of {len(tasks)} candidates")
-        return reports
+        order = {t.state: i for i, t in enumerate(tasks)}
+        return sorted(reports, key=lambda r: order[r.task.state])  # ball order, not completion order
 
     def _outcomes(self, spec: JobSpec, reports: list[CandidateReport]) -> list[Outcome]:
         m = spec.digits()

@@ -8,9 +8,12 @@ MERL ``.binary``           the int32 header (90, 90, 180)        ``MERLMaterial`
 NBRDF weights ``.npz``     a zip whose arrays are ``names`` and  ``NBRDFMaterial`` (continuous);
                            ``<name>/W1`` ...                     ``name`` picks the network
 measurement table ``.npz`` a zip with arrays ``wi, wo, f_r``     ``TableMaterial`` (its samples)
+measurement table (CSV)    UTF-8 text whose header names         ``TableMaterial`` (its samples)
+                           ``wi_x, ...`` (see neuenh.data.table)
 =========================  ====================================  ==================================
 
-The file name and extension play no part. Every material has ``.name``, ``.isotropic``,
+The file name and extension play no part. (Image-based captures — a folder of EXR images — hold
+one material per texel and have their own reader, ``neuenh.data.exr.read_capture``.) Every material has ``.name``, ``.isotropic``,
 ``.metadata`` and ``.samples(n, seed)``; continuous ones also ``.evaluate(wi, wo)`` -> f_r (n, 3)
 without the cosine, and their samples are Rusinkiewicz-uniform. ``name`` renames an RGL, MERL or
 table material (default: the file's stem) and *selects* the network of an NBRDF file, where it is
@@ -31,10 +34,11 @@ from .merl import MERLMaterial, looks_like_merl, merl_from_table, parse_merl
 from .nbrdf import NBRDFMaterial, is_nbrdf_keys, nbrdf_material, nbrdf_names
 from .rgl import RGLMaterial, is_tensor_file, parse_tensor_file, rgl_from_fields
 from .samples import Samples
-from .table import TableError, read_table
+from .table import TableError, load_table, looks_like_csv_table
 
 _ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
 _TABLE_KEYS = {"wi", "wo", "f_r"}
+_HEAD_BYTES = 4096  # enough for the binary magics and a CSV header after a few comment lines
 
 
 @dataclass
@@ -43,12 +47,15 @@ class TableMaterial:
 
     ``samples(n, seed)`` returns every row when ``n`` is at least the table's length, else a
     seeded random subset of ``n`` rows (in stored order). Isotropy is unknown, so ``False``.
+    ``weight`` holds the table's optional per-row weights (row order of ``table``); samples do
+    not carry them (``Samples`` has no weight field, see neuenh.data.table).
     """
 
     name: str
     table: Samples = field(repr=False)
     metadata: dict = field(default_factory=dict)
     isotropic: bool = False
+    weight: torch.Tensor | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return len(self.table)
@@ -68,7 +75,7 @@ MeasuredMaterial = RGLMaterial | MERLMaterial | NBRDFMaterial | TableMaterial
 
 
 def detect_format(path: str | os.PathLike) -> str:
-    """``"rgl"``, ``"merl"``, ``"nbrdf"`` or ``"table"`` from the content of ``path``."""
+    """``"rgl"``, ``"merl"``, ``"nbrdf"`` or ``"table"`` (npz or CSV) from the content of ``path``."""
     return _detect(Path(path))[0]
 
 
@@ -80,7 +87,7 @@ def _detect(path: Path) -> tuple[str, bytes | None]:
     try:
         size = path.stat().st_size
         with open(path, "rb") as f:
-            head = f.read(64)
+            head = f.read(_HEAD_BYTES)
     except OSError as exc:
         raise DataError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     if is_tensor_file(head):
@@ -100,8 +107,10 @@ def _detect(path: Path) -> tuple[str, bytes | None]:
         shown = ", ".join(keys[:10]) + (", ..." if len(keys) > 10 else "")
         raise DataError(f"{path}: an .npz that is neither NBRDF weights (names, <name>/W1, ...) nor a "
                         f"measurement table (wi, wo, f_r); it holds [{shown}]")
+    if looks_like_csv_table(head):
+        return "table", head
     raise DataError(f"{path}: unrecognised content (not an RGL tensor_file, a MERL .binary, "
-                    f"NBRDF weights or a measurement table); first bytes {head[:16]!r}")
+                    f"NBRDF weights or a measurement table, .npz or CSV); first bytes {head[:16]!r}")
 
 
 def _check_table_members(path: Path) -> None:
@@ -121,7 +130,7 @@ def _check_table_members(path: Path) -> None:
 def load_measured(path: str | os.PathLike, name: str | None = None) -> MeasuredMaterial:
     """The measured material in the file at ``path``, whatever its format (see the module doc)."""
     path = Path(path)
-    kind, _ = _detect(path)
+    kind, head = _detect(path)
     if kind in ("rgl", "merl"):
         try:
             content = path.read_bytes()
@@ -139,9 +148,15 @@ def load_measured(path: str | os.PathLike, name: str | None = None) -> MeasuredM
                                 f"name=... ({shown})")
             name = names[0]
         return nbrdf_material(path, name)
-    _check_table_members(path)
+    if head[:4] in _ZIP_MAGIC:
+        _check_table_members(path)
     try:
-        table = read_table(path, name)
+        table = load_table(path, name)
     except TableError as exc:
         raise DataError(str(exc)) from None
-    return TableMaterial(table.names[0], table, {"source": "table", "path": str(path), "rows": len(table)})
+    metadata = {"source": "table", "format": table.format, "path": str(path), "rows": len(table.samples)}
+    if table.weight is not None:
+        w = table.weight
+        metadata["weight"] = {"min": float(w.min()), "max": float(w.max()), "mean": float(w.mean()),
+                              "used_in_training": False}
+    return TableMaterial(table.samples.names[0], table.samples, metadata, weight=table.weight)

@@ -1,15 +1,46 @@
-"""A user's own measurements as a table: ``.npz`` with keys ``wi``, ``wo``, ``f_r`` (and optional
-``weight``), one material per file.
+"""A user's own measurements as a table, one material per file: ``.npz`` or CSV text.
 
-Directions are unit vectors in the local frame (z = surface normal), ``f_r`` is RGB without the
-cosine factor. Everything is validated and every problem is reported as a ``TableError`` that
-names the file and what is wrong.
+**npz**: arrays ``wi``, ``wo``, ``f_r`` (each ``(n, 3)``, any real numeric dtype) and an optional
+``weight`` ``(n,)``.
+
+**CSV** (UTF-8 text; recognised by its header, whatever the file's extension): one header line,
+then one row per measurement, comma-separated. Lines starting with ``#`` and blank lines are
+skipped (before the header too), so a file may begin with comments about its origin::
+
+    # brushed aluminium, gonioreflectometer run 2024-05-02
+    wi_x,wi_y,wi_z,wo_x,wo_y,wo_z,r,g,b,weight
+    0.0,0.0,1.0,0.3,0.0,0.953939,0.081,0.079,0.077,1.0
+
+=========================  ===============================================================
+columns                    meaning
+=========================  ===============================================================
+``wi_x, wi_y, wi_z``       incident (light) direction, unit vector in the local frame
+``wo_x, wo_y, wo_z``       outgoing (view) direction, unit vector in the local frame
+``r, g, b``                f_r in RGB, **without** the cosine factor (1/sr)
+``weight`` (optional)      a non-negative confidence of the row (e.g. 1/variance)
+=========================  ===============================================================
+
+Column names are case-insensitive and may come in any order; the nine required ones must all be
+present, and no other column is allowed (a typo would otherwise be silently ignored).
+
+Both formats are validated the same way — unit directions (|norm - 1| <= 1e-3), finite values,
+``f_r`` and ``weight`` non-negative, matching lengths, at least one row — and every problem is a
+``TableError`` naming the file, the row (0-based, the same in both formats; CSV errors add the
+1-based line of the file) and what is wrong.
+
+**Weights.** ``Samples`` has no weight field and training does not weight the loss, so a table's
+weights are not used by training or fitting today. They are validated, kept as ``Table.weight``
+and carried by the material ``load_measured`` returns (``TableMaterial.weight``, with a summary in
+its ``metadata["weight"]``), ready for a weighted loss; ``neuenh data inspect`` reports them.
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import os
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -18,56 +49,212 @@ import torch
 from .errors import DataError
 from .samples import Samples
 
+CSV_COLUMNS = ("wi_x", "wi_y", "wi_z", "wo_x", "wo_y", "wo_z", "r", "g", "b")
+WEIGHT = "weight"
+_KEYS = ("wi", "wo", "f_r")
+_UNIT_TOLERANCE = 1e-3
+_ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
+
 
 class TableError(DataError):
     """A measurement table that cannot be used; the message names the file and the problem."""
 
 
-def read_table(path: str | os.PathLike, name: str | None = None) -> Samples:
+@dataclass
+class Table:
+    """A table's measurements (one material), its optional per-row weights, and its format."""
+
+    samples: Samples
+    weight: torch.Tensor | None  # (n,) float32, or None when the table has no weight column
+    format: str  # "npz" or "csv"
+
+
+# -- detection -------------------------------------------------------------------------------
+def _first_line(text: str) -> str | None:
+    for line in text.splitlines():
+        stripped = line.strip()
+        if stripped and not stripped.startswith("#"):
+            return stripped
+    return None
+
+
+def looks_like_csv_table(head: bytes) -> bool:
+    """Whether a file starting with ``head`` is a CSV table: UTF-8 text whose first line that is
+    neither blank nor a comment is a header naming ``wi_x`` (the other columns are checked when
+    reading, so a header with a typo gets a precise error rather than "unrecognised")."""
+    if b"\0" in head:
+        return False
+    text = head.decode("utf-8", errors="ignore").lstrip("\ufeff")
+    line = _first_line(text)
+    if line is None:
+        return False
+    return "wi_x" in [c.strip().strip('"').lower() for c in line.split(",")]
+
+
+# -- reading ---------------------------------------------------------------------------------
+def load_table(path: str | os.PathLike, name: str | None = None) -> Table:
+    """The table at ``path`` (npz or CSV, told apart by content); ``name`` defaults to the stem."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise TableError(f"{path}: no such file")
+    if not path.is_file():
+        raise TableError(f"{path}: not a regular file")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as exc:
+        raise TableError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if head in _ZIP_MAGIC:
+        arrays, fmt = _read_npz(path), "npz"
+    else:
+        arrays, fmt = _read_csv(path), "csv"
+    samples, weight = _validated(path, arrays, fmt)
+    if name is not None:
+        samples = Samples(samples.wi, samples.wo, samples.f_r, samples.material, (name,))
+    return Table(samples, weight, fmt)
+
+
+def read_table(path: str | os.PathLike, name: str | None = None) -> Samples:
+    """The measurements of the table at ``path`` (npz or CSV) as one material's ``Samples``."""
+    return load_table(path, name).samples
+
+
+def _read_npz(path: Path) -> dict[str, np.ndarray]:
     try:
         with np.load(path, allow_pickle=False) as npz:
-            arrays = {k: npz[k] for k in npz.files}
+            arrays = {k: npz[k] for k in npz.files if k in (*_KEYS, WEIGHT)}
     except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
         raise TableError(f"{path}: not a readable .npz table ({exc})") from None
-    missing = [k for k in ("wi", "wo", "f_r") if k not in arrays]
+    missing = [k for k in _KEYS if k not in arrays]
     if missing:
         raise TableError(f"{path}: missing array(s) {missing} (a table needs wi, wo, f_r)")
-    n = None
-    for key in ("wi", "wo", "f_r"):
-        a = arrays[key]
+    for key, a in arrays.items():
         if not isinstance(a, np.ndarray):  # a member that is not a .npy array comes back as bytes
             raise TableError(f"{path}: {key} is not an array")
-        if a.ndim != 2 or a.shape[1] != 3 or not (
-            np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)
-        ):
+        if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+            shape = "(n,)" if key == WEIGHT else "(n, 3)"
+            raise TableError(f"{path}: {key} must be a numeric {shape} array, got {a.dtype}{a.shape}")
+    for key in _KEYS:
+        a = arrays[key]
+        if a.ndim != 2 or a.shape[1] != 3:
             raise TableError(f"{path}: {key} must be a numeric (n, 3) array, got {a.dtype}{a.shape}")
-        if n is not None and a.shape[0] != n:
-            raise TableError(f"{path}: wi, wo and f_r must have the same length, got {arrays['wi'].shape[0]}, "
-                             f"{arrays['wo'].shape[0]}, {arrays['f_r'].shape[0]}")
-        n = a.shape[0]
-        if not np.isfinite(a).all():
-            raise TableError(f"{path}: {key} has non-finite values (first at row {int(np.argwhere(~np.isfinite(a))[0, 0])})")
+    if WEIGHT in arrays and arrays[WEIGHT].ndim != 1:
+        raise TableError(f"{path}: weight must be a numeric (n,) array, got {arrays[WEIGHT].dtype}{arrays[WEIGHT].shape}")
+    return arrays
+
+
+def _read_csv(path: Path) -> dict[str, np.ndarray]:
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise TableError(f"{path}: not a CSV table (not UTF-8 text: byte {exc.start} is {exc.object[exc.start:exc.start + 1]!r})") from None
+    except OSError as exc:
+        raise TableError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    lines = text.lstrip("\ufeff").splitlines()
+    numbered = [(i + 1, line) for i, line in enumerate(lines) if line.strip() and not line.lstrip().startswith("#")]
+    if not numbered:
+        raise TableError(f"{path}: the table is empty (no header line {','.join(CSV_COLUMNS)})")
+    header_line, header_text = numbered[0]
+    header = [c.strip().strip('"').lower() for c in next(csv.reader([header_text]))]
+    duplicates = sorted({c for c in header if header.count(c) > 1})
+    if duplicates:
+        raise TableError(f"{path}: line {header_line}: header repeats column(s) {duplicates}")
+    missing = [c for c in CSV_COLUMNS if c not in header]
+    if missing:
+        raise TableError(f"{path}: line {header_line}: header lacks column(s) {missing} (a CSV table needs "
+                         f"{','.join(CSV_COLUMNS)}[,{WEIGHT}])")
+    unknown = [c for c in header if c not in (*CSV_COLUMNS, WEIGHT)]
+    if unknown:
+        raise TableError(f"{path}: line {header_line}: unknown column(s) {unknown} (allowed: "
+                         f"{','.join(CSV_COLUMNS)},{WEIGHT})")
+    body = numbered[1:]
+    width = len(header)
+    rows = list(csv.reader(io.StringIO("\n".join(line for _, line in body))))
+    for row_index, ((line_no, _), row) in enumerate(zip(body, rows)):
+        if len(row) != width:
+            raise TableError(f"{path}: row {row_index} (line {line_no}): {len(row)} values, the header has {width}")
+    try:
+        values = np.array(rows, dtype=np.float64).reshape(len(rows), width)
+    except ValueError:
+        for row_index, ((line_no, _), row) in enumerate(zip(body, rows)):
+            for column, cell in zip(header, row):
+                try:
+                    float(cell)
+                except ValueError:
+                    raise TableError(f"{path}: row {row_index} (line {line_no}): {column} is not a number "
+                                     f"({cell.strip()!r})") from None
+        raise  # pragma: no cover - numpy refused a value float() accepts
+    index = {c: header.index(c) for c in header}
+    arrays = {
+        "wi": values[:, [index[c] for c in CSV_COLUMNS[0:3]]],
+        "wo": values[:, [index[c] for c in CSV_COLUMNS[3:6]]],
+        "f_r": values[:, [index[c] for c in CSV_COLUMNS[6:9]]],
+    }
+    if WEIGHT in index:
+        arrays[WEIGHT] = values[:, index[WEIGHT]]
+    arrays["_lines"] = np.array([line_no for line_no, _ in body], dtype=np.int64)
+    return arrays
+
+
+def _validated(path: Path, arrays: dict[str, np.ndarray], fmt: str) -> tuple[Samples, torch.Tensor | None]:
+    lines = arrays.pop("_lines", None)
+
+    def where(row: int) -> str:
+        return f"row {row} (line {int(lines[row])})" if lines is not None else f"row {row}"
+
+    keys = [*_KEYS, *([WEIGHT] if WEIGHT in arrays else [])]
+    lengths = [arrays[k].shape[0] for k in keys]
+    if len(set(lengths)) != 1:
+        raise TableError(f"{path}: {', '.join(keys)} must have the same length, got "
+                         f"{', '.join(str(n) for n in lengths)}")
+    n = lengths[0]
     if n == 0:
         raise TableError(f"{path}: the table is empty")
+    for key in keys:
+        a = arrays[key]
+        finite = np.isfinite(a)
+        if not finite.all():
+            row = int(np.argwhere(~finite)[0, 0])
+            raise TableError(f"{path}: {key} has non-finite values (first at {where(row)})")
     for key in ("wi", "wo"):
-        norms = np.linalg.norm(arrays[key], axis=1)
-        bad = np.abs(norms - 1) > 1e-3
+        norms = np.linalg.norm(np.asarray(arrays[key], dtype=np.float64), axis=1)
+        bad = np.abs(norms - 1) > _UNIT_TOLERANCE
         if bad.any():
-            raise TableError(f"{path}: {key} must hold unit vectors (row {int(np.argmax(bad))} has norm {norms[bad][0]:.4g})")
-    if (arrays["f_r"] < 0).any():
-        raise TableError(f"{path}: f_r has negative values (row {int(np.argwhere(arrays['f_r'] < 0)[0, 0])})")
-    t = {k: torch.as_tensor(arrays[k], dtype=torch.float32) for k in ("wi", "wo", "f_r")}
-    return Samples(t["wi"], t["wo"], t["f_r"], torch.zeros(n, dtype=torch.long), (name or path.stem,))
+            row = int(np.argmax(bad))
+            raise TableError(f"{path}: {key} must hold unit vectors ({where(row)} has norm {norms[row]:.4g})")
+    for key in ("f_r", *([WEIGHT] if WEIGHT in arrays else [])):
+        negative = arrays[key] < 0
+        if negative.any():
+            row = int(np.argwhere(negative)[0, 0])
+            raise TableError(f"{path}: {key} has negative values (first at {where(row)})")
+    if WEIGHT in arrays and not (arrays[WEIGHT] > 0).any():
+        raise TableError(f"{path}: weight is zero on every row")
+    t = {k: torch.as_tensor(np.asarray(arrays[k]), dtype=torch.float32) for k in _KEYS}
+    weight = torch.as_tensor(np.asarray(arrays[WEIGHT]), dtype=torch.float32) if WEIGHT in arrays else None
+    samples = Samples(t["wi"], t["wo"], t["f_r"], torch.zeros(n, dtype=torch.long), (path.stem,))
+    return samples, weight
 
 
-def write_table(path: str | os.PathLike, wi, wo, f_r) -> Path:
-    """Write a table that ``read_table`` reads (atomically)."""
+# -- writing ---------------------------------------------------------------------------------
+def write_table(path: str | os.PathLike, wi, wo, f_r, weight=None) -> Path:
+    """Write a table that ``read_table`` reads, atomically: CSV when ``path`` ends in ``.csv``
+    (float32 values printed exactly, 9 significant digits), else ``.npz`` (float32 arrays)."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp.npz")
-    np.savez(tmp, wi=np.asarray(wi, dtype=np.float32), wo=np.asarray(wo, dtype=np.float32),
-             f_r=np.asarray(f_r, dtype=np.float32))
+    arrays = {k: np.asarray(torch.as_tensor(v).detach().cpu().numpy() if isinstance(v, torch.Tensor) else v,
+                            dtype=np.float32) for k, v in (("wi", wi), ("wo", wo), ("f_r", f_r))}
+    if weight is not None:
+        arrays[WEIGHT] = np.asarray(weight.detach().cpu().numpy() if isinstance(weight, torch.Tensor) else weight,
+                                    dtype=np.float32).reshape(-1)
+    if path.suffix.lower() == ".csv":
+        tmp = path.with_name(f".{path.name}.tmp")
+        columns = [arrays["wi"], arrays["wo"], arrays["f_r"]]
+        header = ",".join(CSV_COLUMNS)
+        if WEIGHT in arrays:
+            columns.append(arrays[WEIGHT][:, None])
+            header += f",{WEIGHT}"
+        np.savetxt(tmp, np.concatenate(columns, axis=1), delimiter=",", fmt="%.9g", header=header, comments="")
+    else:
+        tmp = path.with_name(f".{path.name}.tmp.npz")
+        np.savez(tmp, **arrays)
     os.replace(tmp, path)
     return path

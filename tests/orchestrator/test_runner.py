@@ -148,6 +148,8 @@ def test_successive_halving_is_recorded(orchestrator, stores):
     pruned = [c for c in round0.candidates if c.error == "pruned by successive halving"]
     assert len(pruned) == 6 and {c.state for c in pruned} == set(round0.extra["pruned"])
     assert round0.winner_state not in round0.extra["pruned"]
+    assert {c.epochs for c in round0.candidates if c.error is None} == {3}  # 1 before halving + 2 after
+    assert [c.state for c in round0.candidates][0] == "0" * 11  # stay first: the ball's order
 
 
 def test_constraints_bound_every_candidate(orchestrator, stores):
