@@ -2,6 +2,7 @@
 cancellation, and a whole job."""
 
 import threading
+import time
 
 import pytest
 import ray
@@ -92,3 +93,29 @@ def test_a_job_on_ray_takes_the_same_path_as_in_process(executor, tmp_path):
     assert job.status in (JobStatus.CONVERGED, JobStatus.STOPPED)
     assert ray_path == local_path
     assert nodes <= {n["NodeID"] for n in ray.nodes()}
+
+
+def test_cancelling_a_job_mid_round_on_ray(executor, tmp_path):
+    jobs = SQLiteJobStore(tmp_path / "jobs.sqlite")
+    orchestrator = Orchestrator(jobs, LocalArtifactStore(tmp_path / "a"), executor)
+    job, _ = orchestrator.submit(tiny_spec(max_rounds=5, epochs_per_round=20))
+
+    def cancel_when_round_1_runs():
+        while True:
+            events = jobs.events(job.id)
+            if any(e.kind == "candidate" and e.payload["round"] == 1 for e in events):
+                jobs.set_status(job.id, JobStatus.CANCELLED)  # what POST /jobs/{id}/cancel does
+                return
+            threading.Event().wait(0.02)
+
+    canceller = threading.Thread(target=cancel_when_round_1_runs)
+    canceller.start()
+    final = orchestrator.run(job.id)
+    canceller.join()
+    assert final.status == JobStatus.CANCELLED
+    assert [r.index for r in jobs.rounds(job.id)] == [0]
+    # The cancelled candidates no longer hold the cluster's CPUs.
+    deadline = time.time() + 20
+    while ray.available_resources().get("CPU", 0) < ray.cluster_resources()["CPU"] and time.time() < deadline:
+        time.sleep(0.1)
+    assert ray.available_resources().get("CPU", 0) == ray.cluster_resources()["CPU"]
