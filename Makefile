@@ -23,8 +23,11 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q
 
+# Slow, measured side by side; each script rewrites its own section of docs/BENCHMARKS.md.
 bench: $(STAMP)
 	$(PY) bench/bench_core.py --write docs/BENCHMARKS.md
+	$(PY) bench/bench_data.py --write docs/BENCHMARKS.md
+	$(PY) bench/bench_search.py --write docs/BENCHMARKS.md
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -1,8 +1,8 @@
 """``neuenh fit``: fit measured materials with an analytical model or a trained bundle.
 
-    neuenh fit --model ggx measurements.npz [more.npz ...] [--method fast|paper] [--json] [-o DIR]
+    neuenh fit --model ggx measurements.npz [more.csv ...] [--method fast|paper] [--json] [-o DIR]
 
-Each table is one material (``.npz`` with ``wi``, ``wo``, ``f_r``; see neuenh.data.table). The
+Each table is one material (``.npz`` with ``wi``, ``wo``, ``f_r``, or CSV; see neuenh.data.table). The
 module weights of a bundle stay frozen; only per-material parameters are optimised. ``-o DIR``
 writes a bundle of the model with the fitted materials.
 """
@@ -27,7 +27,7 @@ from neuenh.models import available_models, get_model
 def add_parser(commands) -> None:
     p = commands.add_parser("fit", help="fit measured materials with a model (module weights frozen)",
                             description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("tables", nargs="+", metavar="MEASUREMENTS.npz", help="one table per material")
+    p.add_argument("tables", nargs="+", metavar="MEASUREMENTS", help="one table (.npz or CSV) per material")
     p.add_argument("--model", default="ggx",
                    help=f"an analytical model ({', '.join(available_models())}) or a bundle directory")
     p.add_argument("--method", choices=("fast", "paper"), default="fast",

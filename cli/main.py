@@ -7,9 +7,12 @@ A user's mistake prints one line naming what is wrong, never a traceback.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
-from . import fit, search
+from storage import StorageError
+
+from . import data, fit, search
 
 
 class UsageError(Exception):
@@ -24,6 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     fit.add_parser(commands)
     search.add_parser(commands)
+    data.add_parser(commands)
     return parser
 
 
@@ -35,9 +39,16 @@ def main(argv: list[str] | None = None) -> int:
     except (UsageError, ValueError, FileNotFoundError) as exc:
         print(f"neuenh {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except StorageError as exc:  # e.g. a job store written by a newer version
+        print(f"neuenh {args.command}: error: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"neuenh {args.command}: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader went away (`neuenh ... | head`): stop quietly, as SIGPIPE would.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
 
 
 def _version() -> str:

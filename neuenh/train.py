@@ -62,6 +62,12 @@ class TrainingData:
     def names(self) -> tuple[str, ...]:
         return self.train.names
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the materialised arrays (wi, wo, f_r and material ids of both parts)."""
+        return sum(t.nbytes for part in (self.train, self.val)
+                   for t in (part.wi, part.wo, part.f_r, part.material))
+
 
 @dataclass
 class CandidateResult:

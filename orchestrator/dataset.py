@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from pathlib import Path
 
 from safetensors.torch import load, save
 
@@ -20,14 +21,28 @@ _FIELDS = ("wi", "wo", "f_r", "material")
 
 
 def dataset_key(spec: JobSpec) -> str:
+    """Content hash of the recipe, including the bytes of every file a source reads (a file
+    changed in place must not be served from a stale cache)."""
     recipe = {
         "version": DATA_VERSION,
         "data": [s.model_dump(mode="json") for s in spec.data],
+        "files": [[_file_digest(f) for f in s.files()] if hasattr(s, "files") else [] for s in spec.data],
         "val_fraction": spec.train.val_fraction,
         "split_seed": spec.train.seed,
     }
     digest = hashlib.sha256(json.dumps(recipe, sort_keys=True).encode()).hexdigest()
     return f"datasets/{digest}.safetensors"
+
+
+def _file_digest(path: Path) -> str:
+    """sha256 of a file's content ("missing" when absent: building the dataset reports it)."""
+    if not path.is_file():
+        return "missing"
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
 
 
 def to_bytes(data: TrainingData) -> bytes:
@@ -54,8 +69,5 @@ def prepare_dataset(spec: JobSpec, artifacts) -> tuple[TrainingData, str]:
     return data, key
 
 
-def memory_bytes(data: TrainingData) -> int:
-    return sum(getattr(getattr(data, part), f).nbytes for part in ("train", "val") for f in _FIELDS)
 
-
-__all__ = ["dataset_key", "prepare_dataset", "to_bytes", "from_bytes", "memory_bytes"]
+__all__ = ["dataset_key", "prepare_dataset", "to_bytes", "from_bytes"]

@@ -30,7 +30,7 @@ from neuenh.models import get_model
 from neuenh.search import Outcome, candidate_seed, hamming_ball, initial_state, keep_better_half, select, weight_cost
 from storage import ArtifactStore, CandidateRecord, JobStatus, JobStore, RoundRecord, checkpoint_key
 
-from .dataset import memory_bytes, prepare_dataset
+from .dataset import prepare_dataset
 from .executor import CandidateReport, CandidateTask, Executor, Resources
 from .spec import JobSpec, parse_spec
 
@@ -106,7 +106,7 @@ class Orchestrator:
         data, key = prepare_dataset(spec, self.artifacts)
         self.jobs.append_event(job_id, "dataset", {"key": key, "materials": len(data.names),
                                                  "train": len(data.train), "val": len(data.val),
-                                                 "bytes": memory_bytes(data)})
+                                                 "bytes": data.nbytes})
         if self.jobs.get_job(job_id).status == PREPARING:
             self.jobs.set_status(job_id, RUNNING)
         dataset = self.executor.put_dataset(data)

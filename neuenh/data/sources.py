@@ -3,17 +3,52 @@
 A ``DataSource`` is one entry of a job spec's ``data:`` list (DESIGN §4), a pydantic model
 discriminated by ``source``. ``materialise`` turns a list of them into contiguous float32
 ``TrainingData`` with a seeded per-material train/validation split.
+
+==================  ==========================================  ==================================
+``source``          fields (besides ``samples``, ``seed``)      materials
+==================  ==========================================  ==================================
+``synthetic_zoo``   ``materials``, ``families``                 closed forms GGX cannot represent
+``synthetic_ggx``   ``materials``, ``noise``                    noisy anisotropic GGX (the paper)
+``nbrdf``           ``path``, ``materials`` (names; all if      one per NBRDF network (MERL
+                    omitted), ``prefix``                        stand-in)
+``merl``            ``paths``, ``prefix``                       one per MERL ``.binary``
+``rgl``             ``paths``, ``prefix``                       one per RGL ``.bsdf``
+``table``           ``paths``, ``prefix``                       one per table (npz or CSV)
+``exr_capture``     ``path`` (folder or JSON), ``region``,      one per texel
+                    ``stride``, ``prefix``
+==================  ==========================================  ==================================
+
+``samples`` is the number of measurements **per material** and ``seed`` seeds them (material
+``i`` of a source uses ``seed * 100003 + i``, so adding a material changes no other). Continuous
+sources (synthetic, NBRDF, MERL, RGL) are sampled uniformly in Rusinkiewicz coordinates; tables
+and capture texels use their stored measurements — all of them by default (``samples`` omitted),
+else a seeded subset of that many rows. Files are read by ``load_measured`` / the capture reader,
+which recognise formats by content; a file of the wrong kind (say an RGL file under ``merl``) is
+an error. Paths are relative to the current directory. Material names are the files' stems (the
+network names for NBRDF, ``<capture>[row,col]`` for texels), with ``prefix`` prepended; they must
+be unique across all sources of a job.
+
+The bytes of materialised arrays: ``TrainingData.nbytes``.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from typing import Annotated, Literal, Sequence, Union
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from ..train import TrainingData
+from .errors import DataError
+from .exr import read_capture
+from .measured import detect_format, load_measured
+from .nbrdf import load_nbrdf, nbrdf_material
 from .samples import Samples, sample_materials
 from .synthetic import ZOO_FAMILIES, synthetic_ggx, synthetic_zoo
+
+_KIND_LABEL = {"rgl": "an RGL .bsdf (tensor_file)", "merl": "a MERL .binary", "nbrdf": "NBRDF weights",
+               "table": "a measurement table"}
 
 
 class _Source(BaseModel):
@@ -51,15 +86,155 @@ class SyntheticGGX(_Source):
         return sample_materials(synthetic_ggx(self.materials, self.seed, self.noise), self.samples, self.seed)
 
 
-DataSource = Annotated[Union[SyntheticZoo, SyntheticGGX], Field(discriminator="source")]
+# -- measured files --------------------------------------------------------------------------
+class _Files(_Source):
+    prefix: str = Field("", description="prepended to every material name (to keep names unique)")
+
+    def files(self) -> list[Path]:
+        """Every file this source reads (a folder's files, recursively), in a stable order."""
+        out: list[Path] = []
+        for p in map(Path, getattr(self, "paths", None) or [getattr(self, "path")]):
+            out.extend(sorted(f for f in p.rglob("*") if f.is_file()) if p.is_dir() else [p])
+        return out
+
+    def _named(self, materials: list) -> list:
+        for m in materials:
+            m.name = self.prefix + m.name
+        return materials
 
 
-def materialise(sources: Sequence[SyntheticZoo | SyntheticGGX], val_fraction: float, seed: int) -> TrainingData:
+def _paths_field():
+    return Field(min_length=1, description="files, relative to the current directory")
+
+
+def _unique(values: list[str] | None, what: str) -> list[str] | None:
+    if values is not None:
+        duplicates = sorted({v for v in values if values.count(v) > 1})
+        if duplicates:
+            raise ValueError(f"{what} listed twice: {duplicates}")
+    return values
+
+
+def _load(path: str, kind: str):
+    """``load_measured(path)``, checking that the content is of ``kind``."""
+    found = detect_format(path)
+    if found != kind:
+        raise DataError(f"{path}: expected {_KIND_LABEL[kind]} for a '{kind}' source, but the file holds "
+                        f"{_KIND_LABEL[found]}")
+    return load_measured(path)
+
+
+class NBRDFSource(_Files):
+    """Networks of an NBRDF weights file (Sztrajman et al. 2021; a stand-in for MERL)."""
+
+    source: Literal["nbrdf"]
+    path: str = Field(min_length=1)
+    materials: list[str] | None = Field(None, min_length=1, description="network names; all when omitted")
+
+    @field_validator("materials")
+    @classmethod
+    def _no_duplicates(cls, v):
+        return _unique(v, "NBRDF materials")
+
+    def build(self) -> Samples:
+        found = detect_format(self.path)
+        if found != "nbrdf":
+            raise DataError(f"{self.path}: expected NBRDF weights for an 'nbrdf' source, but the file holds "
+                            f"{_KIND_LABEL[found]}")
+        if self.materials is None:
+            materials = list(load_nbrdf(self.path).values())
+        else:
+            materials = [nbrdf_material(self.path, name) for name in self.materials]
+        return sample_materials(self._named(materials), self.samples, self.seed)
+
+
+class _PathsSource(_Files):
+    paths: list[str] = _paths_field()
+    _kind = ""
+
+    @field_validator("paths")
+    @classmethod
+    def _no_duplicates(cls, v):
+        return _unique(v, "paths")
+
+    def build(self) -> Samples:
+        materials = self._named([_load(p, self._kind) for p in self.paths])
+        return sample_materials(materials, self.samples, self.seed)
+
+
+class MERLSource(_PathsSource):
+    """MERL ``.binary`` tables (nearest-bin lookup, invalid bins never sampled)."""
+
+    source: Literal["merl"]
+    _kind = "merl"
+
+
+class RGLSource(_PathsSource):
+    """EPFL RGL ``.bsdf`` measurements (the paper's validation set)."""
+
+    source: Literal["rgl"]
+    _kind = "rgl"
+
+
+class TableSource(_PathsSource):
+    """A user's measurement tables (npz or CSV, neuenh.data.table), one material per file."""
+
+    source: Literal["table"]
+    samples: int | None = Field(None, ge=1, description="rows per table; all rows when omitted")
+    _kind = "table"
+
+    def build(self) -> Samples:
+        materials = self._named([_load(p, self._kind) for p in self.paths])
+        return sample_materials(materials, self.samples or max(len(m) for m in materials), self.seed)
+
+
+class EXRCaptureSource(_Files):
+    """An image-based capture (neuenh.data.exr): one material per texel."""
+
+    source: Literal["exr_capture"]
+    path: str = Field(min_length=1, description="the capture folder or its JSON")
+    region: tuple[int, int, int, int] | None = Field(
+        None, description="(row0, col0, row1, col1), half-open, in image pixels; the whole image when omitted")
+    stride: int = Field(1, ge=1, description="every stride-th texel in both directions")
+    samples: int | None = Field(None, ge=1, description="images per texel; all when omitted")
+
+    @field_validator("region")
+    @classmethod
+    def _region(cls, v):
+        if v is not None and not (0 <= v[0] < v[2] and 0 <= v[1] < v[3]):
+            raise ValueError(f"region (row0, col0, row1, col1) needs 0 <= row0 < row1 and 0 <= col0 < col1, got {v}")
+        return v
+
+    def build(self) -> Samples:
+        capture = read_capture(self.path, self.region, self.stride)
+        materials = self._named(capture.materials())
+        return sample_materials(materials, self.samples or capture.images, self.seed)
+
+
+Source = SyntheticZoo | SyntheticGGX | NBRDFSource | MERLSource | RGLSource | TableSource | EXRCaptureSource
+DataSource = Annotated[
+    Union[SyntheticZoo, SyntheticGGX, NBRDFSource, MERLSource, RGLSource, TableSource, EXRCaptureSource],
+    Field(discriminator="source"),
+]
+
+
+def materialise(sources: Sequence[Source], val_fraction: float, seed: int) -> TrainingData:
     """All sources' samples, concatenated, split per material into training and validation."""
     if not sources:
         raise ValueError("a job needs at least one data source")
-    samples = Samples.concat([s.build() for s in sources])
-    if len(set(samples.names)) != len(samples.names):
-        duplicates = sorted({n for n in samples.names if samples.names.count(n) > 1})
-        raise ValueError(f"material names occur in more than one source: {duplicates[:5]}")
+    parts = [s.build() for s in sources]
+    origin: dict[str, int] = {}
+    for k, part in enumerate(parts):
+        for name in part.names:
+            if name in origin:
+                where = (f"data[{origin[name]}] ({sources[origin[name]].source}) and data[{k}] ({sources[k].source})"
+                         if origin[name] != k else f"data[{k}] ({sources[k].source}) twice")
+                raise ValueError(f"material name {name!r} occurs in {where}; names must be unique across "
+                                 "sources (set 'prefix' on a source to tell them apart)")
+            origin[name] = k
+    samples = Samples.concat(parts)
     return TrainingData(*samples.split(val_fraction, seed))
+
+
+__all__ = ["DataSource", "Source", "SyntheticZoo", "SyntheticGGX", "NBRDFSource", "MERLSource", "RGLSource",
+           "TableSource", "EXRCaptureSource", "materialise"]

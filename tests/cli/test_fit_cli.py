@@ -66,4 +66,4 @@ def test_user_mistakes_exit_2_with_one_line(table, tmp_path, args, message):
 
 def test_usage_error_from_argparse_exits_2():
     out = neuenh("fit")
-    assert out.returncode == 2 and "MEASUREMENTS.npz" in out.stderr
+    assert out.returncode == 2 and "MEASUREMENTS" in out.stderr

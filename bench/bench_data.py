@@ -1,0 +1,245 @@
+#!/usr/bin/env python
+"""Measured-data benchmark (issue 3): RGL evaluator throughput and the memory of materialising.
+
+    .venv/bin/python bench/bench_data.py                              # print the numbers (2-4 minutes)
+    .venv/bin/python bench/bench_data.py --quick                      # a smoke run (small sizes)
+    .venv/bin/python bench/bench_data.py --write docs/BENCHMARKS.md   # also record them
+
+1. RGL evaluator throughput: ``RGLMaterial.evaluate`` (the powitacq evaluation, f_r without the
+   cosine) on 1e6 Rusinkiewicz-uniform direction pairs of one real material from
+   ``../shared/data/rgl``, the median over repeats after a warm-up.
+2. Materialising 1e7 samples (``synthetic_zoo``, 100 materials x 1e5 samples, 10 % validation)
+   with ``neuenh.data.sources.materialise`` in a fresh child process: the bytes of the float32
+   arrays (``TrainingData.nbytes``), the process's peak RSS (``VmHWM``) against its
+   RSS after the imports, and the wall time.
+
+Before measuring, the script waits (up to ``--max-wait`` seconds, default 900) while the
+1-minute load average is above ``--max-load`` (1.5: others run benchmarks on this machine), then
+runs anyway; the load averages at the start and the end are written with the numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import platform
+import re
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
+
+import torch  # noqa: E402
+
+SECTION = "## Measured data (issue 3)"
+RGL_DIR = ROOT.parent / "shared" / "data" / "rgl"
+MATERIAL = "chm_orange_rgb"
+
+
+# -- the machine -----------------------------------------------------------------------------
+def wait_for_quiet(max_load: float, max_wait: float) -> dict:
+    start = time.monotonic()
+    load = os.getloadavg()[0]
+    while load > max_load and time.monotonic() - start < max_wait:
+        print(f"  load average {load:.2f} > {max_load}: waiting ...", flush=True)
+        time.sleep(min(30.0, max(1.0, max_wait - (time.monotonic() - start))))
+        load = os.getloadavg()[0]
+    return {"waited_s": round(time.monotonic() - start), "load_at_start": os.getloadavg(),
+            "quiet": load <= max_load}
+
+
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def machine() -> dict:
+    try:
+        ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    except (ValueError, OSError):
+        ram = float("nan")
+    try:
+        git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                             check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        git = "unknown"
+    return {"cpu": cpu_model(), "cores": os.cpu_count(), "ram_gib": ram, "torch": torch.__version__,
+            "threads": torch.get_num_threads(), "python": platform.python_version(), "git": git,
+            "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
+
+
+def _status_kib(field: str) -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1])
+    raise RuntimeError(f"/proc/self/status has no {field}")
+
+
+# -- 1. RGL throughput -----------------------------------------------------------------------
+def rgl_throughput(n: int, repeats: int) -> dict:
+    from neuenh.data import load_measured
+    from neuenh.data.sampling import sample_directions
+
+    path = RGL_DIR / f"{MATERIAL}.bsdf"
+    if not path.exists():
+        return {"skipped": f"{path} is missing (the real RGL files live in ../shared/data/rgl)"}
+    material = load_measured(path)
+    wi, wo = sample_directions(n, seed=0, anisotropic=False)
+    material.evaluate(wi[:10_000], wo[:10_000])  # warm-up
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        f = material.evaluate(wi, wo)
+        times.append(time.perf_counter() - start)
+    assert f.shape == (n, 3) and torch.isfinite(f).all()
+    median = statistics.median(times)
+    return {"material": MATERIAL, "n": n, "repeats": repeats, "median_s": median, "min_s": min(times),
+            "max_s": max(times), "rate": n / median}
+
+
+# -- 2. materialising, in a child process ----------------------------------------------------
+def materialise_child(materials: int, samples: int) -> dict:
+    """Runs in a fresh interpreter (``--child``) so its peak RSS is this measurement's alone."""
+    from neuenh.data.sources import SyntheticZoo, materialise
+
+    baseline = _status_kib("VmRSS")
+    start = time.perf_counter()
+    data = materialise([SyntheticZoo(source="synthetic_zoo", materials=materials, samples=samples, seed=0)],
+                       0.1, seed=0)
+    seconds = time.perf_counter() - start
+    return {"materials": materials, "samples_per_material": samples, "samples": len(data.train) + len(data.val),
+            "train": len(data.train), "val": len(data.val), "array_bytes": data.nbytes,
+            "baseline_rss_bytes": baseline * 1024, "peak_rss_bytes": _status_kib("VmHWM") * 1024,
+            "final_rss_bytes": _status_kib("VmRSS") * 1024, "seconds": seconds}
+
+
+def materialise_memory(materials: int, samples: int) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--child", str(materials), str(samples)], capture_output=True,
+                         text=True, check=False, cwd=ROOT)
+    if out.returncode != 0:
+        raise RuntimeError(f"the materialising child failed:\n{out.stderr}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+# -- report ----------------------------------------------------------------------------------
+def _gib(n: float) -> str:
+    return f"{n / 2**30:.2f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
+
+
+def render(env: dict, quiet: dict, load_end, rgl: dict, mem: dict, command: str, quick: bool) -> str:
+    start = ", ".join(f"{v:.2f}" for v in quiet["load_at_start"])
+    end = ", ".join(f"{v:.2f}" for v in load_end)
+    waited = (f"after waiting {quiet['waited_s']} s for the 1-minute load average to drop to 1.5"
+              if quiet["quiet"] else f"the 1-minute load average stayed above 1.5 for {quiet['waited_s']} s, "
+                                     "so this ran on a busy machine")
+    lines = [
+        SECTION, "",
+        f"Command: `{command}`  ",
+        f"Date: {env['date']}  ",
+        f"Machine: {env['cpu']}, {env['cores']} logical CPUs, {env['ram_gib']:.0f} GiB; Python {env['python']}, "
+        f"torch {env['torch']} ({env['threads']} threads); git {env['git']}{' (quick run)' if quick else ''}  ",
+        f"Load average (1, 5, 15 min): {start} at the start ({waited}); {end} at the end.",
+        "",
+        "### RGL evaluator throughput",
+        "",
+    ]
+    if "skipped" in rgl:
+        lines.append(f"Skipped: {rgl['skipped']}.")
+    else:
+        lines += [
+            f"`RGLMaterial.evaluate` (powitacq evaluation in vectorised float32 numpy, f_r without the cosine) "
+            f"on {rgl['n']:,} Rusinkiewicz-uniform pairs of the real material `{rgl['material']}`; median of "
+            f"{rgl['repeats']} repeats after a warm-up.",
+            "",
+            "| evaluations | median | min | max | throughput |",
+            "|---:|---:|---:|---:|---:|",
+            f"| {rgl['n']:,} | {rgl['median_s']:.3f} s | {rgl['min_s']:.3f} s | {rgl['max_s']:.3f} s | "
+            f"{rgl['rate'] / 1e6:.2f} M evaluations/s |",
+        ]
+    over = mem["peak_rss_bytes"] - mem["baseline_rss_bytes"]
+    lines += [
+        "",
+        "### Memory of materialising a dataset",
+        "",
+        f"`materialise([synthetic_zoo: {mem['materials']} materials x {mem['samples_per_material']:,} samples], "
+        f"val_fraction 0.1)` in a fresh process: {mem['samples']:,} samples ({mem['train']:,} training + "
+        f"{mem['val']:,} validation). Array bytes are `TrainingData.nbytes` (wi, wo, f_r float32 "
+        "and the int64 material index: 44 bytes a sample); RSS from `/proc/self/status`.",
+        "",
+        "| samples | arrays | RSS after imports | peak RSS | peak - imports | (peak - imports) / arrays | wall |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+        f"| {mem['samples']:,} | {mem['array_bytes']:,} B ({_gib(mem['array_bytes'])}) | "
+        f"{_gib(mem['baseline_rss_bytes'])} | {_gib(mem['peak_rss_bytes'])} | {_gib(over)} | "
+        f"{over / mem['array_bytes']:.2f}x | {mem['seconds']:.1f} s |",
+        "",
+        "The peak is above the arrays themselves because materialising holds the per-material float64 "
+        "samples while concatenating, then the concatenated set while splitting it into training and "
+        "validation copies.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_section(path: Path, text: str) -> None:
+    """Replace (or append) this benchmark's section of ``path``, leaving the others alone."""
+    old = path.read_text() if path.exists() else "# Benchmarks\n\nMeasured numbers, each with the command that produced it.\n"
+    start = old.find(SECTION)
+    if start < 0:
+        new = old.rstrip("\n") + "\n\n" + text
+    else:
+        following = re.search(r"^## ", old[start + len(SECTION):], re.M)
+        end = start + len(SECTION) + following.start() if following else len(old)
+        new = old[:start] + text + ("\n" + old[end:] if following else "")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(new.rstrip("\n") + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--child"]:
+        print(json.dumps(materialise_child(int(argv[1]), int(argv[2]))))
+        return 0
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--write", metavar="PATH", help="write/replace this section of PATH (docs/BENCHMARKS.md)")
+    parser.add_argument("--quick", action="store_true", help="a smoke run: 1e5 evaluations, 1e5 samples")
+    parser.add_argument("--repeats", type=int, default=7, help="timed repeats of the RGL evaluation (7)")
+    parser.add_argument("--max-load", type=float, default=1.5, help="wait while the 1-minute load is above this")
+    parser.add_argument("--max-wait", type=float, default=900.0, help="wait at most this many seconds (900)")
+    args = parser.parse_args(argv)
+    command = "python bench/bench_data.py" + (" --quick" if args.quick else "") + (
+        f" --write {args.write}" if args.write else "")
+
+    quiet = wait_for_quiet(args.max_load, 0.0 if args.quick else args.max_wait)
+    env = machine()
+    print(f"load average at the start: {quiet['load_at_start']}", flush=True)
+    n = 100_000 if args.quick else 1_000_000
+    print(f"1. RGL evaluator, {n:,} evaluations ...", flush=True)
+    rgl = rgl_throughput(n, 3 if args.quick else args.repeats)
+    print("  " + (rgl.get("skipped") or f"median {rgl['median_s']:.3f} s: {rgl['rate'] / 1e6:.2f} M/s"), flush=True)
+    materials, samples = (10, 10_000) if args.quick else (100, 100_000)
+    print(f"2. materialising {materials} x {samples:,} samples in a child process ...", flush=True)
+    mem = materialise_memory(materials, samples)
+    print(f"  arrays {mem['array_bytes']:,} B, RSS after imports {_gib(mem['baseline_rss_bytes'])}, peak "
+          f"{_gib(mem['peak_rss_bytes'])}, {mem['seconds']:.1f} s", flush=True)
+    load_end = os.getloadavg()
+    text = render(env, quiet, load_end, rgl, mem, command, args.quick)
+    print("\n" + text)
+    if args.write:
+        write_section(Path(args.write), text)
+        print(f"written to {args.write}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

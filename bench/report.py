@@ -1,0 +1,26 @@
+"""Writing benchmark results into docs/BENCHMARKS.md: each script owns one ``## `` section."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+HEADER = "# Benchmarks\n\nMeasured numbers, each with the command that produced it.\n"
+
+
+def write_section(path: Path, title: str, text: str) -> None:
+    """Replace (or append) the section headed ``title`` (e.g. ``## Search (issue 4)``) of
+    ``path`` with ``text`` (which starts with that heading), leaving the other sections alone."""
+    path = Path(path)
+    old = path.read_text() if path.exists() else HEADER
+    start = old.find(title)
+    if start < 0:
+        new = old.rstrip("\n") + "\n\n" + text
+    else:
+        following = re.search(r"^## ", old[start + len(title):], re.M)
+        end = start + len(title) + following.start() if following else len(old)
+        new = old[:start] + text + ("\n" + old[end:] if following else "")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(new.rstrip("\n") + "\n")
+    tmp.replace(path)

@@ -1,0 +1,124 @@
+"""Measurement tables as CSV (and weights in both formats): round trips, detection by content,
+and every problem reported with the file, the row and what is wrong."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from neuenh.data import load_measured
+from neuenh.data.errors import DataError
+from neuenh.data.measured import TableMaterial, detect_format
+from neuenh.data.table import CSV_COLUMNS, TableError, load_table, read_table, write_table
+
+sys.path.insert(0, str(Path(__file__).parent))
+from data_files import hemisphere  # noqa: E402
+
+HEADER = ",".join(CSV_COLUMNS)
+
+
+def _arrays(n=40, seed=0):
+    rng = np.random.default_rng(seed)
+    return hemisphere(n, seed), hemisphere(n, seed + 1), rng.uniform(0, 3, (n, 3)), rng.uniform(0.5, 2, n)
+
+
+def _csv(path: Path, rows: list[str], header: str = HEADER) -> Path:
+    path.write_text("\n".join([header, *rows]) + "\n")
+    return path
+
+
+GOOD_ROW = "0,0,1,0.6,0,0.8,0.1,0.2,0.3"
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".npz"])
+@pytest.mark.parametrize("weighted", [False, True], ids=["plain", "weighted"])
+def test_round_trip_is_exact_in_float32(tmp_path, suffix, weighted):
+    wi, wo, f, w = _arrays()
+    path = write_table(tmp_path / f"felt{suffix}", wi, wo, f, weight=w if weighted else None)
+    table = load_table(path)
+    assert table.format == suffix[1:] and table.samples.names == ("felt",) and len(table.samples) == 40
+    for got, want in ((table.samples.wi, wi), (table.samples.wo, wo), (table.samples.f_r, f)):
+        assert torch.equal(got, torch.as_tensor(want.astype(np.float32)))
+    if weighted:
+        assert torch.equal(table.weight, torch.as_tensor(w.astype(np.float32)))
+    else:
+        assert table.weight is None
+
+
+def test_csv_columns_in_any_order_any_case_with_comments_and_a_bom(tmp_path):
+    path = tmp_path / "t.csv"
+    path.write_text("\ufeff# measured 2024-05-02\n\n  # another comment\nR,G,B,Wo_X,wo_y,wo_z,wi_x,wi_y,wi_z\n"
+                    "0.1,0.2,0.3,0.6,0,0.8,0,0,1\n\n# a comment between rows\n1,2,3,0,0,1,0,0.6,0.8\n")
+    samples = read_table(path)
+    torch.testing.assert_close(samples.f_r, torch.tensor([[0.1, 0.2, 0.3], [1, 2, 3]]))
+    torch.testing.assert_close(samples.wo, torch.tensor([[0.6, 0, 0.8], [0, 0, 1]]))
+    torch.testing.assert_close(samples.wi, torch.tensor([[0, 0, 1.0], [0, 0.6, 0.8]]))
+
+
+def test_csv_is_recognised_by_content_and_keeps_its_weights(tmp_path):
+    wi, wo, f, w = _arrays(30)
+    write_table(tmp_path / "x.csv", wi, wo, f, weight=w)
+    disguised = tmp_path / "measurement.bsdf"
+    (tmp_path / "x.csv").rename(disguised)
+    assert detect_format(disguised) == "table"
+    material = load_measured(disguised, name="velvet")
+    assert isinstance(material, TableMaterial) and material.name == "velvet" and len(material) == 30
+    assert material.metadata["format"] == "csv" and material.metadata["weight"]["used_in_training"] is False
+    assert torch.equal(material.weight, torch.as_tensor(w.astype(np.float32)))
+    assert material.metadata["weight"]["max"] == pytest.approx(float(w.max()), rel=1e-6)
+
+
+def test_csv_header_with_a_typo_gets_a_precise_error_not_unrecognised(tmp_path):
+    path = _csv(tmp_path / "typo.txt", [GOOD_ROW], header=HEADER.replace("wo_z", "wo_zz"))
+    with pytest.raises(DataError, match=r"typo.txt: line 1: header lacks column\(s\) \['wo_z'\]"):
+        load_measured(path)
+
+
+@pytest.mark.parametrize("rows, header, match", [
+    ([GOOD_ROW], HEADER.replace(",b", ""), r"line 1: header lacks column\(s\) \['b'\]"),
+    ([GOOD_ROW + ",1"], HEADER + ",wieght", r"line 1: unknown column\(s\) \['wieght'\]"),
+    ([GOOD_ROW + ",1"], HEADER + ",r", r"line 1: header repeats column\(s\) \['r'\]"),
+    ([GOOD_ROW, "0,0,1,0.6,0,0.8,0.1,0.2"], HEADER, r"row 1 \(line 3\): 8 values, the header has 9"),
+    ([GOOD_ROW, GOOD_ROW, "0,0,1,0.6,0,0.8,0.1,abc,0.3"], HEADER, r"row 2 \(line 4\): g is not a number \('abc'\)"),
+    ([GOOD_ROW, "0,0,1,0.6,0,0.8,0.1,nan,0.3"], HEADER, r"f_r has non-finite values \(first at row 1 \(line 3\)\)"),
+    ([GOOD_ROW, "0,0,1,0.6,0,0.8,0.1,-0.2,0.3"], HEADER, r"f_r has negative values \(first at row 1 \(line 3\)\)"),
+    ([GOOD_ROW, "0,0,2,0.6,0,0.8,0.1,0.2,0.3"], HEADER, r"wi must hold unit vectors \(row 1 \(line 3\) has norm 2\)"),
+    ([GOOD_ROW + ",1", GOOD_ROW + ",-1"], HEADER + ",weight", r"weight has negative values \(first at row 1"),
+    ([GOOD_ROW + ",0", GOOD_ROW + ",0"], HEADER + ",weight", "weight is zero on every row"),
+    (["# only a comment"], HEADER, "the table is empty"),
+    ([], "# nothing but comments", "the table is empty"),
+], ids=["missing-column", "unknown-column", "duplicate-column", "short-row", "not-a-number", "nan", "negative",
+        "non-unit", "negative-weight", "zero-weights", "header-only", "no-header"])
+def test_bad_csv_names_file_row_and_problem(tmp_path, rows, header, match):
+    path = _csv(tmp_path / "bad.csv", rows, header)
+    with pytest.raises(TableError, match=match) as info:
+        read_table(path)
+    assert str(info.value).startswith(str(path))
+
+
+def test_csv_that_is_not_utf8(tmp_path):
+    path = tmp_path / "latin.csv"
+    path.write_bytes((HEADER + "\n").encode() + "0,0,1,0.6,0,0.8,0.1,0.2,0.3 # caf\xe9\n".encode("latin-1"))
+    with pytest.raises(TableError, match="latin.csv: not a CSV table .not UTF-8 text"):
+        read_table(path)
+
+
+@pytest.mark.parametrize("weight, match", [
+    (np.ones((40, 2)), r"weight must be a numeric \(n,\) array"),
+    (np.ones(39), "must have the same length, got 40, 40, 40, 39"),
+    (np.full(40, np.inf), r"weight has non-finite values \(first at row 0\)"),
+])
+def test_bad_npz_weights(tmp_path, weight, match):
+    wi, wo, f, _ = _arrays()
+    np.savez(tmp_path / "w.npz", wi=wi, wo=wo, f_r=f, weight=weight)
+    with pytest.raises(TableError, match=match):
+        read_table(tmp_path / "w.npz")
+
+
+def test_missing_table_and_folder(tmp_path):
+    with pytest.raises(TableError, match="no such file"):
+        read_table(tmp_path / "none.csv")
+    with pytest.raises(TableError, match="not a regular file"):
+        read_table(tmp_path)
