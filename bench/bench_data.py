@@ -25,7 +25,6 @@ import datetime as dt
 import json
 import os
 import platform
-import re
 import statistics
 import subprocess
 import sys
@@ -36,6 +35,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
 import torch  # noqa: E402
+
+from bench.report import write_section  # noqa: E402
 
 SECTION = "## Measured data (issue 3)"
 RGL_DIR = ROOT.parent / "shared" / "data" / "rgl"
@@ -191,20 +192,6 @@ def render(env: dict, quiet: dict, load_end, rgl: dict, mem: dict, command: str,
     return "\n".join(lines)
 
 
-def write_section(path: Path, text: str) -> None:
-    """Replace (or append) this benchmark's section of ``path``, leaving the others alone."""
-    old = path.read_text() if path.exists() else "# Benchmarks\n\nMeasured numbers, each with the command that produced it.\n"
-    start = old.find(SECTION)
-    if start < 0:
-        new = old.rstrip("\n") + "\n\n" + text
-    else:
-        following = re.search(r"^## ", old[start + len(SECTION):], re.M)
-        end = start + len(SECTION) + following.start() if following else len(old)
-        new = old[:start] + text + ("\n" + old[end:] if following else "")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(new.rstrip("\n") + "\n")
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--child"]:
@@ -236,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     text = render(env, quiet, load_end, rgl, mem, command, args.quick)
     print("\n" + text)
     if args.write:
-        write_section(Path(args.write), text)
+        write_section(Path(args.write), SECTION, text)
         print(f"written to {args.write}")
     return 0
 
