@@ -113,7 +113,7 @@ class NeuralModule(nn.Module):
 
 # -- running several modules on one input -------------------------------------------------------
 # How ``run_modules`` runs several modules that read the same input:
-#   "off"         one module after the other (the default: measured fastest on CPU, see below);
+#   "off"         one module after the other (the default: no fused mode measured faster, below);
 #   "batched"     first layers as one wide matmul, later layers as one ``baddbmm`` each;
 #   "first_layer" first layers as one wide matmul, later layers module by module.
 FUSION_MODES = ("off", "batched", "first_layer")
@@ -146,11 +146,13 @@ def run_modules(modules: list[NeuralModule], x: torch.Tensor) -> list[torch.Tens
     (``torch.cat``/``torch.stack`` are differentiable), so gradients reach each module's weights;
     outputs and gradients equal the loop's up to float rounding.
 
-    Fusion is off by default because it was not faster here: on a 2-core AVX-512 CPU with torch
-    2.13 (bench/bench_core.py, docs/BENCHMARKS.md) the batched path was 0.3-0.9x the loop's speed
-    for the paper's F, G, invE at batches of 1e4-1e5 (CPU ``bmm`` of tall thin matrices is slower
-    than separate MKL ``addmm`` calls, and its large outputs are freshly page-faulted), and the
-    first-layer-only path lost in forward and won only a few per cent in forward+backward.
+    Fusion is off by default because it was not faster where measured (bench/bench_core.py,
+    docs/BENCHMARKS.md; 2-core Zen 4 with AVX-512, torch 2.13 CPU, the paper state's F, G, invE at
+    batches of 1e4-1e5): the whole enhanced GGX ran at 0.70-0.96x the loop's speed in forward and
+    0.85-1.13x in forward+backward when batched (CPU ``baddbmm`` over three tall thin matrices is
+    slower than three MKL ``addmm`` calls, and its outputs, above glibc's 32 MB mmap threshold at
+    1e5, are page-faulted afresh on every call), and at 0.90-1.05x, i.e. within noise, with the
+    first layer fused only. Switch a mode on where a benchmark shows it wins (e.g. another device).
     """
     mode = _FUSION.get()
     if mode == "off" or len(modules) < 2 or not _fusable(modules, x):
