@@ -255,7 +255,7 @@ class BRDFModel(nn.Module):
         values = self.specs.validate(params, n, extra=(LATENT,))
         digits = self.digits if state is None else self._held_digits(state)
         latent = None
-        if _reads_latent(self.graph, digits):
+        if self.latent_dim and _reads_latent(self.graph, digits):
             latent = self._check_latent(values.get(LATENT), n)
         values.pop(LATENT, None)
         values = {k: v.to(wi.dtype) for k, v in values.items()}

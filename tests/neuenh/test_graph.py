@@ -84,3 +84,12 @@ def test_enhanced_model_refuses_states_it_holds_no_module_for():
     with pytest.raises(ValueError, match="module 1 at D"):
         model._held_digits("00100000000")
     assert model._held_digits("00010000000") == (0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0)
+
+
+def test_a_model_without_latent_parameters_needs_no_latent():
+    model = get_model("ggx", state="00100000000", latent_dim=0)
+    assert model.neural["D"].in_features == 12 + 6
+    wi = torch.tensor([[0.0, 0.6, 0.8]])
+    wo = torch.tensor([[0.0, -0.6, 0.8]])
+    params = {s.name: torch.full((s.width,), s.init) for s in model.specs}
+    assert torch.isfinite(model.evaluate(wi, wo, params)).all()
