@@ -56,18 +56,26 @@ class Progress:
 
 
 class _Cancelled(Exception):
-    pass
+    """The job was cancelled (its status is CANCELLED in the store)."""
+
+
+class _Interrupted(Exception):
+    """This process is stopping: the job is left as it is and resumes on the next start."""
 
 
 class Orchestrator:
     """Runs jobs to a terminal state. Stores and executor are built by the caller and passed in."""
 
     def __init__(self, jobs: JobStore, artifacts: ArtifactStore, executor: Executor,
-                 on_progress: Callable[[Progress], None] | None = None):
+                 on_progress: Callable[[Progress], None] | None = None,
+                 should_stop: Callable[[], bool] = lambda: False):
+        """``should_stop``: polled like cancellation; when it turns true the running job stops at
+        its next safe point without any change to its record (a service shutting down)."""
         self.jobs = jobs
         self.artifacts = artifacts
         self.executor = executor
         self.on_progress = on_progress or (lambda p: None)
+        self.should_stop = should_stop
 
     # -- entry points --------------------------------------------------------------------------
     def submit(self, spec: JobSpec, idempotency_key: str | None = None):
@@ -92,6 +100,8 @@ class Orchestrator:
             self._run(job_id, spec, start)
         except _Cancelled:
             self._emit(job_id, CANCELLED, -1, 0, 0, None, "", start, "cancelled")
+        except _Interrupted:
+            self._emit(job_id, self.jobs.get_job(job_id).status, -1, 0, 0, None, "", start, "interrupted")
         except Exception as exc:  # any failure ends the job FAILED with its reason, never silently
             log.error("job %s failed:\n%s", job_id, traceback.format_exc())
             if not self.jobs.get_job(job_id).terminal:
@@ -192,7 +202,7 @@ class Orchestrator:
         best = None
         self._emit(job_id, RUNNING, k, 0, len(tasks), None, "", start, phase)
         for report in self.executor.train(dataset, parents, tasks, config, resources,
-                                          cancelled=lambda: self._cancel_requested(job_id)):
+                                          cancelled=lambda: self.should_stop() or self._cancel_requested(job_id)):
             reports.append(report)
             if report.ok and (best is None or report.val_loss < best):
                 best = report.val_loss
@@ -220,6 +230,8 @@ class Orchestrator:
         return self.jobs.get_job(job_id).status == CANCELLED
 
     def _check_cancel(self, job_id: str) -> None:
+        if self.should_stop():
+            raise _Interrupted()
         if self._cancel_requested(job_id):
             raise _Cancelled()
 

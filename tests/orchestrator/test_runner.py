@@ -167,3 +167,25 @@ def test_the_dataset_is_built_once_per_recipe(orchestrator, stores):
     b = orchestrator.run(orchestrator.submit(tiny_spec(max_rounds=1), idempotency_key="b")[0].id)
     keys = {e.payload["key"] for j in (a, b) for e in jobs.events(j.id) if e.kind == "dataset"}
     assert len(keys) == 1 and artifacts.exists(keys.pop())
+
+
+def test_a_stopping_process_leaves_the_job_to_resume(stores):
+    """should_stop (a service shutting down) halts mid-round without touching the job's record."""
+    jobs, artifacts = stores
+    reference = Orchestrator(jobs, artifacts, InlineExecutor())
+    expected = _path(jobs, reference.run(reference.submit(tiny_spec(), idempotency_key="ref")[0].id).id)
+
+    seen = []
+
+    class Counting(InlineExecutor):
+        def train(self, *args, **kwargs):
+            for report in super().train(*args, **kwargs):
+                seen.append(report)
+                yield report
+
+    stopping = Orchestrator(jobs, artifacts, Counting(), should_stop=lambda: len(seen) >= 12 + 5)
+    job, _ = stopping.submit(tiny_spec())
+    halted = stopping.run(job.id)
+    assert halted.status == JobStatus.RUNNING and halted.error is None and halted.last_round == 0
+    assert Orchestrator(jobs, artifacts, InlineExecutor()).resume_all() == [job.id]
+    assert _path(jobs, job.id) == expected

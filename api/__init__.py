@@ -1,0 +1,6 @@
+"""The REST service (DESIGN §3-4): FastAPI app, routes under ``/v1``, schemas, dependencies.
+
+Nothing is built at import time: ``create_app(settings)`` returns an app whose lifespan builds the
+job store, artifact store, executor, orchestrator and the background job worker, and closes them
+on shutdown. Run it with ``python -m api`` (or ``uvicorn --factory api.app:create_app``).
+"""

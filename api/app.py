@@ -1,0 +1,106 @@
+"""The FastAPI app. ``create_app(settings)`` builds nothing at import time; its lifespan builds
+
+* ``SQLiteJobStore(data_dir/jobs.sqlite)`` and ``LocalArtifactStore(data_dir/artifacts)``,
+* the executor (``RayExecutor`` joining ``ray_address`` or an embedded Ray; tests pass
+  ``executor_factory`` returning an ``InlineExecutor``),
+* the ``JobWorker`` (one thread running jobs one at a time through the ``Orchestrator``; it
+  resumes unfinished jobs at start),
+
+puts them on ``app.state`` for ``deps.py``, and on shutdown stops the worker at a safe point (the
+running job is not cancelled: it resumes on the next start) and closes the executor and stores.
+"""
+
+from __future__ import annotations
+
+import logging
+from contextlib import asynccontextmanager
+from typing import Callable
+
+from fastapi import FastAPI, HTTPException, status
+from fastapi.responses import JSONResponse
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+import neuenh
+from orchestrator.executor import Executor
+from storage import LocalArtifactStore, SQLiteJobStore
+
+from . import errors
+from .routes import health, jobs
+from .settings import Settings
+from .worker import JobWorker
+
+log = logging.getLogger("neuenh.api")
+
+ExecutorFactory = Callable[[Settings], Executor]
+
+
+def ray_executor(settings: Settings) -> Executor:
+    from workers.ray_executor import RayExecutor  # Ray only when the service really starts
+
+    return RayExecutor(address=settings.ray_address)
+
+
+def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFactory | None = None) -> FastAPI:
+    """The service. ``settings`` default to the environment (``NEUENH_*``), read at startup."""
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI):
+        s = settings if settings is not None else Settings()
+        s.data_dir.mkdir(parents=True, exist_ok=True)
+        store = SQLiteJobStore(s.data_dir / "jobs.sqlite")
+        artifacts = LocalArtifactStore(s.data_dir / "artifacts")
+        executor = (executor_factory or ray_executor)(s)
+        worker = JobWorker(store, artifacts, executor)
+        app.state.settings, app.state.jobs, app.state.artifacts, app.state.worker = s, store, artifacts, worker
+        worker.start()
+        log.info("neuenh service: data in %s, auth %s", s.data_dir, "on" if s.api_token else "off")
+        try:
+            yield
+        finally:
+            stopped = worker.stop(s.shutdown_grace_s)
+            if stopped:  # never pull the store or executor from under a job still running
+                executor.close()
+                store.close()
+
+    app = FastAPI(
+        title="neuenh",
+        version=neuenh.__version__,
+        summary="Neural enhancement of analytical BRDF models: a distributed search service.",
+        lifespan=lifespan,
+    )
+    errors.install(app)
+    app.include_router(health.router, prefix="/v1")
+    app.include_router(jobs.router, prefix="/v1")
+    app.add_middleware(BodyLimit, limit=lambda: app.state.settings.max_request_bytes)
+    return app
+
+
+class BodyLimit:
+    """Refuse request bodies over ``limit()`` bytes with 413: at once when ``Content-Length`` says
+    so, else while the body streams in."""
+
+    def __init__(self, app: ASGIApp, limit: Callable[[], int]):
+        self.app, self.limit = app, limit
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        limit = self.limit()
+        detail = f"request body over {limit} bytes (NEUENH_MAX_REQUEST_BYTES)"
+        length = dict(scope["headers"]).get(b"content-length")
+        if length is not None and (not length.isdigit() or int(length) > limit):
+            await JSONResponse({"detail": detail}, status.HTTP_413_CONTENT_TOO_LARGE)(scope, receive, send)
+            return
+        seen = 0
+
+        async def counted() -> Message:
+            nonlocal seen
+            message = await receive()
+            if message["type"] == "http.request":
+                seen += len(message.get("body", b""))
+                if seen > limit:  # FastAPI re-raises HTTPException from body reading as-is
+                    raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, detail)
+            return message
+
+        await self.app(scope, counted, send)

@@ -1,0 +1,65 @@
+"""Every error leaves the service as JSON ``{"detail": ...}``, never as a traceback.
+
+Storage errors map to HTTP statuses (``NotFoundError`` 404, ``ConflictError`` 409,
+``InvalidRecordError``/``InvalidKeyError`` 422); an invalid job spec is 422 with a detail naming
+each field; anything unexpected is 500 with a generic detail, its traceback logged.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from fastapi import FastAPI, Request, status
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from orchestrator.spec import SpecError
+from storage import ConflictError, InvalidKeyError, InvalidRecordError, NotFoundError, StorageError
+
+log = logging.getLogger("neuenh.api")
+
+
+def _json(code: int, detail, **extra) -> JSONResponse:
+    return JSONResponse(status_code=code, content={"detail": detail, **extra})
+
+
+def _where(loc) -> str:
+    parts = [str(p) for p in loc]
+    if parts and parts[0] == "body":
+        return ".".join(parts[1:]) or "body"
+    return ".".join(parts) or "request"
+
+
+async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+    errors = exc.errors()
+    problems = "; ".join(f"{_where(e['loc'])}: {e['msg']}" for e in errors)
+    what = "invalid job spec" if any(e["loc"][:1] == ("body",) for e in errors) else "invalid request"
+    clean = [{k: v for k, v in e.items() if k in ("loc", "msg", "type")} for e in errors]
+    return _json(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{what}: {problems}", errors=jsonable_encoder(clean))
+
+
+async def _spec_error(request: Request, exc: SpecError) -> JSONResponse:
+    return _json(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc))
+
+
+async def _storage(request: Request, exc: StorageError) -> JSONResponse:
+    if isinstance(exc, NotFoundError):
+        return _json(status.HTTP_404_NOT_FOUND, str(exc))
+    if isinstance(exc, ConflictError):
+        return _json(status.HTTP_409_CONFLICT, str(exc))
+    if isinstance(exc, (InvalidRecordError, InvalidKeyError)):
+        return _json(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc))
+    return await _unexpected(request, exc)
+
+
+async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+    log.error("%s %s failed", request.method, request.url.path, exc_info=exc)
+    return _json(status.HTTP_500_INTERNAL_SERVER_ERROR, "internal server error; see the service log")
+
+
+def install(app: FastAPI) -> None:
+    app.add_exception_handler(RequestValidationError, _validation)
+    app.add_exception_handler(SpecError, _spec_error)
+    app.add_exception_handler(StorageError, _storage)
+    app.add_exception_handler(Exception, _unexpected)

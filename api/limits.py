@@ -1,0 +1,55 @@
+"""What one submitted job may ask of this service (``Settings.max_*``). A spec over a limit is
+refused with 422 and a detail naming the field, its value and the setting that bounds it."""
+
+from __future__ import annotations
+
+from math import comb
+from pathlib import Path
+
+from fastapi import HTTPException, status
+
+from orchestrator.spec import JobSpec
+
+from .settings import Settings
+
+
+def candidates_bound(spec: JobSpec) -> int:
+    """Most candidates a round can have: the Hamming ball of ``search.radius`` over the positions
+    that are not fixed, each changed position taking any of the other ``m - 1`` digits."""
+    free = len(spec.positions()) - len(spec.search.fixed)
+    m = spec.digits()
+    return sum(comb(free, d) * (m - 1) ** d for d in range(min(spec.search.radius, free) + 1))
+
+
+def outside_data_roots(spec: JobSpec, settings: Settings) -> list[str]:
+    """Files a spec's sources would read that lie outside the configured data roots (after
+    resolving ``..`` and symbolic links), so a caller cannot make the service read any file."""
+    roots = [root.resolve() for root in settings.data_roots]
+    problems = []
+    for i, source in enumerate(spec.data):
+        paths = getattr(source, "paths", None) or ([source.path] if hasattr(source, "path") else [])
+        for path in paths:
+            resolved = Path(path).resolve()
+            if not any(resolved.is_relative_to(root) for root in roots):
+                allowed = ", ".join(map(str, roots)) or "none configured"
+                problems.append(f"data.{i}: {path} is outside the data roots ({allowed}; NEUENH_DATA_ROOTS)")
+    return problems
+
+
+def check_limits(spec: JobSpec, settings: Settings) -> None:
+    problems = []
+    n = candidates_bound(spec)
+    if n > settings.max_candidates_per_round:
+        problems.append(f"search.radius: {spec.search.radius} gives up to {n} candidates per round; this "
+                        f"service allows {settings.max_candidates_per_round} (NEUENH_MAX_CANDIDATES_PER_ROUND)")
+    if spec.search.epochs_per_round > settings.max_epochs:
+        problems.append(f"search.epochs_per_round: {spec.search.epochs_per_round} exceeds this service's "
+                        f"limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)")
+    for i, source in enumerate(spec.data):
+        samples = getattr(source, "samples", None)
+        if samples is not None and samples > settings.max_samples:
+            problems.append(f"data.{i}.samples: {samples} exceeds this service's limit of "
+                            f"{settings.max_samples} per material (NEUENH_MAX_SAMPLES)")
+    problems += outside_data_roots(spec, settings)
+    if problems:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "job spec over limits: " + "; ".join(problems))

@@ -1,0 +1,108 @@
+"""``/v1/jobs``: submit a search job, list jobs, follow one (status, history), cancel it, download
+its model."""
+
+from __future__ import annotations
+
+import io
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Annotated
+
+from fastapi import APIRouter, Header, HTTPException, Query, Response, status
+
+from neuenh.checkpoint import Bundle
+from storage import JobStatus
+
+from ..deps import ArtifactStoreDep, Authorized, JobStoreDep, SettingsDep, WorkerDep
+from ..limits import check_limits
+from ..schemas import HistoryPublic, JobCreate, JobList, JobPublic, RoundPublic
+
+router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized])
+
+_ERRORS = {401: {"description": "missing or invalid bearer token"},
+           404: {"description": "no such job"}}
+
+
+@router.post("", status_code=status.HTTP_202_ACCEPTED, response_model=JobPublic,
+             responses={200: {"model": JobPublic, "description": "the job already submitted under this Idempotency-Key"},
+                        409: {"description": "Idempotency-Key reused for a different spec"},
+                        413: {"description": "request body over NEUENH_MAX_REQUEST_BYTES"},
+                        422: {"description": "invalid job spec, or over the service's limits"}})
+def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, worker: WorkerDep,
+               idempotency_key: Annotated[str | None, Header(max_length=200)] = None) -> JobPublic:
+    """Validate and queue a job (202). A repeated ``Idempotency-Key`` with the same spec returns
+    the job it created (200)."""
+    check_limits(spec, settings)
+    job, created = worker.orchestrator.submit(spec, idempotency_key=idempotency_key)
+    if created:
+        worker.enqueue(job.id)
+    else:
+        response.status_code = status.HTTP_200_OK
+    public = JobPublic.from_record(job, progress=worker.progress(job.id))
+    response.headers["Location"] = public.links.self
+    return public
+
+
+@router.get("", response_model=JobList)
+def list_jobs(jobs: JobStoreDep, worker: WorkerDep,
+              status_: Annotated[list[JobStatus] | None, Query(alias="status", description="repeat for several")] = None,
+              limit: Annotated[int, Query(ge=1, le=500)] = 50,
+              cursor: Annotated[str | None, Query(max_length=40)] = None) -> JobList:
+    """Jobs, newest first, in pages."""
+    page = jobs.list_jobs(status=status_ or None, limit=limit, cursor=cursor)
+    return JobList(jobs=[JobPublic.from_record(j, progress=worker.progress(j.id)) for j in page.jobs],
+                   next_cursor=page.next_cursor)
+
+
+@router.get("/{job_id}", response_model=JobPublic, responses=_ERRORS)
+def get_job(job_id: str, jobs: JobStoreDep, worker: WorkerDep) -> JobPublic:
+    return JobPublic.from_record(jobs.get_job(job_id), progress=worker.progress(job_id))
+
+
+@router.get("/{job_id}/history", response_model=HistoryPublic, responses=_ERRORS)
+def job_history(job_id: str, jobs: JobStoreDep,
+                since_round: Annotated[int, Query(ge=0)] = 0) -> HistoryPublic:
+    """Committed rounds with index >= ``since_round``, each with every candidate and the winner."""
+    job = jobs.get_job(job_id)
+    rounds = jobs.rounds(job_id, since_round=since_round)
+    return HistoryPublic(job_id=job.id, status=job.status, terminal=job.terminal,
+                         current_state=job.current_state,
+                         rounds=[RoundPublic.from_record(r) for r in rounds],
+                         next_since_round=rounds[-1].index + 1 if rounds else since_round)
+
+
+@router.post("/{job_id}/cancel", response_model=JobPublic,
+             responses={**_ERRORS, 409: {"description": "the job is already finished"}})
+def cancel_job(job_id: str, jobs: JobStoreDep) -> JobPublic:
+    """Cancel an unfinished job. It keeps its committed rounds (and its model, if any)."""
+    job = jobs.get_job(job_id)
+    if job.terminal:
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"job {job_id} is already {job.status.value}; only unfinished jobs can be cancelled")
+    return JobPublic.from_record(jobs.set_status(job_id, JobStatus.CANCELLED))  # a lost race is 409 too
+
+
+@router.get("/{job_id}/model", response_class=Response, responses={
+    **_ERRORS, 200: {"content": {"application/zip": {}},
+                     "description": "model.json, weights.safetensors, materials.safetensors"}})
+def download_model(job_id: str, jobs: JobStoreDep, artifacts: ArtifactStoreDep) -> Response:
+    """The last committed bundle as a zip archive (load it with ``Bundle.load`` once extracted)."""
+    job = jobs.get_job(job_id)
+    last = jobs.last_round(job_id)
+    if last is None or last.artifact_key is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"job {job_id} has no committed round yet (status {job.status.value}); "
+                            f"its model is available once round 0 is committed")
+    bundle = Bundle.from_bytes(artifacts.get(last.artifact_key))
+    bundle.provenance.update({"job": job_id, "round": last.index, "status": job.status.value})
+    buffer = io.BytesIO()
+    with tempfile.TemporaryDirectory(prefix="neuenh-model-") as tmp:
+        directory = bundle.save(Path(tmp) / "model")
+        with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
+            for path in sorted(directory.iterdir()):
+                archive.write(path, path.name)
+    filename = f"neuenh-{job_id}-round{last.index:04d}.zip"
+    return Response(buffer.getvalue(), media_type="application/zip",
+                    headers={"Content-Disposition": f'attachment; filename="{filename}"',
+                             "X-Neuenh-Round": str(last.index), "X-Neuenh-State": last.winner_state})

@@ -1,0 +1,46 @@
+"""Service settings, read from the environment (prefix ``NEUENH_``) or passed in by tests.
+
+    NEUENH_DATA_DIR=./neuenh-data NEUENH_API_TOKEN=... NEUENH_RAY_ADDRESS=ray://head:10001 python -m api
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field, SecretStr
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="NEUENH_", extra="ignore")
+
+    data_dir: Path = Field(Path("./neuenh-data"), description="jobs.sqlite and artifacts/ live here")
+    host: str = "127.0.0.1"
+    port: int = Field(8000, ge=0, le=65535)
+    api_token: SecretStr | None = Field(
+        None, description="when set, every /v1 route but /health needs 'Authorization: Bearer <token>'")
+    ray_address: str | None = Field(None, description="join this Ray cluster; embedded Ray when unset")
+    data_roots: list[Path] = Field(
+        default_factory=list,
+        description="folders whose files a job's data sources may read (JSON list in "
+                    "NEUENH_DATA_ROOTS); with none, file-based sources are refused")
+
+    # Limits on what one submitted job may ask for (checked on POST /v1/jobs, 422 when exceeded).
+    max_candidates_per_round: int = Field(
+        64, ge=1, description="upper bound of the Hamming ball size implied by search.radius")
+    max_epochs: int = Field(1000, ge=1, description="largest search.epochs_per_round")
+    max_samples: int = Field(1_000_000, ge=1, description="largest per-material 'samples' of a data source")
+    max_request_bytes: int = Field(1_000_000, ge=1, description="largest request body; 413 beyond")
+
+    shutdown_grace_s: float = Field(
+        30.0, ge=0.0, description="how long shutdown waits for the running job to reach a safe stop")
+
+
+LOOPBACK = ("127.", "::1", "localhost")
+
+
+def check_listen_address(settings: Settings) -> None:
+    """Refuse to serve beyond this machine without a token (a ValueError naming the fix)."""
+    if settings.api_token is None and not settings.host.startswith(LOOPBACK):
+        raise ValueError(f"refusing to listen on {settings.host} without NEUENH_API_TOKEN: anyone on the "
+                         "network could submit jobs; set a token or listen on 127.0.0.1")

@@ -1,0 +1,1 @@
+from live_api import live_server  # noqa: F401  (fixture)

@@ -1,0 +1,79 @@
+"""A real uvicorn server on 127.0.0.1 (free port, in a thread) serving ``create_app(settings)``
+with real SQLite under tmp_path and the in-process executor, plus an httpx client for it."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import httpx
+import pytest
+import uvicorn
+
+from api.app import create_app
+from api.settings import Settings
+from workers.inline import InlineExecutor
+
+TERMINAL = {"CONVERGED", "STOPPED", "CANCELLED", "FAILED"}
+
+
+class LiveServer:
+    def __init__(self, settings: Settings, setup=None):
+        self.settings = settings
+        self.app = create_app(settings, executor_factory=lambda s: InlineExecutor())
+        if setup is not None:
+            setup(self.app)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.url = f"http://127.0.0.1:{self.sock.getsockname()[1]}"
+        self.server = uvicorn.Server(uvicorn.Config(self.app, log_level="warning", lifespan="on"))
+        self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True)
+
+    def start(self) -> "LiveServer":
+        self.thread.start()
+        deadline = time.monotonic() + 20
+        while not self.server.started:
+            if not self.thread.is_alive() or time.monotonic() > deadline:
+                raise RuntimeError("the test server did not start")
+            time.sleep(0.02)
+        return self
+
+    def stop(self) -> None:
+        self.server.should_exit = True
+        self.thread.join(60)
+        self.sock.close()
+        assert not self.thread.is_alive(), "the test server did not stop"
+
+    def client(self, **kw) -> httpx.Client:
+        return httpx.Client(base_url=self.url + "/v1", timeout=30, **kw)
+
+
+@pytest.fixture()
+def live_server(tmp_path):
+    """Factory: ``live_server(**settings)`` starts a server; every one is stopped at the end."""
+    servers: list[LiveServer] = []
+
+    def start(setup=None, **overrides) -> LiveServer:
+        settings = Settings(**{"data_dir": tmp_path / "data", **overrides})
+        servers.append(LiveServer(settings, setup).start())
+        return servers[-1]
+
+    yield start
+    for s in servers:
+        if s.thread.is_alive():
+            s.stop()
+
+
+def wait_for(client: httpx.Client, job_id: str, until=lambda job: job["status"] in TERMINAL,
+             timeout: float = 60.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while True:
+        r = client.get(f"/jobs/{job_id}")
+        assert r.status_code == 200, r.text
+        job = r.json()
+        if until(job):
+            return job
+        if time.monotonic() > deadline:
+            raise AssertionError(f"job {job_id} stuck at {job['status']}")
+        time.sleep(0.1)
