@@ -3,6 +3,8 @@ response is one of these ``*Public`` models, built from a record by its ``from_r
 
 from __future__ import annotations
 
+import dataclasses
+
 from datetime import datetime, timezone
 from typing import Any
 
@@ -41,8 +43,7 @@ class ProgressPublic(BaseModel):
 
     @classmethod
     def from_progress(cls, p: Progress) -> "ProgressPublic":
-        return cls(round=p.round, done=p.done, total=p.total, best_val_loss=p.best_val_loss,
-                   state=p.state, elapsed_s=p.elapsed_s, message=p.message)
+        return cls.model_validate(dataclasses.asdict(p))  # job_id and status are not repeated here
 
 
 class JobPublic(BaseModel):

@@ -29,10 +29,8 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from bench.report import write_section  # noqa: E402
-from neuenh.checkpoint import Bundle  # noqa: E402
 from neuenh.data.sources import materialise  # noqa: E402
-from neuenh.train import train_candidate  # noqa: E402
-from orchestrator.runner import Orchestrator  # noqa: E402
+from orchestrator.runner import Orchestrator, train_plain_baseline  # noqa: E402
 from orchestrator.spec import load_spec  # noqa: E402
 from storage import LocalArtifactStore, SQLiteJobStore  # noqa: E402
 from workers.inline import InlineExecutor  # noqa: E402
@@ -68,14 +66,6 @@ def round_stats(result: dict, workers: int) -> dict:
             "val": r.winner_val_loss}
 
 
-def plain_baseline(spec, epochs: int) -> float:
-    """Validation loss of the analytical model trained as long as the search trained in total."""
-    data = materialise(spec.data, spec.train.val_fraction, spec.train.seed)
-    initial = Bundle.initial(spec.model, data.names, spec.module.config(), spec.latent_dim)
-    return train_candidate(initial, "0" * len(initial.model.positions), data, spec.train_config(epochs),
-                           spec.train.seed).val_loss
-
-
 def with_ray(cpus: int, fn):
     if ray.is_initialized():
         ray.shutdown()
@@ -104,7 +94,9 @@ def main() -> int:
     print("radius 2", r2, flush=True)
     plain = with_ray(2, lambda ex: run_job(quickstart(), ex, tmp / "plain"))
     print("job, no pruning", plain["wall_s"], plain["path"], flush=True)
-    baseline = plain_baseline(quickstart(), sum(r.winner.epochs for r in plain["rounds"]))
+    spec = quickstart()
+    data = materialise(spec.data, spec.train.val_fraction, spec.train.seed)
+    baseline = train_plain_baseline(spec, data, sum(r.winner.epochs for r in plain["rounds"])).val_loss
     print("plain GGX, same epochs", baseline, flush=True)
     halving = with_ray(2, lambda ex: run_job(quickstart(prune="halving"), ex, tmp / "halving"))
     print("job, halving", halving["wall_s"], halving["path"], flush=True)

@@ -20,9 +20,8 @@ import time
 from pathlib import Path
 
 from neuenh.checkpoint import Bundle
-from neuenh.train import train_candidate
 from orchestrator.dataset import prepare_dataset
-from orchestrator.runner import Orchestrator, Progress
+from orchestrator.runner import Orchestrator, Progress, train_plain_baseline
 from orchestrator.spec import load_spec
 from storage import JobStatus, LocalArtifactStore, SQLiteJobStore
 
@@ -102,9 +101,7 @@ def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
     })
     if baseline:
         epochs = sum(r.winner.epochs for r in rounds)
-        data, _ = prepare_dataset(spec, artifacts)
-        plain = train_candidate(Bundle.initial(spec.model, data.names, spec.module.config(), spec.latent_dim),
-                                "0" * len(bundle.model.positions), data, spec.train_config(epochs), spec.train.seed)
+        plain = train_plain_baseline(spec, prepare_dataset(spec, artifacts)[0], epochs)
         summary["plain_val_loss_same_epochs"] = plain.val_loss
         summary["plain_epochs"] = epochs
         summary["improvement"] = 1.0 - final.val_loss / plain.val_loss

@@ -125,10 +125,7 @@ class Bundle:
 
     @classmethod
     def from_bytes(cls, blob: bytes) -> "Bundle":
-        # The metadata sits in the safetensors header: 8-byte little-endian length, then JSON.
-        header_len = int.from_bytes(blob[:8], "little")
-        header = json.loads(blob[8 : 8 + header_len])
-        meta = header.get("__metadata__", {})
+        meta = blob_metadata(blob)
         tensors = st_load(blob)
         weights = {k[len("neural."):]: v for k, v in tensors.items() if k.startswith("neural.")}
         materials = None
@@ -177,6 +174,13 @@ class Bundle:
             except ValueError as exc:
                 raise BundleError(f"{where}: {exc}") from None
         return cls(model, table, meta.get("training", {}), meta.get("provenance", {}), meta.get("metrics", {}))
+
+
+def blob_metadata(blob: bytes) -> dict[str, str]:
+    """The string metadata of an in-memory safetensors blob (its header: an 8-byte little-endian
+    length, then JSON whose ``__metadata__`` holds it)."""
+    header_len = int.from_bytes(blob[:8], "little")
+    return json.loads(blob[8 : 8 + header_len]).get("__metadata__", {})
 
 
 def _weights(model: BRDFModel) -> dict[str, torch.Tensor]:

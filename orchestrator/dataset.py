@@ -9,6 +9,7 @@ from pathlib import Path
 
 from safetensors.torch import load, save
 
+from neuenh.checkpoint import blob_metadata
 from neuenh.data.samples import Samples
 from neuenh.data.sources import materialise
 from neuenh.train import TrainingData
@@ -52,8 +53,7 @@ def to_bytes(data: TrainingData) -> bytes:
 
 
 def from_bytes(blob: bytes) -> TrainingData:
-    header_len = int.from_bytes(blob[:8], "little")
-    names = tuple(json.loads(json.loads(blob[8 : 8 + header_len])["__metadata__"]["names"]))
+    names = tuple(json.loads(blob_metadata(blob)["names"]))
     tensors = load(blob)
     parts = {part: Samples(*(tensors[f"{part}.{f}"] for f in _FIELDS), names) for part in ("train", "val")}
     return TrainingData(parts["train"], parts["val"])

@@ -19,14 +19,15 @@ from __future__ import annotations
 import dataclasses
 import functools
 import logging
+import math
 import time
 import traceback
 from dataclasses import dataclass
 from typing import Callable
 
-from neuenh.checkpoint import Bundle
 from neuenh.graph import Graph
 from neuenh.models import get_model
+from neuenh.train import CandidateResult, TrainingData, train_candidate
 from neuenh.search import Outcome, candidate_seed, hamming_ball, initial_state, keep_better_half, select, weight_cost
 from storage import ArtifactStore, CandidateRecord, JobStatus, JobStore, RoundRecord, checkpoint_key
 
@@ -127,7 +128,7 @@ class Orchestrator:
         if last is None:
             round_index = 0
             state = initial_state(len(graph), m, constraints)
-            parent = Bundle.initial(spec.model, data.names, spec.module.config(), spec.latent_dim).to_bytes()
+            parent = spec.initial_bundle(data.names).to_bytes()
         else:
             round_index = last.index + 1
             state = graph.parse_state(last.winner_state, m)
@@ -240,6 +241,14 @@ class Orchestrator:
                                   time.perf_counter() - start, message))
 
 
+def train_plain_baseline(spec: JobSpec, data: TrainingData, epochs: int) -> CandidateResult:
+    """The analytical model trained as long as a search trained in total: the fair baseline
+    against which an enhancement's gain is measured."""
+    parent = spec.initial_bundle(data.names)
+    return train_candidate(parent, "0" * len(parent.model.positions), data, spec.train_config(epochs),
+                           spec.train.seed)
+
+
 @functools.lru_cache(maxsize=4096)
 def _n_weights(model: str, state: str, module_config, latent_dim: int) -> int:
     return get_model(model, state=state, module_config=module_config, latent_dim=latent_dim).n_weights()
@@ -251,7 +260,7 @@ def _with_epochs(task: CandidateTask, epochs: int) -> CandidateTask:
 
 def _candidate_row(r: CandidateReport) -> dict:
     """A report as JSON (non-finite losses as None)."""
-    finite = lambda x: x if x == x and abs(x) != float("inf") else None  # noqa: E731
+    finite = lambda x: x if math.isfinite(x) else None  # noqa: E731
     return {"state": r.task.state, "seed": r.task.seed, "train_loss": finite(r.train_loss),
             "val_loss": finite(r.val_loss), "epochs": r.epochs, "wall_s": r.wall_s, "node": r.node,
             "error": r.error}

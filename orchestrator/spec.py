@@ -19,6 +19,7 @@ from typing import Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from neuenh.checkpoint import Bundle
 from neuenh.data.sources import DataSource
 from neuenh.models import available_models, get_model
 from neuenh.modules import ModuleConfig
@@ -100,6 +101,10 @@ class JobSpec(_Strict):
 
     def digits(self) -> int:
         return self.module.config().digits
+
+    def initial_bundle(self, material_names) -> Bundle:
+        """Round 0's parent: the analytical model, every material at the paper's initial values."""
+        return Bundle.initial(self.model, material_names, self.module.config(), self.latent_dim)
 
     def train_config(self, epochs: int | None = None) -> TrainConfig:
         return TrainConfig(epochs=self.search.epochs_per_round if epochs is None else epochs,

@@ -16,13 +16,19 @@ class DataError(ValueError):
     """A data file that cannot be read or used; the message names the file and the problem."""
 
 
-def read_bytes(path: str | os.PathLike, error: type[DataError] = DataError) -> bytes:
-    """The whole content of ``path``; a missing or unreadable file is an ``error``."""
+def check_file(path: str | os.PathLike, error: type[DataError] = DataError) -> Path:
+    """``path`` as a Path; a missing path or one that is not a regular file is an ``error``."""
     path = Path(path)
     if not path.exists():
         raise error(f"{path}: no such file")
     if not path.is_file():
         raise error(f"{path}: not a regular file")
+    return path
+
+
+def read_bytes(path: str | os.PathLike, error: type[DataError] = DataError) -> bytes:
+    """The whole content of ``path``; a missing or unreadable file is an ``error``."""
+    path = check_file(path, error)
     try:
         return path.read_bytes()
     except OSError as exc:

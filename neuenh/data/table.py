@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .errors import DataError
+from .errors import DataError, check_file
 from .samples import Samples
 
 CSV_COLUMNS = ("wi_x", "wi_y", "wi_z", "wo_x", "wo_y", "wo_z", "r", "g", "b")
@@ -94,11 +94,7 @@ def looks_like_csv_table(head: bytes) -> bool:
 # -- reading ---------------------------------------------------------------------------------
 def load_table(path: str | os.PathLike, name: str | None = None) -> Table:
     """The table at ``path`` (npz or CSV, told apart by content); ``name`` defaults to the stem."""
-    path = Path(path)
-    if not path.exists():
-        raise TableError(f"{path}: no such file")
-    if not path.is_file():
-        raise TableError(f"{path}: not a regular file")
+    path = check_file(path, TableError)
     try:
         with open(path, "rb") as f:
             head = f.read(4)
