@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install demo test bench clean
+.PHONY: install browser demo test bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,7 +20,14 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/neuenh search examples/quickstart.yaml --data-dir runs/demo
 
-test: $(STAMP)
+# The dashboard's browser test drives Debian's Chromium through Playwright (test tools' own
+# browser downloads do not work here). Installed when missing and root; else that test skips.
+browser:
+	@command -v chromium >/dev/null || { [ "$$(id -u)" = 0 ] && \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium >/dev/null; } || \
+	  echo "note: chromium is not installed and this is not root; the dashboard browser test will skip"
+
+test: $(STAMP) browser
 	$(PY) -m pytest -q
 
 # Slow, measured side by side; each script rewrites its own section of docs/BENCHMARKS.md.

@@ -25,7 +25,7 @@ from orchestrator.executor import Executor
 from storage import LocalArtifactStore, SQLiteJobStore
 
 from . import errors
-from .routes import health, jobs
+from .routes import dashboard, health, jobs
 from .settings import Settings
 from .worker import JobWorker
 
@@ -71,6 +71,8 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
     errors.install(app)
     app.include_router(health.router, prefix="/v1")
     app.include_router(jobs.router, prefix="/v1")
+    app.include_router(dashboard.router)
+    app.mount("/dashboard", dashboard.static_files(), name="dashboard")
     app.add_middleware(BodyLimit, limit=lambda: app.state.settings.max_request_bytes)
     return app
 

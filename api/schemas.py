@@ -131,6 +131,50 @@ class HistoryPublic(BaseModel):
     next_since_round: int = Field(description="poll again with ?since_round= this value")
 
 
+class NodePublic(BaseModel):
+    id: str
+    address: str | None
+    alive: bool
+    cpus: float
+    gpus: float
+    memory_bytes: int | None
+
+
+class ClusterPublic(BaseModel):
+    """Where candidates train: the executor's nodes and what is free now."""
+
+    backend: str = Field(description="'ray' (embedded or joined cluster) or 'inline' (in-process)")
+    address: str | None = Field(description="the Ray cluster joined; null for an embedded or inline executor")
+    nodes: list[NodePublic]
+    cpus: float
+    gpus: float
+    cpus_available: float
+    gpus_available: float
+    busy_candidates: int = Field(description="candidates training right now")
+    running_job: str | None = Field(description="the job the service is running, if any")
+
+
+class FittedMaterial(BaseModel):
+    name: str
+    loss: float = Field(description="mean log-L1 of the fitted model on the uploaded measurements")
+    samples: int
+    params: dict[str, list[float]] = Field(description="fitted parameters by name (the latent code too "
+                                                       "when the model uses it)")
+
+
+class FitPublic(BaseModel):
+    """Materials fitted with a job's model, its module weights frozen (``POST /v1/jobs/{id}/fit``)."""
+
+    job_id: str
+    round: int = Field(description="the committed round whose model was used")
+    model: str
+    state: str
+    method: str
+    epochs: int
+    wall_s: float
+    materials: list[FittedMaterial]
+
+
 class Health(BaseModel):
     status: str
     version: str
