@@ -3,6 +3,8 @@
 * ``SQLiteJobStore(data_dir/jobs.sqlite)`` and ``LocalArtifactStore(data_dir/artifacts)``,
 * the executor (``RayExecutor`` joining ``ray_address`` or an embedded Ray; tests pass
   ``executor_factory`` returning an ``InlineExecutor``),
+* the store's ``OwnerLock`` (one process runs a store's jobs at a time; ``serve`` takes it before
+  uvicorn starts, so a second server fails with one line instead of a startup traceback),
 * the ``JobWorker`` (one thread running jobs one at a time through the ``Orchestrator``; it
   resumes unfinished jobs at start),
 
@@ -22,10 +24,10 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 import neuenh
 from orchestrator.executor import Executor
-from storage import LocalArtifactStore, SQLiteJobStore
+from storage import LocalArtifactStore, OwnerLock, SQLiteJobStore
 
 from . import errors
-from .routes import dashboard, health, jobs
+from .routes import cluster, dashboard, fit, health, jobs
 from .settings import Settings
 from .worker import JobWorker
 
@@ -37,16 +39,23 @@ ExecutorFactory = Callable[[Settings], Executor]
 def ray_executor(settings: Settings) -> Executor:
     from workers.ray_executor import RayExecutor  # Ray only when the service really starts
 
-    return RayExecutor(address=settings.ray_address)
+    return RayExecutor(address=settings.ray_address, num_cpus=settings.ray_num_cpus)
 
 
-def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFactory | None = None) -> FastAPI:
-    """The service. ``settings`` default to the environment (``NEUENH_*``), read at startup."""
+def owner_lock(settings: Settings) -> OwnerLock:
+    return OwnerLock(settings.data_dir / "owner.lock", owner="neuenh serve")
+
+
+def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFactory | None = None,
+               lock: OwnerLock | None = None) -> FastAPI:
+    """The service. ``settings`` default to the environment (``NEUENH_*``), read at startup;
+    ``lock``, when given, is the store's owner lock already held by the caller."""
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         s = settings if settings is not None else Settings()
         s.data_dir.mkdir(parents=True, exist_ok=True)
+        owned = lock if lock is not None and lock.held else owner_lock(s).acquire()
         store = SQLiteJobStore(s.data_dir / "jobs.sqlite")
         artifacts = LocalArtifactStore(s.data_dir / "artifacts")
         executor = (executor_factory or ray_executor)(s)
@@ -61,6 +70,8 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
             if stopped:  # never pull the store or executor from under a job still running
                 executor.close()
                 store.close()
+                if owned is not lock:
+                    owned.release()
 
     app = FastAPI(
         title="neuenh",
@@ -71,25 +82,34 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
     errors.install(app)
     app.include_router(health.router, prefix="/v1")
     app.include_router(jobs.router, prefix="/v1")
+    app.include_router(fit.router, prefix="/v1")
+    app.include_router(cluster.router, prefix="/v1")
     app.include_router(dashboard.router)
     app.mount("/dashboard", dashboard.static_files(), name="dashboard")
-    app.add_middleware(BodyLimit, limit=lambda: app.state.settings.max_request_bytes)
+    app.add_middleware(BodyLimit, limit=lambda path: body_limit(app.state.settings, path))
     return app
 
 
+def body_limit(settings: Settings, path: str) -> tuple[int, str]:
+    """The largest body a request to ``path`` may send, and the setting that says so."""
+    if path.startswith("/v1/jobs/") and path.endswith("/fit"):
+        return settings.max_upload_bytes, "NEUENH_MAX_UPLOAD_BYTES"
+    return settings.max_request_bytes, "NEUENH_MAX_REQUEST_BYTES"
+
+
 class BodyLimit:
-    """Refuse request bodies over ``limit()`` bytes with 413: at once when ``Content-Length`` says
+    """Refuse request bodies over ``limit(path)`` bytes with 413: at once when ``Content-Length`` says
     so, else while the body streams in."""
 
-    def __init__(self, app: ASGIApp, limit: Callable[[], int]):
+    def __init__(self, app: ASGIApp, limit: Callable[[str], tuple[int, str]]):
         self.app, self.limit = app, limit
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        limit = self.limit()
-        detail = f"request body over {limit} bytes (NEUENH_MAX_REQUEST_BYTES)"
+        limit, setting = self.limit(scope["path"])
+        detail = f"request body over {limit} bytes ({setting})"
         length = dict(scope["headers"]).get(b"content-length")
         if length is not None and (not length.isdigit() or int(length) > limit):
             await JSONResponse({"detail": detail}, status.HTTP_413_CONTENT_TOO_LARGE)(scope, receive, send)

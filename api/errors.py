@@ -34,7 +34,8 @@ def _where(loc) -> str:
 async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
     errors = exc.errors()
     problems = "; ".join(f"{_where(e['loc'])}: {e['msg']}" for e in errors)
-    what = "invalid job spec" if any(e["loc"][:1] == ("body",) for e in errors) else "invalid request"
+    submitting = getattr(request.scope.get("route"), "name", None) == "submit_job"
+    what = "invalid job spec" if submitting and any(e["loc"][:1] == ("body",) for e in errors) else "invalid request"
     clean = [{k: v for k, v in e.items() if k in ("loc", "msg", "type")} for e in errors]
     return _json(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{what}: {problems}", errors=jsonable_encoder(clean))
 

@@ -20,6 +20,8 @@ class Settings(BaseSettings):
     api_token: SecretStr | None = Field(
         None, description="when set, every /v1 route but /health needs 'Authorization: Bearer <token>'")
     ray_address: str | None = Field(None, description="join this Ray cluster; embedded Ray when unset")
+    access_log: bool = Field(False, description="log every request (uvicorn's access log)")
+    ray_num_cpus: int | None = Field(None, ge=1, description="CPUs of the embedded Ray (default: all)")
     data_roots: list[Path] = Field(
         default_factory=list,
         description="folders whose files a job's data sources may read (JSON list in "
@@ -31,6 +33,8 @@ class Settings(BaseSettings):
     max_epochs: int = Field(1000, ge=1, description="largest search.epochs_per_round")
     max_samples: int = Field(1_000_000, ge=1, description="largest per-material 'samples' of a data source")
     max_request_bytes: int = Field(1_000_000, ge=1, description="largest request body; 413 beyond")
+    max_upload_bytes: int = Field(64_000_000, ge=1, description="largest measurement upload to "
+                                                                  "POST /v1/jobs/{id}/fit; 413 beyond")
 
     shutdown_grace_s: float = Field(
         30.0, ge=0.0, description="how long shutdown waits for the running job to reach a safe stop")

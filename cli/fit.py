@@ -63,19 +63,7 @@ def run(args) -> int:
                                                     "fit_method": args.method,
                                                     "fitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())},
                metrics={"fit_loss": result.losses}).save(args.output)
-    report = {
-        "model": model.name,
-        "state": model.state,
-        "method": args.method,
-        "epochs": result.epochs,
-        "wall_s": round(result.wall_s, 3),
-        "materials": [
-            {"name": name, "loss": result.losses[i],
-             "params": {k: [round(x, 6) for x in v.tolist()] for k, v in result.materials.as_params(i).items()
-                        if k != "latent" or model.uses_latent}}
-            for i, name in enumerate(samples.names)
-        ],
-    }
+    report = result.report(model, args.method, samples)
     if args.output:
         report["bundle"] = str(args.output)
     print(json.dumps(report, indent=2) if args.json else _table(report))

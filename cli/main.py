@@ -12,7 +12,7 @@ import sys
 
 from storage import StorageError
 
-from . import data, fit, search
+from . import data, fit, search, serve
 
 
 class UsageError(Exception):
@@ -28,6 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_parser(commands)
     search.add_parser(commands)
     data.add_parser(commands)
+    serve.add_parser(commands)
     return parser
 
 

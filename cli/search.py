@@ -23,7 +23,7 @@ from neuenh.checkpoint import Bundle
 from orchestrator.dataset import prepare_dataset
 from orchestrator.runner import Orchestrator, Progress, train_plain_baseline
 from orchestrator.spec import load_spec
-from storage import JobStatus, LocalArtifactStore, SQLiteJobStore
+from storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore
 
 SUCCESS = {JobStatus.CONVERGED, JobStatus.STOPPED}
 
@@ -48,6 +48,11 @@ def add_parser(commands) -> None:
 def run(args) -> int:
     spec = load_spec(args.spec)
     args.data_dir.mkdir(parents=True, exist_ok=True)
+    with OwnerLock(args.data_dir / "owner.lock", owner="neuenh search"):  # not while a server runs its jobs
+        return _search(spec, args)
+
+
+def _search(spec, args) -> int:
     jobs = SQLiteJobStore(args.data_dir / "jobs.sqlite")
     artifacts = LocalArtifactStore(args.data_dir / "artifacts")
     key = "spec-" + hashlib.sha256(json.dumps(spec.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()[:32]

@@ -64,6 +64,20 @@ class FitResult:
     def loss(self) -> float:
         return float(sum(self.losses) / len(self.losses))
 
+    def report(self, model: BRDFModel, method: str, samples: Samples) -> dict:
+        """The fit as plain data (``neuenh fit --json`` and ``POST /v1/jobs/{id}/fit``): per material
+        its loss, sample count and fitted parameters (the latent code only if the model uses it)."""
+        counts = torch.bincount(samples.material, minlength=len(self.materials)).tolist()
+        return {
+            "model": model.name, "state": model.state, "method": method, "epochs": self.epochs,
+            "wall_s": round(self.wall_s, 3),
+            "materials": [
+                {"name": name, "loss": self.losses[i], "samples": counts[i],
+                 "params": {k: [round(x, 6) for x in v.tolist()] for k, v in self.materials.as_params(i).items()
+                            if k != "latent" or model.uses_latent}}
+                for i, name in enumerate(self.materials.names)],
+        }
+
 
 @contextlib.contextmanager
 def frozen(model: BRDFModel) -> Iterator[None]:

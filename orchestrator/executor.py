@@ -52,6 +52,30 @@ class CandidateReport:
         return self.error is None
 
 
+@dataclass(frozen=True)
+class NodeInfo:
+    id: str
+    address: str | None
+    alive: bool
+    cpus: float
+    gpus: float
+    memory_bytes: int | None = None
+
+
+@dataclass(frozen=True)
+class ClusterInfo:
+    """Where candidates train, as an executor sees it now (``GET /v1/cluster``)."""
+
+    backend: str  # "ray" or "inline"
+    address: str | None  # the cluster joined; None when embedded or in-process
+    nodes: tuple[NodeInfo, ...]
+    cpus: float
+    gpus: float
+    cpus_available: float
+    gpus_available: float
+    busy_candidates: int  # tasks submitted and not yet reported
+
+
 class Executor(ABC):
     @abstractmethod
     def put_dataset(self, data: TrainingData) -> object:
@@ -68,6 +92,10 @@ class Executor(ABC):
         cancelled: Callable[[], bool] = lambda: False,
     ) -> Iterator[CandidateReport]:
         """Train every task (``config.epochs`` is replaced by each task's ``epochs``)."""
+
+    @abstractmethod
+    def cluster(self) -> ClusterInfo:
+        """The nodes and resources candidates train on; cheap enough to call on every request."""
 
     def close(self) -> None:
         """Release what the executor holds (cluster connections, worker processes)."""

@@ -12,6 +12,7 @@ from .errors import (ConflictError, CorruptArtifactError, IllegalTransitionError
 from .jobs import (EVENT_ROUND, EVENT_STATUS, TRANSITIONS, UNFINISHED, CandidateRecord, EventRecord,
                    JobPage, JobRecord, JobStatus, JobStore, RoundRecord)
 from .local import LocalArtifactStore
+from .lock import OwnerLock, StoreLockedError
 from .sqlite import SQLiteJobStore
 
 __all__ = [
@@ -21,4 +22,5 @@ __all__ = [
     "EVENT_ROUND", "JobRecord", "JobPage", "RoundRecord", "CandidateRecord", "EventRecord",
     "StorageError", "NotFoundError", "ConflictError", "IllegalTransitionError", "InvalidRecordError",
     "SchemaVersionError", "InvalidKeyError", "CorruptArtifactError",
+    "OwnerLock", "StoreLockedError",
 ]

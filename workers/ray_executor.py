@@ -14,7 +14,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
+import threading
 from typing import Callable, Iterator, Sequence
 
 import ray
@@ -22,7 +25,7 @@ from ray.autoscaler.sdk import request_resources
 from ray.exceptions import RayError
 
 from neuenh.train import TrainConfig, TrainingData
-from orchestrator.executor import CandidateReport, CandidateTask, Executor, Resources
+from orchestrator.executor import CandidateReport, CandidateTask, ClusterInfo, Executor, NodeInfo, Resources
 
 from .candidate import run_candidate
 
@@ -35,6 +38,22 @@ def _train_candidate(parent: bytes, data: TrainingData, task: CandidateTask, con
     torch.set_num_threads(threads)
     node = ray.get_runtime_context().get_node_id()
     return run_candidate(parent, data, task, config, node=node)
+
+
+@contextlib.contextmanager
+def _keeping_signal_handlers():
+    """``ray.init`` replaces the SIGTERM handler with one that exits at once; the process that
+    embeds Ray (uvicorn in ``neuenh serve``) owns its signals and shuts down in its own order."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for sig, handler in saved.items():
+            if handler is not None:
+                signal.signal(sig, handler)
 
 
 class RayExecutor(Executor):
@@ -50,13 +69,15 @@ class RayExecutor(Executor):
         self.max_retries = max_retries
         self.poll_s = poll_s
         self._owns_ray = False
+        self._busy = 0
+        self.address = address or os.environ.get("RAY_ADDRESS") or None
         if not ray.is_initialized():
-            address = address or os.environ.get("RAY_ADDRESS")
-            if address:
-                ray.init(address=address, log_to_driver=False)
-            else:
-                ray.init(num_cpus=num_cpus, object_store_memory=object_store_memory,
-                         include_dashboard=False, log_to_driver=False)
+            with _keeping_signal_handlers():
+                if self.address:
+                    ray.init(address=self.address, log_to_driver=False)
+                else:
+                    ray.init(num_cpus=num_cpus, object_store_memory=object_store_memory,
+                             include_dashboard=False, log_to_driver=False)
             self._owns_ray = True
 
     def put_dataset(self, data: TrainingData) -> ray.ObjectRef:
@@ -80,6 +101,7 @@ class RayExecutor(Executor):
         pending = {remote.remote(parent_refs[t.parent], dataset, t, config, threads): t for t in tasks}
         try:
             while pending:
+                self._busy = len(pending)
                 if cancelled():
                     for ref in pending:
                         ray.cancel(ref, force=True)
@@ -93,7 +115,21 @@ class RayExecutor(Executor):
                         yield CandidateReport(task, float("nan"), float("nan"), 0, 0.0, "unknown",
                                               error=f"worker lost: {type(exc).__name__}: {exc}".splitlines()[0])
         finally:
+            self._busy = 0
             request_resources(bundles=[])
+
+    def cluster(self) -> ClusterInfo:
+        nodes = tuple(
+            NodeInfo(id=n["NodeID"], address=n.get("NodeManagerAddress"), alive=bool(n.get("Alive")),
+                     cpus=float(n.get("Resources", {}).get("CPU", 0.0)),
+                     gpus=float(n.get("Resources", {}).get("GPU", 0.0)),
+                     memory_bytes=int(n["Resources"]["memory"]) if "memory" in n.get("Resources", {}) else None)
+            for n in ray.nodes())
+        total, free = ray.cluster_resources(), ray.available_resources()
+        return ClusterInfo(backend="ray", address=self.address, nodes=nodes,
+                           cpus=total.get("CPU", 0.0), gpus=total.get("GPU", 0.0),
+                           cpus_available=free.get("CPU", 0.0), gpus_available=free.get("GPU", 0.0),
+                           busy_candidates=self._busy)
 
     def close(self) -> None:
         if self._owns_ray and ray.is_initialized():

@@ -1,0 +1,18 @@
+"""``GET /v1/cluster``: the nodes candidates train on, their CPUs and GPUs, and what is busy."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from fastapi import APIRouter
+
+from ..deps import Authorized, WorkerDep
+from ..schemas import ClusterPublic
+
+router = APIRouter(tags=["cluster"], dependencies=[Authorized])
+
+
+@router.get("/cluster", response_model=ClusterPublic, responses={401: {"description": "missing or invalid bearer token"}})
+def cluster(worker: WorkerDep) -> ClusterPublic:
+    info = worker.orchestrator.executor.cluster()
+    return ClusterPublic.model_validate({**dataclasses.asdict(info), "running_job": worker.current})

@@ -1,0 +1,89 @@
+"""``POST /v1/jobs/{id}/fit``: fit uploaded measurements with a job's model (its module weights
+frozen) and return the fitted per-material parameters and losses.
+
+Each uploaded file is one material: a table (``.npz`` with ``wi``, ``wo``, ``f_r`` or CSV
+``wi_x..wo_z,r,g,b[,weight]``; ``neuenh.data.table``), named by its file name. The model is the
+job's last committed bundle, so a running job can be tried before it ends. Fits run one at a time
+(they share the service's CPUs with the candidates being trained).
+"""
+
+from __future__ import annotations
+
+import re
+import tempfile
+import threading
+from pathlib import Path, PurePath
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, File, Form, HTTPException, UploadFile, status
+
+from neuenh.checkpoint import Bundle
+from neuenh.data.errors import DataError
+from neuenh.data.samples import Samples
+from neuenh.data.table import read_table
+from neuenh.fit import FitConfig, fit_materials
+
+from ..deps import ArtifactStoreDep, Authorized, JobStoreDep, SettingsDep
+from ..schemas import FitPublic
+
+router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized])
+
+# Process-wide, like the CPUs it guards: two fits at once would only slow each other down.
+_one_fit_at_a_time = threading.Lock()
+
+
+@router.post("/{job_id}/fit", response_model=FitPublic, responses={
+    401: {"description": "missing or invalid bearer token"},
+    404: {"description": "no such job, or no committed round yet"},
+    413: {"description": "upload over NEUENH_MAX_UPLOAD_BYTES"},
+    422: {"description": "a table that cannot be read, or a request over the service's limits"}})
+def fit_job(
+    job_id: str, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep,
+    files: Annotated[list[UploadFile], File(description="one measurement table per material (.npz or CSV)")],
+    method: Annotated[Literal["fast", "paper"], Form()] = "fast",
+    epochs: Annotated[int | None, Form(ge=1, description="default: 300 (fast) or 1000 (paper)")] = None,
+) -> FitPublic:
+    job = jobs.get_job(job_id)
+    last = jobs.last_round(job_id)
+    if last is None or last.artifact_key is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"job {job_id} has no committed round yet "
+                                                       f"(status {job.status.value}); nothing to fit with")
+    if epochs is not None and epochs > settings.max_epochs:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"epochs: {epochs} exceeds this service's limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)")
+    samples = _read_uploads(files, settings.max_samples)
+    model = Bundle.from_bytes(artifacts.get(last.artifact_key)).model
+    with _one_fit_at_a_time:
+        result = fit_materials(model, samples, FitConfig(method=method, epochs=epochs))
+    return FitPublic(job_id=job_id, round=last.index, **result.report(model, method, samples))
+
+
+def _read_uploads(files: list[UploadFile], max_samples: int) -> Samples:
+    names = [_material_name(f.filename, i) for i, f in enumerate(files)]
+    if len(set(names)) != len(names):
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"files: two uploads share a material name ({', '.join(names)}); rename one")
+    tables = []
+    with tempfile.TemporaryDirectory(prefix="neuenh-fit-") as tmp:
+        for upload, name in zip(files, names):
+            path = Path(tmp) / name
+            with open(path, "wb") as out:
+                while chunk := upload.file.read(1 << 20):
+                    out.write(chunk)
+            try:
+                table = read_table(path, name=name)
+            except DataError as exc:  # its message names the temporary path: name the upload instead
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                    str(exc).replace(str(path), upload.filename or name)) from None
+            if len(table) > max_samples:
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                    f"{upload.filename}: {len(table)} measurements exceed this service's limit of "
+                                    f"{max_samples} per material (NEUENH_MAX_SAMPLES)")
+            tables.append(table)
+    return Samples.concat(tables)
+
+
+def _material_name(filename: str | None, index: int) -> str:
+    """The upload's file name without folders and suffix, reduced to safe characters."""
+    stem = PurePath((filename or "").replace("\\", "/")).name.split(".")[0]
+    return re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_") or f"material_{index}"

@@ -1,0 +1,48 @@
+"""Run the service: ``serve(settings)`` checks what a user can get wrong before anything starts
+(a network address without a token, a store owned by another process, a port in use), each as a
+one-line ``ValueError``/``StorageError``, then runs uvicorn until SIGINT/SIGTERM and shuts down
+cleanly (the running job stops at a safe point and resumes on the next start; Ray is shut down)."""
+
+from __future__ import annotations
+
+import logging
+import socket
+from typing import Callable
+
+from .settings import Settings, check_listen_address
+
+
+def serve(settings: Settings, announce: Callable[[str], None] = print) -> None:
+    import uvicorn
+
+    from .app import create_app, owner_lock
+
+    check_listen_address(settings)
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    lock = owner_lock(settings).acquire()
+    try:
+        sock = _listen(settings.host, settings.port)
+        logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+        host, port = sock.getsockname()[:2]
+        url = f"http://{'[' + host + ']' if ':' in host else host}:{port}"
+        announce(f"neuenh serve: dashboard {url}/  API {url}/v1  docs {url}/docs  data {settings.data_dir}")
+        config = uvicorn.Config(create_app(settings, lock=lock), limit_concurrency=256,
+                                timeout_graceful_shutdown=10, log_level="info",
+                                access_log=settings.access_log)
+        uvicorn.Server(config).run(sockets=[sock])
+    finally:
+        lock.release()
+
+
+def _listen(host: str, port: int) -> socket.socket:
+    """Bind before the app starts, so a busy port is a one-line error and port 0 picks a free one."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        raise ValueError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
+    sock.set_inheritable(True)
+    return sock
