@@ -18,7 +18,7 @@ import logging
 from contextlib import asynccontextmanager
 from typing import Callable
 
-from fastapi import FastAPI, HTTPException, status
+from fastapi import Depends, FastAPI, HTTPException, status
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -26,7 +26,7 @@ import neuenh
 from orchestrator.executor import Executor
 from storage import LocalArtifactStore, OwnerLock, SQLiteJobStore
 
-from . import errors
+from . import deps, errors
 from .routes import cluster, dashboard, fit, health, jobs
 from .settings import Settings
 from .worker import JobWorker
@@ -78,6 +78,7 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
         version=neuenh.__version__,
         summary="Neural enhancement of analytical BRDF models: a distributed search service.",
         lifespan=lifespan,
+        dependencies=[Depends(deps.known_query_only)],
     )
     errors.install(app)
     app.include_router(health.router, prefix="/v1")

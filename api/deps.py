@@ -55,3 +55,21 @@ def require_token(settings: SettingsDep,
 
 
 Authorized = Depends(require_token)
+
+
+def known_query_only(request: Request) -> None:
+    """Refuse query parameters the route does not declare (422 naming them), so a typo such as
+    ``?since=3`` for ``?since_round=3`` is an error rather than silently the whole history."""
+    route = request.scope.get("route")
+    if route is None or not hasattr(route, "dependant") or not request.query_params:
+        return
+    known, pending = set(), [route.dependant]
+    while pending:  # the route's own parameters and those of its dependencies
+        dependant = pending.pop()
+        known |= {param.alias for param in dependant.query_params}
+        pending += dependant.dependencies
+    unknown = sorted(set(request.query_params) - known)
+    if unknown:
+        expected = ", ".join(sorted(known)) or "none"
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"unknown query parameter(s) {', '.join(unknown)}; this route takes: {expected}")

@@ -12,12 +12,27 @@ import logging
 from fastapi import FastAPI, Request, status
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 
 from orchestrator.spec import SpecError
 from storage import ConflictError, InvalidKeyError, InvalidRecordError, NotFoundError, StorageError
 
+from .schemas import ErrorPublic
+
 log = logging.getLogger("neuenh.api")
+
+
+def documented(described: dict[int, str]) -> dict[int, dict]:
+    """OpenAPI ``responses`` for error statuses, each answered with ``ErrorPublic``."""
+    return {code: {"model": ErrorPublic, "description": text} for code, text in described.items()}
+
+
+# Every /v1 route behind the token can answer these.
+COMMON = documented({401: "missing or invalid bearer token",
+                     422: "invalid request: each problem named in detail"})
 
 
 def _json(code: int, detail, **extra) -> JSONResponse:
@@ -54,6 +69,17 @@ async def _storage(request: Request, exc: StorageError) -> JSONResponse:
     return await _unexpected(request, exc)
 
 
+async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+    """As FastAPI's own, but a 405 lists in ``Allow`` the methods of *every* route at the path:
+    Starlette names only those of the first route it matched (GET and POST /v1/jobs are two)."""
+    if exc.status_code == status.HTTP_405_METHOD_NOT_ALLOWED:
+        allowed = [method for method in ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE")
+                   if any(route.matches({**request.scope, "method": method})[0] == Match.FULL
+                          for route in request.app.router.routes)]
+        exc.headers = {**(exc.headers or {}), "Allow": ", ".join(allowed)}
+    return await http_exception_handler(request, exc)
+
+
 async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
     log.error("%s %s failed", request.method, request.url.path, exc_info=exc)
     return _json(status.HTTP_500_INTERNAL_SERVER_ERROR, "internal server error; see the service log")
@@ -61,6 +87,7 @@ async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
 
 def install(app: FastAPI) -> None:
     app.add_exception_handler(RequestValidationError, _validation)
+    app.add_exception_handler(StarletteHTTPException, _http)
     app.add_exception_handler(SpecError, _spec_error)
     app.add_exception_handler(StorageError, _storage)
     app.add_exception_handler(Exception, _unexpected)

@@ -25,15 +25,32 @@ def outside_data_roots(spec: JobSpec, settings: Settings) -> list[str]:
     """Files a spec's sources would read that lie outside the configured data roots (after
     resolving ``..`` and symbolic links), so a caller cannot make the service read any file."""
     roots = [root.resolve() for root in settings.data_roots]
+    allowed = ", ".join(map(str, roots)) or "none configured"
     problems = []
     for i, source in enumerate(spec.data):
-        paths = getattr(source, "paths", None) or ([source.path] if hasattr(source, "path") else [])
-        for path in paths:
-            resolved = Path(path).resolve()
+        for path in source_paths(source):
+            try:
+                resolved = Path(path).resolve()
+            except (ValueError, OSError) as exc:  # a NUL byte, a name too long, a symlink loop
+                problems.append(f"data.{i}: {path!r} is not a usable path ({exc})")
+                continue
             if not any(resolved.is_relative_to(root) for root in roots):
-                allowed = ", ".join(map(str, roots)) or "none configured"
                 problems.append(f"data.{i}: {path} is outside the data roots ({allowed}; NEUENH_DATA_ROOTS)")
     return problems
+
+
+def source_paths(source) -> list[str]:
+    return getattr(source, "paths", None) or ([source.path] if hasattr(source, "path") else [])
+
+
+def known_materials(source) -> int | None:
+    """How many materials a source yields, when the spec alone says so."""
+    materials = getattr(source, "materials", None)
+    if isinstance(materials, int):
+        return materials
+    if isinstance(materials, list):
+        return len(materials)
+    return len(source.paths) if hasattr(source, "paths") else None
 
 
 def check_limits(spec: JobSpec, settings: Settings) -> None:
@@ -45,11 +62,24 @@ def check_limits(spec: JobSpec, settings: Settings) -> None:
     if spec.search.epochs_per_round > settings.max_epochs:
         problems.append(f"search.epochs_per_round: {spec.search.epochs_per_round} exceeds this service's "
                         f"limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)")
+    if spec.latent_dim > settings.max_latent_dim:
+        problems.append(f"latent_dim: {spec.latent_dim} exceeds this service's limit of "
+                        f"{settings.max_latent_dim} (NEUENH_MAX_LATENT_DIM)")
+    widest = max(max(widths) for widths in (spec.module.hidden, *spec.module.alternatives))
+    if widest > settings.max_module_width:
+        problems.append(f"module: a hidden width of {widest} exceeds this service's limit of "
+                        f"{settings.max_module_width} (NEUENH_MAX_MODULE_WIDTH)")
+    total = 0
     for i, source in enumerate(spec.data):
         samples = getattr(source, "samples", None)
         if samples is not None and samples > settings.max_samples:
             problems.append(f"data.{i}.samples: {samples} exceeds this service's limit of "
                             f"{settings.max_samples} per material (NEUENH_MAX_SAMPLES)")
+        materials = known_materials(source)
+        total += (materials or 0) * (samples or 0)
+    if total > settings.max_total_samples:
+        problems.append(f"data: {total} measurements in all exceed this service's limit of "
+                        f"{settings.max_total_samples} (NEUENH_MAX_TOTAL_SAMPLES)")
     problems += outside_data_roots(spec, settings)
     if problems:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "job spec over limits: " + "; ".join(problems))

@@ -60,12 +60,18 @@ class JobPublic(BaseModel):
     spec: dict[str, Any]
     progress: ProgressPublic | None = None
     links: Links
+    positions: list[str] = Field(default_factory=list,
+                                 description="the model's position names, one per digit of a state string")
 
     @classmethod
     def from_record(cls, job: JobRecord, base: str = "/v1", progress: Progress | None = None) -> "JobPublic":
+        from neuenh.models import get_model  # builds a small graph: ~50 us, no cache needed
+
         url = f"{base}/jobs/{job.id}"
+        model = job.spec.get("model", "ggx")
         return cls(
-            id=job.id, name=job.spec.get("name"), model=job.spec.get("model", "ggx"), status=job.status,
+            id=job.id, name=job.spec.get("name"), model=model, positions=list(get_model(model).positions),
+            status=job.status,
             terminal=job.terminal, error=job.error, created_at=_time(job.created_at),
             updated_at=_time(job.updated_at), last_round=job.last_round,
             current_state=job.current_state, spec=job.spec,
@@ -173,6 +179,14 @@ class FitPublic(BaseModel):
     epochs: int
     wall_s: float
     materials: list[FittedMaterial]
+
+
+class ErrorPublic(BaseModel):
+    """Every error answer: ``detail`` says in one line what is wrong."""
+
+    detail: str
+    errors: list[dict[str, Any]] | None = Field(
+        None, description="for an invalid request: each problem with its location (loc, msg, type)")
 
 
 class Health(BaseModel):

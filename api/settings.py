@@ -32,6 +32,10 @@ class Settings(BaseSettings):
         64, ge=1, description="upper bound of the Hamming ball size implied by search.radius")
     max_epochs: int = Field(1000, ge=1, description="largest search.epochs_per_round")
     max_samples: int = Field(1_000_000, ge=1, description="largest per-material 'samples' of a data source")
+    max_total_samples: int = Field(20_000_000, ge=1, description="largest dataset (materials x samples, "
+                                                                 "where the spec says both)")
+    max_latent_dim: int = Field(256, ge=0, description="largest latent_dim")
+    max_module_width: int = Field(1024, ge=1, description="largest hidden width of a neural module")
     max_request_bytes: int = Field(1_000_000, ge=1, description="largest request body; 413 beyond")
     max_upload_bytes: int = Field(64_000_000, ge=1, description="largest measurement upload to "
                                                                   "POST /v1/jobs/{id}/fit; 413 beyond")

@@ -14,7 +14,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -44,9 +44,12 @@ class SearchSpec(_Strict):
     halving_fraction: float = Field(0.34, gt=0.0, lt=1.0, description="share of the epochs before halving")
 
 
+Widths = Annotated[list[Annotated[int, Field(ge=1)]], Field(min_length=1)]
+
+
 class ModuleSpec(_Strict):
-    hidden: list[int] = Field(default_factory=lambda: [16, 32, 16], min_length=1)
-    alternatives: list[list[int]] = Field(default_factory=list, description="digits 2, 3, ...: other widths")
+    hidden: Widths = Field(default_factory=lambda: [16, 32, 16], description="hidden layer widths")
+    alternatives: list[Widths] = Field(default_factory=list, description="digits 2, 3, ...: other widths")
 
     def config(self) -> ModuleConfig:
         return ModuleConfig(choices=tuple(tuple(h) for h in (self.hidden, *self.alternatives)))

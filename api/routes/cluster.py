@@ -7,12 +7,13 @@ import dataclasses
 from fastapi import APIRouter
 
 from ..deps import Authorized, WorkerDep
+from ..errors import COMMON
 from ..schemas import ClusterPublic
 
-router = APIRouter(tags=["cluster"], dependencies=[Authorized])
+router = APIRouter(tags=["cluster"], dependencies=[Authorized], responses=COMMON)
 
 
-@router.get("/cluster", response_model=ClusterPublic, responses={401: {"description": "missing or invalid bearer token"}})
+@router.get("/cluster", response_model=ClusterPublic)
 def cluster(worker: WorkerDep) -> ClusterPublic:
     info = worker.orchestrator.executor.cluster()
     return ClusterPublic.model_validate({**dataclasses.asdict(info), "running_job": worker.current})

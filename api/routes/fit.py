@@ -24,37 +24,38 @@ from neuenh.data.table import read_table
 from neuenh.fit import FitConfig, fit_materials
 
 from ..deps import ArtifactStoreDep, Authorized, JobStoreDep, SettingsDep
+from ..errors import COMMON, documented
 from ..schemas import FitPublic
 
-router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized])
+router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized], responses=COMMON)
 
 # Process-wide, like the CPUs it guards: two fits at once would only slow each other down.
 _one_fit_at_a_time = threading.Lock()
 
 
-@router.post("/{job_id}/fit", response_model=FitPublic, responses={
-    401: {"description": "missing or invalid bearer token"},
-    404: {"description": "no such job, or no committed round yet"},
-    413: {"description": "upload over NEUENH_MAX_UPLOAD_BYTES"},
-    422: {"description": "a table that cannot be read, or a request over the service's limits"}})
+@router.post("/{job_id}/fit", response_model=FitPublic, responses=documented({
+    400: "a body that is not multipart/form-data",
+    404: "no such job, or no committed round yet",
+    413: "upload over NEUENH_MAX_UPLOAD_BYTES",
+    422: "a table that cannot be read, or a request over the service's limits"}))
 def fit_job(
     job_id: str, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep,
     files: Annotated[list[UploadFile], File(description="one measurement table per material (.npz or CSV)")],
     method: Annotated[Literal["fast", "paper"], Form()] = "fast",
-    epochs: Annotated[int | None, Form(ge=1, description="default: 300 (fast) or 1000 (paper)")] = None,
+    epochs: Annotated[int, Form(ge=0, description="0: the method's default, 300 (fast) or 1000 (paper)")] = 0,
 ) -> FitPublic:
     job = jobs.get_job(job_id)
     last = jobs.last_round(job_id)
     if last is None or last.artifact_key is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"job {job_id} has no committed round yet "
                                                        f"(status {job.status.value}); nothing to fit with")
-    if epochs is not None and epochs > settings.max_epochs:
+    if epochs > settings.max_epochs:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"epochs: {epochs} exceeds this service's limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)")
     samples = _read_uploads(files, settings.max_samples)
     model = Bundle.from_bytes(artifacts.get(last.artifact_key)).model
     with _one_fit_at_a_time:
-        result = fit_materials(model, samples, FitConfig(method=method, epochs=epochs))
+        result = fit_materials(model, samples, FitConfig(method=method, epochs=epochs or None))
     return FitPublic(job_id=job_id, round=last.index, **result.report(model, method, samples))
 
 

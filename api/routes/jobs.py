@@ -15,20 +15,21 @@ from neuenh.checkpoint import Bundle
 from storage import JobStatus
 
 from ..deps import ArtifactStoreDep, Authorized, JobStoreDep, SettingsDep, WorkerDep
+from ..errors import COMMON, documented
 from ..limits import check_limits
 from ..schemas import HistoryPublic, JobCreate, JobList, JobPublic, RoundPublic
 
-router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized])
+router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized], responses=COMMON)
 
-_ERRORS = {401: {"description": "missing or invalid bearer token"},
-           404: {"description": "no such job"}}
+_ERRORS = documented({404: "no such job"})
 
 
 @router.post("", status_code=status.HTTP_202_ACCEPTED, response_model=JobPublic,
              responses={200: {"model": JobPublic, "description": "the job already submitted under this Idempotency-Key"},
-                        409: {"description": "Idempotency-Key reused for a different spec"},
-                        413: {"description": "request body over NEUENH_MAX_REQUEST_BYTES"},
-                        422: {"description": "invalid job spec, or over the service's limits"}})
+                        **documented({400: "a body that is not JSON",
+                                      409: "Idempotency-Key reused for a different spec",
+                                      413: "request body over NEUENH_MAX_REQUEST_BYTES",
+                                      422: "invalid job spec, or over the service's limits"})})
 def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, worker: WorkerDep,
                idempotency_key: Annotated[str | None, Header(max_length=200)] = None) -> JobPublic:
     """Validate and queue a job (202). A repeated ``Idempotency-Key`` with the same spec returns
@@ -48,7 +49,7 @@ def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, worke
 def list_jobs(jobs: JobStoreDep, worker: WorkerDep,
               status_: Annotated[list[JobStatus] | None, Query(alias="status", description="repeat for several")] = None,
               limit: Annotated[int, Query(ge=1, le=500)] = 50,
-              cursor: Annotated[str | None, Query(max_length=40)] = None) -> JobList:
+              cursor: Annotated[str | None, Query(pattern=r"^[0-9]{1,19}$", description="next_cursor of the previous page")] = None) -> JobList:
     """Jobs, newest first, in pages."""
     page = jobs.list_jobs(status=status_ or None, limit=limit, cursor=cursor)
     return JobList(jobs=[JobPublic.from_record(j, progress=worker.progress(j.id)) for j in page.jobs],
@@ -73,7 +74,7 @@ def job_history(job_id: str, jobs: JobStoreDep,
 
 
 @router.post("/{job_id}/cancel", response_model=JobPublic,
-             responses={**_ERRORS, 409: {"description": "the job is already finished"}})
+             responses={**_ERRORS, **documented({409: "the job is already finished"})})
 def cancel_job(job_id: str, jobs: JobStoreDep) -> JobPublic:
     """Cancel an unfinished job. It keeps its committed rounds (and its model, if any)."""
     job = jobs.get_job(job_id)

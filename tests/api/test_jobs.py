@@ -157,6 +157,11 @@ def test_cancel_unknown_job_is_404(client):
     (lambda b: b["search"].update(radius=2), "search.radius"),                # 67 candidates > 64
     (lambda b: b["search"].update(epochs_per_round=5000), "search.epochs_per_round"),  # > max_epochs
     (lambda b: b["data"][0].update(samples=10**7), "data.0.samples"),          # > max_samples
+    (lambda b: b["data"][0].update(materials=10**5, samples=10**3), "NEUENH_MAX_TOTAL_SAMPLES"),
+    (lambda b: b.update(latent_dim=10**7), "NEUENH_MAX_LATENT_DIM"),
+    (lambda b: b.update(module={"hidden": [16, 10**6]}), "NEUENH_MAX_MODULE_WIDTH"),
+    (lambda b: b.update(module={"hidden": [16, 0]}), "module.hidden"),
+    (lambda b: b.update(data=[{"source": "rgl", "paths": ["a\x00b.bsdf"]}]), "not a usable path"),
 ])
 def test_invalid_spec_is_422_naming_the_field(client, change, field):
     b = body()
@@ -167,10 +172,23 @@ def test_invalid_spec_is_422_naming_the_field(client, change, field):
     assert isinstance(detail, str) and field in detail
 
 
-@pytest.mark.parametrize("params", [{"limit": 0}, {"status": "DONE"}, {"cursor": "x"}])
-def test_bad_query_is_422(client, params):
-    r = client.get("/jobs", params=params)
-    assert r.status_code == 422 and isinstance(r.json()["detail"], str)
+@pytest.mark.parametrize("path, params, words", [
+    ("/jobs", {"limit": 0}, ["limit"]),
+    ("/jobs", {"status": "DONE"}, ["status"]),
+    ("/jobs", {"cursor": "x"}, ["cursor"]),
+    ("/jobs", {"page": 2}, ["unknown query parameter(s) page", "cursor, limit, status"]),
+    ("/jobs/any/history", {"since": 3}, ["unknown query parameter(s) since", "since_round"]),
+])
+def test_bad_query_is_422_naming_it(client, path, params, words):
+    r = client.get(path, params=params)
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"]
+    assert isinstance(detail, str) and all(w in detail for w in words), detail
+
+
+def test_405_allows_every_method_of_the_path(client):
+    r = client.delete("/jobs")
+    assert r.status_code == 405 and r.headers["allow"] == "GET, POST"
 
 
 def test_malformed_json_is_422(client):
