@@ -1,0 +1,382 @@
+"""``neuenh-client``: the search service from the command line.
+
+    neuenh-client submit SPEC.yaml [--wait]     # the job id on stdout; --wait follows it to the end
+    neuenh-client status [JOB]                  # a job, or the service, its cluster and recent jobs
+    neuenh-client jobs [--status RUNNING]       # jobs, newest first (also: list)
+    neuenh-client history JOB                   # committed rounds as a table
+    neuenh-client watch JOB                     # follow a job until it ends
+    neuenh-client cancel JOB
+    neuenh-client download JOB [-o DIR|FILE.zip]
+    neuenh-client fit JOB measurements.npz ...  # fit materials with the job's model, on the service
+
+The service is ``--url`` or ``$NEUENH_URL`` (default http://127.0.0.1:8000); its token ``--token``
+or ``$NEUENH_API_TOKEN`` (prefer the variable: flags show in ``ps``). ``--json`` prints what the
+service answered, for machines; people get tables and a progress display (on stderr).
+
+Exit codes (DESIGN §4): 0 success, 1 the job failed (or was cancelled) or the service failed,
+2 usage error (a bad spec or table, no such job, a request the service refuses), 3 the service
+cannot be reached or does not accept the token. Every error is one line, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from datetime import datetime
+from pathlib import Path
+
+from .client_api import DEFAULT_URL, READ_TIMEOUT_S, Api, ClientError
+from .client_download import check_target, default_target, save_model
+from .client_follow import follow, outcome
+
+# ``submit`` without a SPEC: the quickstart's search on a small synthetic zoo (examples/quickstart.yaml).
+QUICKSTART = {
+    "model": "ggx",
+    "search": {"radius": 1, "epochs_per_round": 10, "max_rounds": 8},
+    "train": {"lr": 5.0e-3, "batch_size": 4096},
+    "data": [{"source": "synthetic_zoo", "materials": 16, "samples": 2000, "seed": 1}],
+}
+# flag -> where it goes in the spec
+OVERRIDES = {"name": ("name",), "model": ("model",), "epochs": ("search", "epochs_per_round"),
+             "max_rounds": ("search", "max_rounds"), "radius": ("search", "radius")}
+DOWNLOAD_TIMEOUT_S = 300.0
+FIT_TIMEOUT_S = 3600.0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--url", default=argparse.SUPPRESS,
+                        help=f"the service (default: $NEUENH_URL or {DEFAULT_URL})")
+    common.add_argument("--token", default=argparse.SUPPRESS,
+                        help="its bearer token (default: $NEUENH_API_TOKEN, which ps does not show)")
+    common.add_argument("--timeout", type=float, default=argparse.SUPPRESS, metavar="SECONDS",
+                        help=f"how long to wait for an answer (default {READ_TIMEOUT_S:g}; "
+                             "download and fit wait longer)")
+    parser = argparse.ArgumentParser(prog="neuenh-client", parents=[common], description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def command(name, run, help, aliases=()):
+        p = commands.add_parser(name, parents=[common], help=help, description=help, aliases=list(aliases))
+        p.set_defaults(run=run, command=name)
+        return p
+
+    def job_arg(p):
+        p.add_argument("job", metavar="JOB", help="the job id")
+
+    def json_arg(p, what="print the service's answer as JSON"):
+        p.add_argument("--json", action="store_true", help=what)
+
+    def follow_args(p):
+        p.add_argument("--interval", type=float, default=0.5, metavar="SECONDS", help="how often to poll (default 0.5)")
+        p.add_argument("--reconnect", type=float, default=60.0, metavar="SECONDS",
+                       help="how long to wait out a service that went away, e.g. restarting (default 60)")
+
+    p = command("submit", submit, "submit a search job (a spec file, flags, or both)")
+    p.add_argument("spec", type=Path, nargs="?", metavar="SPEC",
+                   help="a job spec (YAML or JSON); without it, the quickstart's search on a small synthetic zoo")
+    p.add_argument("--name", help="the job's name")
+    p.add_argument("--model", help="the analytical model to enhance (default ggx)")
+    p.add_argument("--epochs", type=int, help="search.epochs_per_round")
+    p.add_argument("--max-rounds", type=int, help="search.max_rounds")
+    p.add_argument("--radius", type=int, help="search.radius (candidates differ in up to this many positions)")
+    p.add_argument("--idempotency-key", metavar="KEY", help="submitting again with the same key returns the same job")
+    p.add_argument("--wait", action="store_true",
+                   help="follow the job until it ends; exit 0 if it converged or stopped, 1 if it failed or was cancelled")
+    json_arg(p, "print the job as JSON (with --wait, the finished job) instead of its id")
+    follow_args(p)
+
+    p = command("status", status, "a job's status, or without JOB the service's health, cluster and recent jobs")
+    p.add_argument("job", metavar="JOB", nargs="?", help="the job id")
+    json_arg(p)
+
+    p = command("jobs", jobs, "list jobs, newest first", aliases=("list",))
+    p.add_argument("--status", action="append", type=str.upper, metavar="STATUS",
+                   help="only jobs in this status (repeatable): QUEUED, PREPARING, RUNNING, CONVERGED, ...")
+    p.add_argument("--limit", type=int, default=20, help="at most this many (default 20)")
+    json_arg(p)
+
+    p = command("history", history, "a job's committed rounds: +X made position X neural, -X analytical again")
+    job_arg(p)
+    p.add_argument("--since", type=int, default=0, metavar="ROUND", help="only rounds from this one on")
+    json_arg(p, "print the service's history (every candidate of every round) as JSON")
+
+    p = command("watch", watch, "follow a job until it ends (Ctrl-C stops watching, not the job)")
+    job_arg(p)
+    json_arg(p, "print the finished job as JSON")
+    follow_args(p)
+
+    p = command("cancel", cancel, "cancel an unfinished job (it keeps its committed rounds)")
+    job_arg(p)
+    json_arg(p)
+
+    p = command("download", download, "download a job's model (its last committed round)")
+    job_arg(p)
+    p.add_argument("-o", "--output", type=Path, metavar="DIR|FILE.zip",
+                   help="a directory to extract the bundle into (default ./neuenh-JOB), or a .zip to keep the archive")
+    p.add_argument("--force", action="store_true", help="replace an existing non-empty directory or zip")
+    json_arg(p, "print what was saved as JSON")
+
+    p = command("fit", fit, "fit measured materials with a job's model on the service (module weights frozen)")
+    job_arg(p)
+    p.add_argument("tables", nargs="+", type=Path, metavar="MEASUREMENTS",
+                   help="one table per material (.npz with wi, wo, f_r, or CSV wi_x..wo_z,r,g,b)")
+    p.add_argument("--method", choices=("fast", "paper"), default="fast",
+                   help="fast (default): Adam with cosine decay; paper: RMSProp lr 1e-3, 1000 epochs")
+    p.add_argument("--epochs", type=int, help="override the method's epoch count")
+    json_arg(p)
+    return parser
+
+
+# -- commands ---------------------------------------------------------------------------------
+def submit(args, api: Api) -> int:
+    spec = _spec(args)
+    job, created = api.submit(spec, args.idempotency_key)
+    if not args.json:
+        print(job["id"], flush=True)
+    _note(f"job {job['id']} {'submitted' if created else 'already submitted with this key'} "
+          f"({job['status'].lower()})")
+    if not args.wait:
+        if args.json:
+            _print_json(job)
+        else:
+            _note(f"follow it with: neuenh-client watch {job['id']}")
+        return 0
+    return _follow(api, job["id"], args)
+
+
+def watch(args, api: Api) -> int:
+    return _follow(api, args.job, args)
+
+
+def status(args, api: Api) -> int:
+    if args.job:
+        job = api.job(args.job)
+        print(json.dumps(job, indent=2) if args.json else _job_text(job))
+        return 0
+    health = api.health()
+    cluster = api.cluster()
+    recent = api.jobs(limit=10)
+    if args.json:
+        _print_json({"url": api.url, "health": health, "cluster": cluster, "jobs": recent})
+        return 0
+    print(f"service {api.url}: {health['status']} (neuenh {health['version']}, worker "
+          f"{'alive' if health['worker_alive'] else 'down'}, auth {'on' if health['auth'] else 'off'})")
+    if cluster is not None:
+        print(f"cluster: {cluster['backend']}{' at ' + cluster['address'] if cluster.get('address') else ''}, "
+              f"{len(cluster['nodes'])} node(s), {cluster['cpus']:g} CPUs ({cluster['cpus_available']:g} free), "
+              f"{cluster['gpus']:g} GPUs, {cluster['busy_candidates']} candidate(s) training"
+              + (f" for job {cluster['running_job']}" if cluster.get("running_job") else ""))
+    print(_jobs_table(recent) if recent else "no jobs yet")
+    return 0
+
+
+def jobs(args, api: Api) -> int:
+    found = api.jobs(args.status, limit=max(args.limit, 1))
+    if args.json:
+        _print_json(found)
+    elif found:
+        print(_jobs_table(found))
+    else:
+        _note("no jobs" + (f" in status {', '.join(args.status)}" if args.status else ""))
+    return 0
+
+
+def history(args, api: Api) -> int:
+    data = api.history(args.job, args.since)
+    if args.json:
+        _print_json(data)
+        return 0
+    if not data["rounds"]:
+        _note(f"job {args.job} has no committed round{' from ' + str(args.since) if args.since else ''} yet "
+              f"({data['status'].lower()})")
+        return 0
+    print(_history_table(data["rounds"], _positions(api.job(args.job))))
+    return 0
+
+
+def cancel(args, api: Api) -> int:
+    job = api.cancel(args.job)
+    if args.json:
+        _print_json(job)
+    else:
+        rounds = 0 if job["last_round"] is None else job["last_round"] + 1
+        print(f"job {job['id']}: {job['status']} (it keeps its {rounds} committed round(s))")
+    return 0
+
+
+def download(args, api: Api) -> int:
+    target = args.output or default_target(args.job)
+    check_target(target, args.force)
+    r = api.model(args.job, read_timeout=args.timeout or DOWNLOAD_TIMEOUT_S)
+    bundle = save_model(r.content, target, args.force)
+    saved = {"job_id": args.job, "round": int(r.headers.get("X-Neuenh-Round", -1)),
+             "state": bundle.model.state, "path": str(target)}
+    if args.json:
+        _print_json(saved)
+    else:
+        print(target)
+        _note(f"job {args.job} round {saved['round']} (state {saved['state']}) saved to {target}")
+    return 0
+
+
+def fit(args, api: Api) -> int:
+    from neuenh.data.table import load_table
+
+    for table in args.tables:  # a bad table is a usage error before anything is uploaded
+        load_table(table)
+    data = {"method": args.method, **({"epochs": str(args.epochs)} if args.epochs is not None else {})}
+    handles = [open(t, "rb") for t in args.tables]
+    try:
+        files = [("files", (t.name, h, "application/octet-stream")) for t, h in zip(args.tables, handles)]
+        report = api.fit(args.job, files, data, read_timeout=args.timeout or FIT_TIMEOUT_S)
+    finally:
+        for h in handles:
+            h.close()
+    if args.json:
+        _print_json(report)
+    else:
+        from .fit import _table
+
+        print(f"job {report['job_id']} round {report['round']}: {_table(report)}")
+    return 0
+
+
+# -- helpers ----------------------------------------------------------------------------------
+def _spec(args) -> dict:
+    """The spec to send: the file's (or the quickstart's) with the flags applied, validated here so
+    a bad one is a usage error before the service is contacted."""
+    from orchestrator.spec import load_spec, parse_spec
+
+    data = load_spec(args.spec).model_dump(mode="json") if args.spec else json.loads(json.dumps(QUICKSTART))
+    for flag, path in OVERRIDES.items():
+        value = getattr(args, flag)
+        if value is not None:
+            node = data
+            for key in path[:-1]:
+                node = node.setdefault(key, {})
+            node[path[-1]] = value
+    return parse_spec(data).model_dump(mode="json")
+
+
+def _follow(api: Api, job_id: str, args) -> int:
+    try:
+        job = follow(api, job_id, sys.stderr, interval=args.interval, reconnect_s=args.reconnect)
+    except KeyboardInterrupt:
+        _note(f"stopped watching job {job_id}; it keeps running on the service "
+              f"(neuenh-client cancel {job_id} stops it)")
+        return 130
+    code, line = outcome(job)
+    _note(line)
+    if args.json:
+        _print_json(job)
+    return code
+
+
+def _positions(job: dict) -> tuple[str, ...] | None:
+    if job.get("positions"):
+        return tuple(job["positions"])
+    try:
+        from neuenh.models import get_model
+
+        return get_model(job["model"]).positions
+    except (ImportError, KeyError, ValueError):  # a model this client does not know
+        return None
+
+
+def _changes(parent: str, winner: str, positions) -> str:
+    """``+G`` position G became neural, ``-G`` analytical again, ``G[1->2]`` another module choice."""
+    out = []
+    for i, (a, b) in enumerate(zip(parent, winner)):
+        if a == b:
+            continue
+        name = positions[i] if positions and i < len(positions) else f"#{i}"
+        out.append(f"+{name}" if a == "0" and b == "1" else f"-{name}" if b == "0"
+                   else f"{name}[{a}->{b}]")
+    return " ".join(out) or "(stay)"
+
+
+def _history_table(rounds: list[dict], positions) -> str:
+    rows = [("round", "parent -> winner", "changed", "val loss", "ok/total", "wall")]
+    for r in rounds:
+        ok = sum(c["ok"] for c in r["candidates"])
+        rows.append((str(r["round"]), f"{r['parent_state']} -> {r['winner_state']}",
+                     _changes(r["parent_state"], r["winner_state"], positions) + (" converged" if r["converged"] else ""),
+                     f"{r['winner_val_loss']:.5f}", f"{ok}/{len(r['candidates'])}", f"{r['wall_s']:.1f}s"))
+    return _table(rows, right=(0, 3, 4, 5))
+
+
+def _jobs_table(found: list[dict]) -> str:
+    rows = [("id", "status", "rounds", "state", "model", "name", "created")]
+    for j in found:
+        rows.append((j["id"], j["status"], str(0 if j["last_round"] is None else j["last_round"] + 1),
+                     j["current_state"] or "-", j["model"], j["name"] or "-", _local(j["created_at"])))
+    return _table(rows, right=(2,))
+
+
+def _job_text(job: dict) -> str:
+    rounds = 0 if job["last_round"] is None else job["last_round"] + 1
+    lines = [f"job {job['id']}" + (f" ({job['name']})" if job["name"] else ""),
+             f"  status     {job['status']}", f"  model      {job['model']}",
+             f"  rounds     {rounds} committed" + (f", state {job['current_state']}" if job["current_state"] else "")]
+    p = job.get("progress")
+    if p:
+        best = f"{p['best_val_loss']:.5f}" if p["best_val_loss"] is not None else "-"
+        lines.append(f"  progress   round {p['round']}  candidates {p['done']}/{p['total']}  best val {best}  "
+                     f"{p['message']}".rstrip())
+    if job["error"]:
+        lines.append(f"  error      {job['error']}")
+    lines += [f"  created    {_local(job['created_at'])}", f"  updated    {_local(job['updated_at'])}"]
+    return "\n".join(lines)
+
+
+def _table(rows: list[tuple[str, ...]], right=()) -> str:
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return "\n".join("  ".join(c.rjust(w) if i in right else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths))).rstrip()
+                     for r in rows)
+
+
+def _local(stamp: str) -> str:
+    return datetime.fromisoformat(stamp).astimezone().strftime("%Y-%m-%d %H:%M:%S")
+
+
+def _print_json(data) -> None:
+    print(json.dumps(data, indent=2))
+
+
+def _note(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+# -- entry point ------------------------------------------------------------------------------
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    prefix = f"neuenh-client {args.command}"
+    args.timeout = getattr(args, "timeout", None)  # None: each call's own default
+    url = getattr(args, "url", None) or os.environ.get("NEUENH_URL") or DEFAULT_URL
+    token = getattr(args, "token", None) or os.environ.get("NEUENH_API_TOKEN") or None
+    try:
+        api = Api(url, token, read_timeout=args.timeout or READ_TIMEOUT_S)
+        try:
+            return args.run(args, api)
+        finally:
+            api.close()
+    except BrokenPipeError:
+        # The reader went away (`neuenh-client history JOB | head`): stop quietly, as SIGPIPE would.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+    except ClientError as exc:
+        print(f"{prefix}: error: {exc}", file=sys.stderr)
+        return exc.code
+    except (ValueError, OSError) as exc:  # a bad spec or table (SpecError, TableError), a file not there
+        print(f"{prefix}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prefix}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,333 @@
+"""``neuenh-client`` as a user runs it: a subprocess against a real server (uvicorn, SQLite, the
+in-process executor), checked on its exit codes (DESIGN §4), its one-line errors and what it
+prints against what the service holds."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from api.settings import Settings
+from jobspecs import tiny_spec
+
+sys.path.append(str(Path(__file__).resolve().parents[1] / "api"))  # live_api lives beside the API tests
+from live_api import LiveServer, live_server, wait_for  # noqa: F401  (live_server: fixture)
+from neuenh.checkpoint import Bundle
+from neuenh.data.sampling import sample_directions
+from neuenh.data.table import write_table
+from neuenh.models import get_model
+
+TOKEN = "s3cret"
+
+
+def environ(url, token) -> dict:
+    """This environment with ``NEUENH_URL``/``NEUENH_API_TOKEN`` set as given (None: unset)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NEUENH_")}
+    env.update({k: v for k, v in (("NEUENH_URL", url), ("NEUENH_API_TOKEN", token)) if v is not None})
+    return env
+
+
+def client(*args, url=None, token=TOKEN, cwd=None):
+    """Run ``neuenh-client ARGS`` to the end."""
+    return subprocess.run([sys.executable, "-m", "cli.client", *map(str, args)], capture_output=True,
+                          text=True, env=environ(url, token), cwd=cwd, timeout=120)
+
+
+def popen(*args, url, token=TOKEN):
+    """Start ``neuenh-client ARGS`` (stdout and stderr piped)."""
+    return subprocess.Popen([sys.executable, "-m", "cli.client", *map(str, args)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=environ(url, token))
+
+
+def one_line_error(out, *fragments):
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in out.stderr, out.stderr
+    assert lines[0].startswith("neuenh-client "), lines[0]
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+    return lines[0]
+
+
+def write_spec(path, **search):
+    path.write_text(yaml.safe_dump(tiny_spec(**search).model_dump(mode="json")))
+    return path
+
+
+def long_job() -> dict:
+    """A job whose round 0 alone takes seconds (cancel and shutdown act between candidates)."""
+    return tiny_spec(epochs_per_round=300, max_rounds=20).model_dump(mode="json")
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """One service with a token, shared by the module (jobs run one at a time on it)."""
+    s = LiveServer(Settings(data_dir=tmp_path_factory.mktemp("client") / "data", api_token=TOKEN)).start()
+    yield s
+    s.stop()
+
+
+@pytest.fixture()
+def api(server):
+    with server.client(headers={"Authorization": f"Bearer {TOKEN}"}) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def closed_url():
+    """A port nothing listens on."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"http://127.0.0.1:{s.getsockname()[1]}"
+
+
+@pytest.fixture(scope="module")
+def submitted(server, tmp_path_factory):
+    """``submit SPEC --wait`` of a two-round job, run once: (the process, the job as served)."""
+    spec = write_spec(tmp_path_factory.mktemp("spec") / "tiny.yaml", max_rounds=2)
+    out = client("submit", spec, "--wait", "--name", "tiny", "--interval", "0.1", url=server.url)
+    assert out.returncode in (0, 1), out.stderr
+    with server.client(headers={"Authorization": f"Bearer {TOKEN}"}) as c:
+        return out, c.get(f"/jobs/{out.stdout.strip()}").json()
+
+
+# -- submit -----------------------------------------------------------------------------------
+def test_submit_wait_follows_the_rounds_and_exits_0(submitted):
+    out, job = submitted
+    assert out.returncode == 0, out.stderr
+    assert re.fullmatch(r"[0-9a-f]{32}\n", out.stdout)  # just the id: JOB=$(neuenh-client submit ...)
+    assert job["status"] in ("CONVERGED", "STOPPED") and job["name"] == "tiny"
+    rounds = re.findall(r"^round (\d+): (committed|converged), winner (\d{11}) val ", out.stderr, re.M)
+    assert [int(r[0]) for r in rounds] == list(range(job["last_round"] + 1))
+    assert rounds[-1][2] == job["current_state"]
+    assert f"job {job['id']}: {job['status']} after {job['last_round'] + 1} round(s)" in out.stderr
+
+
+def test_submit_from_flags_only_and_again_with_the_same_key(live_server):
+    s = live_server(max_epochs=1)
+    args = ("submit", "--name", "from-flags", "--epochs", "1", "--max-rounds", "4", "--radius", "0",
+            "--idempotency-key", "k-1", "--json")
+    first, again = (client(*args, url=s.url, token=None) for _ in range(2))
+    assert first.returncode == again.returncode == 0, first.stderr + again.stderr
+    job = json.loads(first.stdout)
+    assert job["name"] == "from-flags" and job["model"] == "ggx"
+    assert job["spec"]["search"] == {**job["spec"]["search"], "epochs_per_round": 1, "max_rounds": 4, "radius": 0}
+    assert job["spec"]["data"][0]["source"] == "synthetic_zoo"
+    assert json.loads(again.stdout)["id"] == job["id"] and "already submitted with this key" in again.stderr
+
+
+def test_submit_over_a_service_limit_exits_2_naming_it(live_server, tmp_path):
+    s = live_server(max_epochs=1)
+    out = client("submit", write_spec(tmp_path / "spec.yaml", epochs_per_round=2), url=s.url, token=None)
+    assert out.returncode == 2
+    one_line_error(out, "neuenh-client submit: error:", "search.epochs_per_round: 2", "NEUENH_MAX_EPOCHS")
+    assert out.stdout == ""
+
+
+@pytest.mark.parametrize("args,message", [
+    (["submit", "BAD_SPEC"], "search.radius"),
+    (["submit", "--model", "phong"], "unknown model 'phong'"),
+    (["fit", "JOB", "BAD_TABLE"], "f_r has negative values"),
+    (["download", "JOB", "-o", "FULL_DIR"], "is not empty; use --force"),
+], ids=["invalid-spec", "unknown-model", "bad-table", "download-over-a-directory"])
+def test_usage_errors_exit_2_before_contacting_the_service(tmp_path, closed_url, args, message):
+    bad_spec = tmp_path / "bad.yaml"
+    bad_spec.write_text(yaml.safe_dump({**tiny_spec().model_dump(mode="json"), "search": {"radius": 9}}))
+    np.savez(tmp_path / "bad.npz", wi=[[0, 0, 1.0]], wo=[[0, 0, 1.0]], f_r=[[-1.0, 0, 0]])
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "keep.txt").write_text("mine")
+    paths = {"BAD_SPEC": bad_spec, "BAD_TABLE": tmp_path / "bad.npz", "FULL_DIR": tmp_path / "full"}
+    out = client(*[paths.get(a, a) for a in args], url=closed_url, cwd=tmp_path)
+    assert out.returncode == 2  # 3 would mean it tried the (closed) service
+    one_line_error(out, message)
+    assert (tmp_path / "full" / "keep.txt").read_text() == "mine"
+
+
+# -- reaching the service -----------------------------------------------------------------------
+@pytest.mark.parametrize("args", [["status"], ["jobs"], ["watch", "0" * 32]], ids=["status", "jobs", "watch"])
+def test_an_unreachable_service_exits_3_in_one_line(closed_url, args):
+    out = client(*args, url=closed_url)
+    assert out.returncode == 3
+    one_line_error(out, f"cannot reach {closed_url} (connection refused)", "NEUENH_URL")
+
+
+@pytest.mark.parametrize("flag,env,code,message", [
+    (None, None, 3, "requires a token (missing bearer token"),
+    ("wrong", None, 3, "refused the token (invalid bearer token)"),
+    (None, "wrong", 3, "refused the token (invalid bearer token)"),
+    (TOKEN, None, 0, None),
+    (None, TOKEN, 0, None),
+    (TOKEN, "wrong", 0, None),  # the flag wins over the environment
+], ids=["none", "wrong-flag", "wrong-env", "right-flag", "right-env", "flag-over-env"])
+def test_auth_matrix(server, flag, env, code, message):
+    out = client("jobs", "--json", *(["--token", flag] if flag else []), url=server.url, token=env)
+    assert out.returncode == code, out.stderr
+    if code:
+        one_line_error(out, message, "NEUENH_API_TOKEN")
+    else:
+        assert isinstance(json.loads(out.stdout), list)
+    assert TOKEN not in out.stdout + out.stderr and "wrong" not in out.stderr
+
+
+# -- following and reading jobs ----------------------------------------------------------------
+def test_status_of_a_job_and_of_the_service(server, submitted):
+    job = submitted[1]
+    out = client("status", job["id"], url=server.url)
+    assert out.returncode == 0, out.stderr
+    assert f"status     {job['status']}" in out.stdout and f"state {job['current_state']}" in out.stdout
+    out = client("status", "--json", url=server.url)
+    assert out.returncode == 0, out.stderr
+    overview = json.loads(out.stdout)
+    assert overview["health"]["auth"] is True and job["id"] in [j["id"] for j in overview["jobs"]]
+    out = client("status", url=server.url)
+    assert out.returncode == 0 and out.stdout.startswith(f"service {server.url}: ok")
+    assert re.search(rf"^{job['id']}\s+{job['status']}\s+{job['last_round'] + 1}\s+{job['current_state']}\s",
+                     out.stdout, re.M), out.stdout
+
+
+def test_history_table_and_json_agree_with_the_service(server, api, submitted):
+    job = submitted[1]
+    served = api.get(f"/jobs/{job['id']}/history").json()
+    out = client("history", job["id"], "--json", url=server.url)
+    assert out.returncode == 0 and json.loads(out.stdout) == served
+
+    out = client("history", job["id"], url=server.url)
+    assert out.returncode == 0, out.stderr
+    header, *rows = out.stdout.splitlines()
+    assert header.split()[:2] == ["round", "parent"] and len(rows) == len(served["rounds"])
+    positions = get_model("ggx").positions
+    for row, r in zip(rows, served["rounds"]):
+        changed = [("+" if b == "1" else "-") + positions[i]
+                   for i, (a, b) in enumerate(zip(r["parent_state"], r["winner_state"])) if a != b]
+        ok = sum(c["ok"] for c in r["candidates"])
+        expected = [str(r["round"]), r["parent_state"], "->", r["winner_state"], *(changed or ["(stay)"]),
+                    *(["converged"] if r["converged"] else []), f"{r['winner_val_loss']:.5f}",
+                    f"{ok}/{len(r['candidates'])}", f"{r['wall_s']:.1f}s"]
+        assert row.split() == expected
+
+
+def test_history_into_a_closed_pipe_ends_quietly(server, submitted):
+    job_id = submitted[1]["id"]
+    piped = subprocess.run(f"{sys.executable} -m cli.client history {job_id} | head -1", shell=True,
+                           capture_output=True, text=True, env=environ(server.url, TOKEN))
+    assert piped.stdout.startswith("round") and piped.stdout.count("\n") == 1 and piped.stderr == ""
+    p = popen("history", job_id, "--json", url=server.url)
+    p.stdout.close()  # the reader is gone before the client writes a byte
+    assert p.wait(60) == 141 and p.stderr.read() == ""
+
+
+def test_watch_a_live_job_ctrl_c_then_cancel(server, api, submitted):
+    job_id = api.post("/jobs", json=long_job()).json()["id"]
+    watcher = popen("watch", job_id, "--interval", "0.1", url=server.url)
+    assert watcher.stderr.readline().startswith(f"job {job_id}: ")  # a status line: it is following
+    watcher.send_signal(signal.SIGINT)
+    assert watcher.wait(30) == 130
+    assert "keeps running" in watcher.stderr.read()
+    assert not api.get(f"/jobs/{job_id}").json()["terminal"]  # watching stopped, not the job
+
+    watcher = popen("watch", job_id, "--interval", "0.1", "--json", url=server.url)
+    assert watcher.stderr.readline().startswith(f"job {job_id}: ")
+    out = client("cancel", job_id, url=server.url)
+    assert out.returncode == 0 and f"job {job_id}: CANCELLED" in out.stdout
+    assert watcher.wait(30) == 1  # the job did not succeed
+    assert f"job {job_id}: CANCELLED" in watcher.stderr.read()
+    assert json.loads(watcher.stdout.read())["status"] == "CANCELLED"
+    wait_for(api, job_id)
+
+
+def test_watch_waits_out_a_lost_service_then_exits_3(live_server):
+    s = live_server()
+    with s.client() as c:
+        job_id = c.post("/jobs", json=long_job()).json()["id"]
+    watcher = popen("watch", job_id, "--interval", "0.1", "--reconnect", "1", url=s.url)
+    first = watcher.stderr.readline()
+    assert first.startswith(f"job {job_id}: "), first + watcher.stderr.read()
+    s.stop()  # the running job stops at a safe point, to resume on the next start
+    assert watcher.wait(30) == 3
+    *_, lost, error = watcher.stderr.read().strip().splitlines()  # after any status lines
+    assert lost == f"lost {s.url}; trying again for 1 s"
+    assert error.startswith(f"neuenh-client watch: error: cannot reach {s.url} (connection refused)")
+
+
+@pytest.mark.parametrize("which,code,message", [
+    ("cancelled", 2, "is already CANCELLED; only unfinished jobs can be cancelled"),
+    ("finished", 2, "only unfinished jobs can be cancelled"),
+    ("missing", 2, "no job 'nosuchjob'"),
+])
+def test_cancel_what_cannot_be_cancelled(server, api, submitted, which, code, message):
+    if which == "cancelled":
+        job_id = api.post("/jobs", json=tiny_spec(max_rounds=20).model_dump(mode="json")).json()["id"]
+        api.post(f"/jobs/{job_id}/cancel")
+    else:
+        job_id = submitted[1]["id"] if which == "finished" else "nosuchjob"
+    out = client("cancel", job_id, url=server.url)
+    assert out.returncode == code
+    one_line_error(out, "neuenh-client cancel: error:", message)
+
+
+# -- models and fits ---------------------------------------------------------------------------
+def test_download_extracts_a_bundle_and_refuses_to_overwrite(server, submitted, tmp_path):
+    job = submitted[1]
+    out = client("download", job["id"], url=server.url, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    target = tmp_path / f"neuenh-{job['id']}"
+    assert out.stdout.strip() == target.name
+    bundle = Bundle.load(target)
+    assert bundle.model.state == job["current_state"] and bundle.provenance["job"] == job["id"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [target.name]  # no staging left behind
+
+    again = client("download", job["id"], url=server.url, cwd=tmp_path)
+    assert again.returncode == 2
+    one_line_error(again, "is not empty; use --force")
+    forced = client("download", job["id"], "--force", "--json", url=server.url, cwd=tmp_path)
+    assert forced.returncode == 0, forced.stderr
+    assert json.loads(forced.stdout)["state"] == job["current_state"]
+    assert Bundle.load(target).model.state == job["current_state"]
+
+
+def test_download_keeps_a_zip(server, submitted, tmp_path):
+    out = client("download", submitted[1]["id"], "-o", tmp_path / "m.zip", url=server.url)
+    assert out.returncode == 0, out.stderr
+    with zipfile.ZipFile(tmp_path / "m.zip") as z:
+        assert sorted(z.namelist()) == ["materials.safetensors", "model.json", "weights.safetensors"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.zip"]
+
+
+@pytest.fixture(scope="module")
+def ggx_table(tmp_path_factory):
+    """A plain GGX material at 1500 sampled direction pairs."""
+    wi, wo = (d.float() for d in sample_directions(1500, seed=3))
+    params = {"normal": np.zeros(2), "t_theta": np.zeros(1), "rho_d": np.full(3, 0.2), "rho_s": np.ones(3),
+              "alpha_x": [0.15], "alpha_y": [0.3], "f0": [0.04]}
+    import torch
+
+    f = get_model("ggx").evaluate(wi, wo, {k: torch.tensor(v, dtype=torch.float32) for k, v in params.items()})
+    return write_table(tmp_path_factory.mktemp("tables") / "steel.npz", wi, wo, f.detach())
+
+
+@pytest.mark.parametrize("as_json", [True, False], ids=["json", "table"])
+def test_fit_measurements_with_a_jobs_model(server, submitted, ggx_table, as_json):
+    job = submitted[1]
+    out = client("fit", job["id"], ggx_table, "--epochs", "40", *(["--json"] if as_json else []), url=server.url)
+    assert out.returncode == 0, out.stderr
+    if as_json:
+        report = json.loads(out.stdout)
+        (m,) = report["materials"]
+        assert report["state"] == job["current_state"] and report["round"] == job["last_round"]
+        assert m["name"] == "steel" and m["samples"] == 1500 and np.isfinite(m["loss"])
+        assert {"rho_d", "alpha_x", "f0"} <= set(m["params"])
+        assert all(np.isfinite(v).all() for v in m["params"].values())
+    else:
+        first, material = out.stdout.splitlines()[:2]
+        assert first.startswith(f"job {job['id']} round {job['last_round']}: ggx (state {job['current_state']})")
+        assert re.match(r"\s+steel: log-L1 \d+\.\d{5}\s", material)
