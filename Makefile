@@ -16,9 +16,10 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-# The main job on the embedded default: local Ray, SQLite and artifacts under runs/demo.
+# The whole stack on the embedded default: neuenh serve (local Ray, SQLite and artifacts under
+# runs/demo), the quickstart job submitted with neuenh-client submit --wait, then the service stopped.
 demo: $(STAMP)
-	$(VENV)/bin/neuenh search examples/quickstart.yaml --data-dir runs/demo
+	$(PY) examples/service_demo.py
 
 # The dashboard's browser test drives Debian's Chromium through Playwright (test tools' own
 # browser downloads do not work here). Installed when missing and root; else that test skips.

@@ -28,6 +28,9 @@ def serve(settings: Settings, announce: Callable[[str], None] = print) -> None:
         announce(f"neuenh serve: dashboard {url}/  API {url}/v1  docs {url}/docs  data {settings.data_dir}")
         config = uvicorn.Config(create_app(settings, lock=lock), limit_concurrency=256,
                                 timeout_graceful_shutdown=10, log_level="info",
+                                # pollers keep connections open: closing idle ones after uvicorn's
+                                # 5 s races with a client reusing them (a reset seen under load)
+                                timeout_keep_alive=75,
                                 access_log=settings.access_log)
         uvicorn.Server(config).run(sockets=[sock])
     finally:
@@ -37,7 +40,9 @@ def serve(settings: Settings, announce: Callable[[str], None] = print) -> None:
 def _listen(host: str, port: int) -> socket.socket:
     """Bind before the app starts, so a busy port is a one-line error and port 0 picks a free one."""
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
-    sock = socket.socket(family, socket.SOCK_STREAM)
+    # IPPROTO_TCP spelled out: asyncio sets TCP_NODELAY on accepted connections only when the
+    # listening socket says TCP, and without it Nagle plus delayed ACKs add ~40 ms to every answer.
+    sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
         sock.bind((host, port))

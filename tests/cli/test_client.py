@@ -21,7 +21,6 @@ import yaml
 from api.settings import Settings
 from jobspecs import tiny_spec
 
-sys.path.append(str(Path(__file__).resolve().parents[1] / "api"))  # live_api lives beside the API tests
 from live_api import LiveServer, live_server, wait_for  # noqa: F401  (live_server: fixture)
 from neuenh.checkpoint import Bundle
 from neuenh.data.sampling import sample_directions

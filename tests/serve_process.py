@@ -15,7 +15,7 @@ from pathlib import Path
 import httpx
 
 NEUENH = str(Path(sys.executable).parent / "neuenh")
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 
 
 def clean_env(**extra: str) -> dict[str, str]:
