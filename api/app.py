@@ -49,7 +49,8 @@ def owner_lock(settings: Settings) -> OwnerLock:
 def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFactory | None = None,
                lock: OwnerLock | None = None) -> FastAPI:
     """The service. ``settings`` default to the environment (``NEUENH_*``), read at startup;
-    ``lock``, when given, is the store's owner lock already held by the caller."""
+    ``lock``, when given, is the store's owner lock already held by the caller; either way the
+    lock is released once the worker has stopped."""
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -70,8 +71,7 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
             if stopped:  # never pull the store or executor from under a job still running
                 executor.close()
                 store.close()
-                if owned is not lock:
-                    owned.release()
+                owned.release()  # also serve's: uvicorn ends the process by re-raising the signal
 
     app = FastAPI(
         title="neuenh",
