@@ -37,7 +37,7 @@ def main() -> int:
     args.data_dir.mkdir(parents=True, exist_ok=True)
     log_path = args.data_dir / "serve.log"
     env = {k: v for k, v in os.environ.items() if not k.startswith("NEUENH_")}  # the embedded default
-    with open(log_path, "a") as log:
+    with open(log_path, "w") as log:  # this run's log only: its first line announces the address
         server = subprocess.Popen([BIN / "neuenh", "serve", "--port", "0", "--data-dir", args.data_dir],
                                   stdout=log, stderr=subprocess.STDOUT, env=env)
     try:

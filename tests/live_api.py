@@ -3,9 +3,11 @@ with real SQLite under tmp_path and the in-process executor, plus an httpx clien
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import threading
 import time
+from typing import Iterator
 
 import httpx
 import pytest
@@ -47,6 +49,16 @@ class LiveServer:
 
     def client(self, **kw) -> httpx.Client:
         return httpx.Client(base_url=self.url + "/v1", timeout=30, **kw)
+
+
+@contextlib.contextmanager
+def running_server(data_dir, setup=None, **settings) -> Iterator[LiveServer]:
+    """A live server on ``data_dir`` with ``settings`` for the ``with`` block (module fixtures)."""
+    server = LiveServer(Settings(data_dir=data_dir, **settings), setup).start()
+    try:
+        yield server
+    finally:
+        server.stop()
 
 
 @pytest.fixture()

@@ -12,9 +12,8 @@ import numpy as np
 import pytest
 import torch
 
-from api.settings import Settings
 from jobspecs import tiny_spec
-from live_api import LiveServer, wait_for
+from live_api import running_server, wait_for
 from neuenh.data.sampling import sample_directions
 from neuenh.data.table import write_table
 from neuenh.models import get_model
@@ -25,14 +24,13 @@ TRUTH = {"normal": [0.0, 0.0], "t_theta": [0.0], "rho_d": [0.30, 0.20, 0.10], "r
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    s = LiveServer(Settings(data_dir=tmp_path_factory.mktemp("fit") / "data", max_samples=5000,
-                            max_epochs=400, max_upload_bytes=400_000)).start()
-    yield s
-    s.stop()
+    with running_server(tmp_path_factory.mktemp("fit") / "data", max_samples=5000, max_epochs=400,
+                        max_upload_bytes=400_000) as s:
+        yield s
 
 
 @pytest.fixture(scope="module")
-def client(server):
+def client(server):  # module-wide: the plain job fixture uses it
     with server.client() as c:
         yield c
 

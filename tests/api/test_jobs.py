@@ -9,12 +9,11 @@ import zipfile
 import httpx
 import pytest
 
-from api.app import create_app  # noqa: F401  (the app under test is built by the fixture)
 from neuenh.checkpoint import Bundle
 from storage import JobStatus
 from jobspecs import tiny_spec
 
-from live_api import LiveServer, wait_for
+from live_api import running_server, wait_for
 
 
 def body(**search) -> dict:
@@ -27,18 +26,9 @@ def _boom():
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    from api.settings import Settings
-
-    settings = Settings(data_dir=tmp_path_factory.mktemp("api") / "data", max_request_bytes=20_000)
-    s = LiveServer(settings, setup=lambda app: app.add_api_route("/v1/boom", _boom)).start()
-    yield s
-    s.stop()
-
-
-@pytest.fixture()
-def client(server):
-    with server.client() as c:
-        yield c
+    with running_server(tmp_path_factory.mktemp("api") / "data", max_request_bytes=20_000,
+                        setup=lambda app: app.add_api_route("/v1/boom", _boom)) as s:
+        yield s
 
 
 @pytest.fixture(scope="module")

@@ -4,6 +4,7 @@ that only ever extend (the figures of this load are in docs/BENCHMARKS.md, bench
 from __future__ import annotations
 
 import threading
+import time
 
 import httpx
 
@@ -14,7 +15,7 @@ from live_api import TERMINAL
 def test_fifty_pollers_while_a_job_trains(live_server):
     server = live_server()
     with server.client() as c:
-        job_id = c.post("/jobs", json=tiny_spec(max_rounds=3, epochs_per_round=2).model_dump(mode="json")).json()["id"]
+        job_id = c.post("/jobs", json=tiny_spec(max_rounds=2).model_dump(mode="json")).json()["id"]
     failures: list[str] = []
     seen: list[list[int]] = [[] for _ in range(50)]
 
@@ -29,6 +30,7 @@ def test_fifty_pollers_while_a_job_trains(live_server):
                 h = r.json()
                 seen[i] += [rnd["round"] for rnd in h["rounds"]]
                 since, terminal = h["next_since_round"], h["status"] in TERMINAL
+                time.sleep(0.2)  # a busy dashboard; the GIL is shared with the job training in-process
 
     threads = [threading.Thread(target=poll, args=(i,)) for i in range(50)]
     for t in threads:

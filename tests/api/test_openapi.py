@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, settings
 from api.app import create_app
 from api.settings import Settings
 from jobspecs import tiny_spec
-from live_api import LiveServer, wait_for
+from live_api import running_server, wait_for
 
 TOKEN = "schema-token"
 
@@ -19,13 +19,12 @@ TOKEN = "schema-token"
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     # Small limits, so a generated spec that passes validation is still a job that runs quickly.
-    s = LiveServer(Settings(data_dir=tmp_path_factory.mktemp("openapi") / "data", api_token=TOKEN,
-                            max_samples=300, max_epochs=2, max_candidates_per_round=12,
-                            max_request_bytes=50_000, max_upload_bytes=50_000, shutdown_grace_s=5)).start()
-    with s.client(headers={"Authorization": f"Bearer {TOKEN}"}) as c:  # a real job, so ids exist
-        wait_for(c, c.post("/jobs", json=tiny_spec(max_rounds=1).model_dump(mode="json")).json()["id"])
-    yield s
-    s.stop()
+    with running_server(tmp_path_factory.mktemp("openapi") / "data", api_token=TOKEN, max_samples=300,
+                        max_epochs=2, max_candidates_per_round=12, max_request_bytes=50_000,
+                        max_upload_bytes=50_000, shutdown_grace_s=5) as s:
+        with s.client(headers={"Authorization": f"Bearer {TOKEN}"}) as c:  # a real job, so ids exist
+            wait_for(c, c.post("/jobs", json=tiny_spec(max_rounds=1).model_dump(mode="json")).json()["id"])
+        yield s
 
 
 # The document the live server serves at /openapi.json (built without starting the app, so the

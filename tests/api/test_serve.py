@@ -9,7 +9,6 @@ import signal
 import subprocess
 import time
 
-import pytest
 
 from jobspecs import tiny_spec
 from live_api import wait_for

@@ -12,16 +12,14 @@ import socket
 import subprocess
 import sys
 import zipfile
-from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
-from api.settings import Settings
 from jobspecs import tiny_spec
 
-from live_api import LiveServer, live_server, wait_for  # noqa: F401  (live_server: fixture)
+from live_api import live_server, running_server, wait_for  # noqa: F401  (live_server: fixture)
 from neuenh.checkpoint import Bundle
 from neuenh.data.sampling import sample_directions
 from neuenh.data.table import write_table
@@ -71,9 +69,8 @@ def long_job() -> dict:
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     """One service with a token, shared by the module (jobs run one at a time on it)."""
-    s = LiveServer(Settings(data_dir=tmp_path_factory.mktemp("client") / "data", api_token=TOKEN)).start()
-    yield s
-    s.stop()
+    with running_server(tmp_path_factory.mktemp("client") / "data", api_token=TOKEN) as s:
+        yield s
 
 
 @pytest.fixture()

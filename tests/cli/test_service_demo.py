@@ -1,5 +1,6 @@
 """``make demo``'s script end to end on a tiny spec: neuenh serve with real Ray, neuenh-client
-submit --wait, history, download, the fair plain-GGX comparison, and a clean stop."""
+submit --wait, history, download, the fair plain-GGX comparison, and a clean stop; run again, it
+shows the same job."""
 
 from __future__ import annotations
 
@@ -13,13 +14,18 @@ from neuenh.checkpoint import Bundle
 from serve_process import REPO, clean_env
 
 
-def test_service_demo_runs_the_whole_stack(tmp_path):
+def demo(tmp_path):
     spec = tmp_path / "tiny.yaml"
     spec.write_text(yaml.safe_dump(tiny_spec(max_rounds=2).model_dump(mode="json")))
     run = subprocess.run([sys.executable, REPO / "examples" / "service_demo.py", "--spec", spec,
                           "--data-dir", tmp_path / "demo"], capture_output=True, text=True, cwd=REPO,
                          env=clean_env(), timeout=300)
     assert run.returncode == 0, run.stdout + run.stderr
+    return run
+
+
+def test_service_demo_runs_the_whole_stack_and_again_shows_the_same_job(tmp_path):
+    run = demo(tmp_path)
     out = run.stdout
     assert "dashboard http://127.0.0.1:" in out and "service stopped" in out
     assert "round 0: committed" in run.stderr  # submit --wait's progress
@@ -30,3 +36,7 @@ def test_service_demo_runs_the_whole_stack(tmp_path):
     assert "training plain GGX the same 2 epochs" in out and "lowers the validation loss by" in out
     assert (tmp_path / "demo" / "results" / job / "history.json").exists()
     assert not (tmp_path / "demo" / "owner.lock").read_text(), "the service released its store"
+
+    again = demo(tmp_path)  # the same submission key: the finished job is shown, not trained again
+    assert "already submitted" in again.stderr and "round 0: committed" in again.stderr
+    assert [p.name for p in (tmp_path / "demo" / "results").iterdir()] == [job]
