@@ -18,7 +18,7 @@ import logging
 from contextlib import asynccontextmanager
 from typing import Callable
 
-from fastapi import Depends, FastAPI, HTTPException, status
+from fastapi import APIRouter, Depends, FastAPI, HTTPException, status
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -78,13 +78,12 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
         version=neuenh.__version__,
         summary="Neural enhancement of analytical BRDF models: a distributed search service.",
         lifespan=lifespan,
-        dependencies=[Depends(deps.known_query_only)],
     )
     errors.install(app)
-    app.include_router(health.router, prefix="/v1")
-    app.include_router(jobs.router, prefix="/v1")
-    app.include_router(fit.router, prefix="/v1")
-    app.include_router(cluster.router, prefix="/v1")
+    v1 = APIRouter(prefix="/v1", dependencies=[Depends(deps.known_query_only)])
+    for resource in (health, jobs, fit, cluster):
+        v1.include_router(resource.router)
+    app.include_router(v1)
     app.include_router(dashboard.router)
     app.mount("/dashboard", dashboard.static_files(), name="dashboard")
     app.add_middleware(BodyLimit, limit=lambda path: body_limit(app.state.settings, path))

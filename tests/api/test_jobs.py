@@ -246,3 +246,8 @@ def test_no_token_no_network_listening(host, token, ok):
     else:
         with pytest.raises(ValueError, match="without NEUENH_API_TOKEN"):
             check_listen_address(settings)
+
+
+def test_the_dashboard_ignores_query_strings(server):
+    r = httpx.get(server.url + "/", params={"utm_source": "mail"})
+    assert r.status_code == 200 and "text/html" in r.headers["content-type"]
