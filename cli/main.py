@@ -12,7 +12,7 @@ import sys
 
 from storage import StorageError
 
-from . import data, fit, search, serve
+from . import data, fit, render, search, serve
 
 
 class UsageError(Exception):
@@ -29,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     search.add_parser(commands)
     data.add_parser(commands)
     serve.add_parser(commands)
+    render.add_parser(commands)
     return parser
 
 

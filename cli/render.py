@@ -1,0 +1,319 @@
+"""``neuenh render``: a sphere rendered with a model, with measured ground truth, or both side by side.
+
+    neuenh render --model ggx -o out/                                  # default parameters, studio light
+    neuenh render --model models/enhanced-ggx --material 0 -o out/     # a bundle's fitted material
+    neuenh render --model ggx --params fit.json -o out/                # `neuenh fit --json` output
+    neuenh render --truth ../shared/data/rgl/paper_white_rgb.bsdf --model ggx --params fit.json -o out/
+    neuenh render --model ggx --light "1,1,1:3,3,3" --env studio -o out/
+
+The model (``--model NAME|BUNDLE_DIR``) takes its parameters from ``--params FILE`` (the JSON that
+``neuenh fit --json`` prints; the first material, or ``--material NAME|INDEX``), else from the
+bundle's fitted materials (``--material``, default the first), else the paper's initial values
+(the mean of every parameter's range; latent 0.5).
+
+Ground truth is ``--truth FILE`` (an RGL .bsdf, MERL .binary or NBRDF .npz; ``--truth-material``
+picks an NBRDF network) or ``--truth-model NAME|BUNDLE_DIR`` with ``--truth-params FILE`` /
+``--truth-material`` as for the model. With a truth and a model, both are rendered with the same
+light samples (they share their noise) and the error map, SSIM and ΔE_ITP×10³ are reported.
+Without ``--model``, a truth is rendered alone; with neither, the model is ``ggx``.
+
+Lighting: ``--env studio`` (procedural, neuenh.render.envmaps) or ``--env FILE.exr`` (lat-long), and
+``--light "x,y,z:r,g,b"`` directional lights (world direction towards the light, x right, y up,
+z towards the camera; irradiance RGB or one value; repeatable). With no ``--light`` the default
+environment is the studio; with ``--light`` only, there is no environment unless ``--env`` is given.
+
+Writes into ``-o DIR``: ``model.exr`` / ``model.png``, with a truth ``truth.exr`` / ``truth.png``,
+and with both ``error.png`` (relative luminance error); always ``render.json`` with the settings,
+timings and metrics. Existing files are not overwritten without ``--force``.
+
+Metrics (neuenh.render.metrics, over the sphere's pixels): SSIM of the tone-mapped images at the
+PNGs' ``--exposure``, and mean ΔE_ITP of the linear renders (linear 1.0 = 100 cd/m², exposure not
+applied), reported as ΔE_ITP × 10³ as in the paper.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from neuenh.checkpoint import Bundle
+from neuenh.materials import LATENT_INIT
+
+from .fit import load_model
+
+DEFAULT_SAMPLES = 16
+
+
+def add_parser(commands) -> None:
+    p = commands.add_parser("render", help="render a sphere with a model and/or measured ground truth",
+                            description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--model", help="an analytical model (ggx, ...) or a bundle directory "
+                                   "(default: ggx when no truth is given)")
+    p.add_argument("--params", type=Path, help="parameters as printed by `neuenh fit --json`")
+    p.add_argument("--material", help="which material (name or index) of --params or of the bundle")
+    truth = p.add_mutually_exclusive_group()
+    truth.add_argument("--truth", type=Path, help="measured ground truth: RGL .bsdf, MERL .binary, NBRDF .npz")
+    truth.add_argument("--truth-model", help="an analytical model or bundle directory as ground truth")
+    p.add_argument("--truth-params", type=Path, help="parameters of --truth-model (`neuenh fit --json` output)")
+    p.add_argument("--truth-material", help="the NBRDF network of --truth, or the material of --truth-model")
+    p.add_argument("--env", help="'studio' (procedural) or a lat-long .exr "
+                                 "(default: studio unless --light is given)")
+    p.add_argument("--light", action="append", default=[], metavar="X,Y,Z:R,G,B",
+                   help="a directional light: direction towards it, then irradiance (repeatable)")
+    p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
+                   help=f"environment samples: a stratified N x N set per pixel (default {DEFAULT_SAMPLES})")
+    p.add_argument("--seed", type=int, default=0, help="seed of the environment samples (default 0)")
+    p.add_argument("--size", type=int, default=256, help="image width and height in pixels (default 256)")
+    p.add_argument("--exposure", type=float, default=0.0, help="exposure of the PNGs and SSIM, in stops")
+    p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: all)")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.add_argument("-o", "--output", type=Path, required=True, help="output directory")
+    p.set_defaults(run=run)
+
+
+# -- parsing --------------------------------------------------------------------------------------
+
+def parse_light(text: str) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """``"x,y,z:r,g,b"`` (or ``"x,y,z:v"``, or ``"x,y,z"`` for white 1) -> (direction, irradiance)."""
+    where, _, power = text.partition(":")
+    try:
+        direction = [float(v) for v in where.split(",")]
+        radiance = [float(v) for v in power.split(",")] if power.strip() else [1.0]
+    except ValueError:
+        direction, radiance = [], []
+    ok = (len(direction) == 3 and len(radiance) in (1, 3)
+          and all(math.isfinite(v) for v in direction + radiance) and min(radiance) >= 0
+          and any(v != 0 for v in direction))
+    if not ok:
+        raise ValueError(f"--light {text!r}: expected 'x,y,z:r,g,b' (a non-zero direction towards the "
+                         "light, then a non-negative irradiance: three values or one)")
+    return tuple(direction), tuple(radiance) * 3 if len(radiance) == 1 else tuple(radiance)
+
+
+def _lighting(args) -> dict:
+    """The lighting settings, checked (no file is read yet)."""
+    if args.samples < 1:
+        raise ValueError(f"--samples must be at least 1, got {args.samples}")
+    directional = [parse_light(text) for text in args.light]
+    env = args.env if args.env is not None else (None if directional else "studio")
+    if env not in (None, "studio") and not Path(env).is_file():
+        raise FileNotFoundError(f"--env {env}: no such file (give 'studio' or a lat-long .exr)")
+    return {"environment": env, "samples": (args.samples ** 2) if env else 0, "samples_per_axis": args.samples,
+            "seed": args.seed, "directional": [{"direction": list(d), "irradiance": list(e)} for d, e in directional]}
+
+
+def _lights(info: dict) -> list:
+    from neuenh.render import DirectionalLight, EnvironmentMap
+    from neuenh.render.envmaps import studio_environment
+
+    env, n, seed = info["environment"], info["samples_per_axis"], info["seed"]
+    lights: list = []
+    if env == "studio":
+        lights.append(EnvironmentMap(studio_environment(), samples_per_axis=n, seed=seed))
+    elif env is not None:
+        lights.append(EnvironmentMap.from_exr(env, samples_per_axis=n, seed=seed))
+    lights.extend(DirectionalLight(tuple(d["direction"]), tuple(d["irradiance"])) for d in info["directional"])
+    return lights
+
+
+def _read_params(path: Path, material: str | None) -> tuple[str, dict]:
+    """One material's parameters from ``neuenh fit --json`` output."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        doc = json.loads(path.read_text())
+        materials = doc["materials"]
+        entries = [(str(m["name"]), dict(m["params"])) for m in materials]
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    except (KeyError, TypeError, AttributeError):
+        raise ValueError(f"{path}: expected {{\"materials\": [{{\"name\": ..., \"params\": {{...}}}}]}} "
+                         "(the output of `neuenh fit --json`)") from None
+    if not entries:
+        raise ValueError(f"{path}: holds no materials")
+    index = _pick([name for name, _ in entries], material, str(path))
+    name, params = entries[index]
+    try:
+        tensors = {k: torch.as_tensor(v, dtype=torch.float32).reshape(-1) for k, v in params.items()}
+    except (TypeError, ValueError, RuntimeError):
+        raise ValueError(f"{path}: parameters of {name!r} must be numbers or lists of numbers") from None
+    return name, tensors
+
+
+def _pick(names: list[str], material: str | None, where: str) -> int:
+    if material is None:
+        return 0
+    if material in names:
+        return names.index(material)
+    if material.lstrip("-").isdigit():
+        index = int(material)
+        if 0 <= index < len(names):
+            return index
+        raise ValueError(f"material index {index} out of range: {where} has {len(names)} material(s)")
+    raise ValueError(f"no material {material!r} in {where}; it has {names}")
+
+
+def _initial_params(model) -> dict:
+    params = {s.name: torch.full((s.width,), s.init, dtype=torch.float32) for s in model.specs}
+    if model.latent_dim:
+        params["latent"] = torch.full((model.latent_dim,), LATENT_INIT, dtype=torch.float32)
+    return params
+
+
+def _model_source(spec: str, params_file: Path | None, material: str | None, flag: str):
+    """(description, brdf) of a model with its parameters."""
+    from neuenh.render import model_brdf
+
+    bundle = Bundle.load(spec) if Path(spec).is_dir() else None
+    model = bundle.model if bundle is not None else load_model(spec)
+    if params_file is not None:
+        name, params = _read_params(params_file, material)
+        origin = str(params_file)
+    elif bundle is not None and bundle.materials is not None:
+        names = list(bundle.materials.names)
+        index = _pick(names, material, f"the bundle {spec}")
+        name, params, origin = names[index], bundle.materials.as_params(index), f"bundle {spec}"
+    else:
+        if material is not None:
+            raise ValueError(f"{flag} {material!r} needs parameters to choose from: a --params file "
+                             "or a bundle with fitted materials")
+        name, params, origin = "initial", _initial_params(model), "initial values (mean of the ranges)"
+    if model.latent_dim and "latent" not in params and model.uses_latent:
+        raise ValueError(f"{origin}: material {name!r} has no latent code, which model {model.name} needs")
+    brdf = model_brdf(model, params)
+    # evaluate once so that wrong names, widths or ranges fail before any rendering
+    probe = torch.tensor([[0.0, 0.0, 1.0]])
+    brdf(probe, probe)
+    shown = {k: [round(float(x), 6) for x in v.reshape(-1).tolist()] for k, v in params.items()
+             if k != "latent" or model.uses_latent}
+    return {"model": model.name, "state": model.state, "spec": spec, "material": name,
+            "params_from": origin, "params": shown}, brdf
+
+
+def _truth_source(args):
+    if args.truth is not None:
+        from neuenh.data.measured import load_measured
+
+        if not args.truth.is_file():
+            raise FileNotFoundError(f"{args.truth}: no such file")
+        material = load_measured(args.truth, args.truth_material)
+        if not hasattr(material, "evaluate"):
+            raise ValueError(f"{args.truth}: a measurement table has no continuous evaluation; "
+                             "render ground truth from an RGL, MERL or NBRDF file")
+        return {"measured": str(args.truth), "material": material.name}, material.evaluate
+    if args.truth_model is not None:
+        return _model_source(args.truth_model, args.truth_params, args.truth_material, "--truth-material")
+    if args.truth_params is not None:
+        raise ValueError("--truth-params needs --truth-model")
+    if args.truth_material is not None:
+        raise ValueError("--truth-material needs --truth or --truth-model")
+    return None, None
+
+
+# -- the command ----------------------------------------------------------------------------------
+
+def run(args) -> int:
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    if not 16 <= args.size <= 8192:
+        raise ValueError(f"--size must be between 16 and 8192 pixels, got {args.size}")
+    if not math.isfinite(args.exposure):
+        raise ValueError(f"--exposure must be finite, got {args.exposure}")
+    has_truth = args.truth is not None or args.truth_model is not None
+    model_spec = args.model if args.model is not None else (None if has_truth else "ggx")
+    if model_spec is None and (args.params is not None or args.material is not None):
+        raise ValueError("--params and --material need --model")
+
+    # everything that can be wrong is checked before the first (slow) render
+    out = args.output
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"-o {out}: exists and is not a directory")
+    names = (["model.exr", "model.png"] if model_spec else []) + (["truth.exr", "truth.png"] if has_truth else [])
+    if model_spec and has_truth:
+        names.append("error.png")
+    names.append("render.json")
+    existing = [n for n in names if (out / n).exists()]
+    if existing and not args.force:
+        raise ValueError(f"{out}: {', '.join(existing)} already exist(s); use --force to overwrite")
+    light_info = _lighting(args)
+    if args.truth is not None and not args.truth.is_file():
+        raise FileNotFoundError(f"{args.truth}: no such file")
+    for flag, path in (("--params", args.params), ("--truth-params", args.truth_params)):
+        if path is not None and not path.is_file():
+            raise FileNotFoundError(f"{flag} {path}: no such file")
+
+    from neuenh.render import render, sphere_scene, write_error_map, write_exr, write_png
+    from neuenh.render.metrics import delta_e_itp, ssim
+
+    lights = _lights(light_info)
+    truth_info, truth_brdf = _truth_source(args)
+    model_info, model_brdf = _model_source(model_spec, args.params, args.material, "--material") \
+        if model_spec else (None, None)
+
+    scene = sphere_scene(args.size)
+    out.mkdir(parents=True, exist_ok=True)
+    report: dict = {"size": args.size, "exposure": args.exposure, "lighting": light_info}
+    images = {}
+    for key, info, brdf in (("truth", truth_info, truth_brdf), ("model", model_info, model_brdf)):
+        if brdf is None:
+            continue
+        start = time.perf_counter()
+        image = render(brdf, scene, lights)
+        seconds = time.perf_counter() - start
+        if not torch.isfinite(image).all():
+            raise ValueError(f"the {key} render has non-finite pixels ({info})")
+        write_exr(out / f"{key}.exr", image)
+        write_png(out / f"{key}.png", image, exposure=args.exposure)
+        images[key] = image
+        report[key] = {**info, "render_s": round(seconds, 3)}
+    if len(images) == 2:
+        mask = scene.mask
+        truth, model = images["truth"], images["model"]
+        write_error_map(out / "error.png", truth, model, mask=mask, title="relative luminance error, model vs truth")
+        report["metrics"] = {"ssim": ssim(truth, model, mask=mask, exposure=args.exposure),
+                             "delta_e_itp_x1e3": 1e3 * delta_e_itp(truth, model, mask=mask)}
+    report["files"] = [str(out / n) for n in names]
+    _write_json(out / "render.json", report)
+    print(json.dumps(report, indent=2) if args.json else _summary(report))
+    return 0
+
+
+def _write_json(path: Path, doc: dict) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text(json.dumps(doc, indent=2) + "\n")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _summary(report: dict) -> str:
+    light = report["lighting"]
+    parts = []
+    if light["environment"]:
+        parts.append(f"env {light['environment']} ({light['samples']} samples)")
+    if light["directional"]:
+        parts.append(f"{len(light['directional'])} directional light(s)")
+    lines = [f"{report['size']}x{report['size']} sphere, " + ", ".join(parts)]
+    for key in ("truth", "model"):
+        if key in report:
+            r = report[key]
+            what = r.get("measured") or f"{r['model']} (state {r['state']}), {r['params_from']}"
+            lines.append(f"  {key}: {what}, material {r['material']!r}, {r['render_s']:.2f} s")
+    if "metrics" in report:
+        m = report["metrics"]
+        lines.append(f"  SSIM {m['ssim']:.4f}  ΔE_ITP×10³ {m['delta_e_itp_x1e3']:.2f}")
+    lines.append("wrote " + ", ".join(report["files"]))
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit("run as `neuenh render` (python -m cli.main render)")
