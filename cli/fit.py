@@ -1,10 +1,21 @@
 """``neuenh fit``: fit measured materials with an analytical model or a trained bundle.
 
     neuenh fit --model ggx measurements.npz [more.csv ...] [--method fast|paper] [--json] [-o DIR]
+               [--test held_out.npz [more_held_out.csv ...]] [--predictions out.npz]
 
 Each table is one material (``.npz`` with ``wi``, ``wo``, ``f_r``, or CSV; see neuenh.data.table). The
 module weights of a bundle stay frozen; only per-material parameters are optimised. ``-o DIR``
 writes a bundle of the model with the fitted materials.
+
+``--test`` takes one held-out table per fitted table, in the same order: the i-th held-out table is
+measured with the parameters fitted to the i-th table, whatever its file name (the material keeps
+the fitted table's name). The counts must match and no held-out table may be a fitted one. Each
+material then gets its held-out log-L1 (``heldout_log_l1``, the training loss on samples not
+fitted; see neuenh.evaluate). Put ``--test`` after the measurements (it takes every table that
+follows it). ``--predictions OUT.npz`` (needs ``--test``) writes, atomically, the fitted model's
+f_r at the held-out directions: arrays ``wi``, ``wo``, ``f_r`` (n, 3), ``material`` (n,) indices
+into ``material_names``; with a single material ``neuenh.data.table.read_table`` reads it as a
+table.
 """
 
 from __future__ import annotations
@@ -19,6 +30,7 @@ import torch
 from neuenh.checkpoint import Bundle
 from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
+from neuenh.evaluate import heldout_log_l1, predict_f_r, write_predictions
 from neuenh.fit import FitConfig, fit_materials
 from neuenh.graph import BRDFModel
 from neuenh.models import available_models, get_model
@@ -36,6 +48,11 @@ def add_parser(commands) -> None:
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: all)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("-o", "--output", type=Path, help="write a bundle with the fitted materials here")
+    p.add_argument("--test", nargs="+", metavar="TABLE", type=Path,
+                   help="held-out tables, one per fitted table in the same order: adds each material's "
+                        "held-out log-L1")
+    p.add_argument("--predictions", type=Path, metavar="OUT.npz",
+                   help="write the fitted model's f_r at the held-out directions (needs --test)")
     p.set_defaults(run=run)
 
 
@@ -53,21 +70,56 @@ def load_model(spec: str) -> BRDFModel:
 def run(args) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
+    _check_heldout_args(args)
     model = load_model(args.model)
     samples = Samples.concat([read_table(t) for t in args.tables])
     if len(set(samples.names)) != len(samples.names):
         raise ValueError(f"two tables share a material name: {samples.names}")
+    test = None
+    if args.test:
+        test = Samples.concat([read_table(t, name=samples.names[i]) for i, t in enumerate(args.test)])
     result = fit_materials(model, samples, FitConfig(method=args.method, epochs=args.epochs))
-    if args.output:
-        Bundle(model, result.materials, provenance={"fitted_from": [str(t) for t in args.tables],
-                                                    "fit_method": args.method,
-                                                    "fitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())},
-               metrics={"fit_loss": result.losses}).save(args.output)
     report = result.report(model, args.method, samples)
+    metrics: dict = {"fit_loss": result.losses}
+    if test is not None:
+        heldout = heldout_log_l1(model, result.materials, test)
+        counts = torch.bincount(test.material, minlength=len(test.names)).tolist()
+        for entry, loss, count, path in zip(report["materials"], heldout, counts, args.test):
+            entry.update(heldout_log_l1=loss, heldout_samples=count, heldout_table=str(path))
+        metrics["heldout_log_l1"] = heldout
+    if args.predictions:
+        write_predictions(args.predictions, test, predict_f_r(model, result.materials, test))
+        report["predictions"] = str(args.predictions)
     if args.output:
+        provenance = {"fitted_from": [str(t) for t in args.tables], "fit_method": args.method,
+                      "fitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+        if args.test:
+            provenance["heldout_tables"] = [str(t) for t in args.test]
+        Bundle(model, result.materials, provenance=provenance, metrics=metrics).save(args.output)
         report["bundle"] = str(args.output)
     print(json.dumps(report, indent=2) if args.json else _table(report))
     return 0
+
+
+def _check_heldout_args(args) -> None:
+    """Usage errors of ``--test``/``--predictions``, found before any fitting."""
+    if args.predictions and not args.test:
+        raise ValueError("--predictions needs --test: predictions are written at the held-out directions")
+    if not args.test:
+        return
+    if len(args.test) != len(args.tables):
+        raise ValueError(f"--test takes one held-out table per fitted table, in the same order: "
+                         f"got {len(args.test)} for {len(args.tables)}")
+    fitted = {Path(t).resolve() for t in args.tables}
+    for t in args.test:
+        if Path(t).resolve() in fitted:
+            raise ValueError(f"--test {t} is also a fitted table; held-out samples must not be fitted")
+    if args.predictions:
+        parent = args.predictions.resolve().parent
+        if not parent.is_dir():
+            raise ValueError(f"--predictions {args.predictions}: directory {parent} does not exist")
+        if args.predictions.is_dir():
+            raise ValueError(f"--predictions {args.predictions} is a directory")
 
 
 def _table(report: dict) -> str:
@@ -76,7 +128,10 @@ def _table(report: dict) -> str:
     for m in report["materials"]:
         p = m["params"]
         scalars = "  ".join(f"{k}={_fmt(v)}" for k, v in p.items() if k != "latent")
-        lines.append(f"  {m['name']}: log-L1 {m['loss']:.5f}  {scalars}")
+        heldout = f"  held-out {m['heldout_log_l1']:.5f}" if "heldout_log_l1" in m else ""
+        lines.append(f"  {m['name']}: log-L1 {m['loss']:.5f}{heldout}  {scalars}")
+    if "predictions" in report:
+        lines.append(f"predictions written to {report['predictions']}")
     if "bundle" in report:
         lines.append(f"bundle written to {report['bundle']}")
     return "\n".join(lines)

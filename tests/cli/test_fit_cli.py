@@ -6,6 +6,7 @@ import sys
 
 import numpy as np
 import pytest
+import torch
 
 from neuenh.checkpoint import Bundle
 from neuenh.data.synthetic import synthetic_ggx
@@ -67,3 +68,81 @@ def test_user_mistakes_exit_2_with_one_line(table, tmp_path, args, message):
 def test_usage_error_from_argparse_exits_2():
     out = neuenh("fit")
     assert out.returncode == 2 and "MEASUREMENTS" in out.stderr
+
+
+# -- held-out evaluation: --test and --predictions ---------------------------------------------
+@pytest.fixture(scope="module")
+def held_out(tmp_path_factory):
+    """Held-out rows of the same material as ``table`` (another seed), under another file name."""
+    (material,) = synthetic_ggx(1, seed=8, noise_sigma=0.0)
+    wi, wo, f = material.samples(1000, seed=1)
+    return write_table(tmp_path_factory.mktemp("h") / "steel_test.npz", wi, wo, f)
+
+
+@pytest.fixture(scope="module")
+def heldout_run(table, held_out, tmp_path_factory):
+    """One user run: fit ``table``, measure on ``held_out``, write predictions; (report, dir)."""
+    out_dir = tmp_path_factory.mktemp("pred")
+    out = neuenh("fit", "--model", "ggx", table, "--epochs", "40", "--json", "--test", held_out,
+                 "--predictions", out_dir / "pred.npz")
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout), out_dir
+
+
+def test_test_adds_heldout_log_l1_to_json_and_table(held_out, heldout_run):
+    (material,) = heldout_run[0]["materials"]
+    assert material["name"] == "steel" and material["heldout_samples"] == 1000
+    assert material["heldout_table"] == str(held_out)
+    assert 0 < material["heldout_log_l1"] < 0.1 and abs(material["heldout_log_l1"] - material["loss"]) < 0.02
+    from cli.fit import _table  # the text report (without --json) of the same run
+
+    assert f"steel: log-L1 {material['loss']:.5f}  held-out {material['heldout_log_l1']:.5f}" in _table(heldout_run[0])
+
+
+def test_predictions_are_the_fitted_model_at_the_heldout_directions(held_out, heldout_run):
+    from neuenh.data.table import read_table
+    from neuenh.models import get_model
+
+    report, out_dir = heldout_run
+    pred = out_dir / "pred.npz"
+    assert report["predictions"] == str(pred)
+    assert sorted(p.name for p in out_dir.iterdir()) == ["pred.npz"]  # atomic: no temporary left
+    held = read_table(held_out)
+    with np.load(pred, allow_pickle=False) as npz:
+        assert npz["material_names"].tolist() == ["steel"] and (npz["material"] == 0).all()
+        np.testing.assert_array_equal(npz["wi"], held.wi.numpy())
+        np.testing.assert_array_equal(npz["wo"], held.wo.numpy())
+        f_r = npz["f_r"]
+    # independently: the model evaluated with the parameters the JSON reports (rounded to 6 digits)
+    params = {k: torch.tensor(v, dtype=torch.float64) for k, v in report["materials"][0]["params"].items()}
+    expected = get_model("ggx").evaluate(held.wi.double(), held.wo.double(), params).numpy()
+    np.testing.assert_allclose(f_r, expected, rtol=2e-3, atol=1e-6)
+    cos = np.clip(held.wi[:, 2].double().numpy(), 0, None)[:, None]
+    mine = np.mean(np.abs(np.log1p(held.f_r.double().numpy() * cos) - np.log1p(f_r.astype(np.float64) * cos)))
+    assert mine == pytest.approx(report["materials"][0]["heldout_log_l1"], rel=1e-4, abs=1e-7)
+    assert torch.equal(read_table(pred).f_r, torch.from_numpy(f_r))  # one material: readable as a table
+
+
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["--predictions", "OUT"], "--predictions needs --test"),
+        (["--test", "HELD", "HELD"], "--test takes one held-out table per fitted table, in the same order: got 2 for 1"),
+        (["--test", "TABLE"], "is also a fitted table"),
+        (["--test", "missing.npz"], "missing.npz: no such file"),
+        (["--test", "HELD", "--predictions", "NODIR"], "does not exist"),
+    ],
+    ids=["predictions-without-test", "count-mismatch", "test-is-fitted", "missing-test", "no-output-dir"],
+)
+def test_heldout_mistakes_exit_2_with_one_line(table, held_out, tmp_path, capsys, args, message):
+    """In-process through ``cli.main.main`` (the exit code and message the subprocess would give;
+    these checks run before any fitting)."""
+    from cli.main import main
+
+    subs = {"OUT": tmp_path / "p.npz", "HELD": held_out, "TABLE": table, "NODIR": tmp_path / "no" / "p.npz"}
+    code = main(["fit", "--model", "ggx", str(table), "--epochs", "1", *[str(subs.get(a, a)) for a in args]])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert message in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []  # nothing written
