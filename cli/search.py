@@ -21,7 +21,7 @@ from pathlib import Path
 
 from neuenh.checkpoint import Bundle
 from orchestrator.dataset import prepare_dataset
-from orchestrator.runner import Orchestrator, Progress, train_plain_baseline
+from orchestrator.runner import Orchestrator, Progress, train_plain_baseline, trained_epochs
 from orchestrator.spec import load_spec
 from storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore
 
@@ -105,7 +105,7 @@ def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
         "history": str(out / "history.json"),
     })
     if baseline:
-        epochs = sum(r.winner.epochs for r in rounds)
+        epochs = trained_epochs(rounds)
         plain = train_plain_baseline(spec, prepare_dataset(spec, artifacts)[0], epochs)
         summary["plain_val_loss_same_epochs"] = plain.val_loss
         summary["plain_epochs"] = epochs

@@ -105,7 +105,8 @@ def summarise(history: dict, results: Path, spec_path: Path, data_dir: Path) -> 
         return
     bundle = Bundle.load(results / "model")
     final = rounds[-1]["winner_val_loss"]
-    epochs = sum(next(c["epochs"] for c in r["candidates"] if c["winner"]) for r in rounds)
+    epochs = rounds[0]["extra"].get("warmup", {}).get("epochs", 0) + sum(  # as orchestrator.runner.trained_epochs
+        next(c["epochs"] for c in r["candidates"] if c["winner"]) for r in rounds)
     spec = load_spec(spec_path)
     print(f"\nfinal state  {history['current_state']}  {bundle.model.describe()}  ({bundle.model.n_weights()} weights)")
     print(f"val log-L1   {final:.5f} after {epochs} epochs; training plain GGX the same {epochs} epochs ...",

@@ -114,8 +114,8 @@ class Orchestrator:
         if self.jobs.get_job(job_id).status == QUEUED:
             self.jobs.set_status(job_id, PREPARING)
         self._check_cancel(job_id)
-        data, key = prepare_dataset(spec, self.artifacts)
-        self.jobs.append_event(job_id, "dataset", {"key": key, "materials": len(data.names),
+        data, data_key = prepare_dataset(spec, self.artifacts)
+        self.jobs.append_event(job_id, "dataset", {"key": data_key, "materials": len(data.names),
                                                  "train": len(data.train), "val": len(data.val),
                                                  "bytes": data.nbytes})
         if self.jobs.get_job(job_id).status == PREPARING:
@@ -125,10 +125,13 @@ class Orchestrator:
         graph = get_model(spec.model).graph
         m, constraints = spec.digits(), spec.constraints()
         last = self.jobs.last_round(job_id)
+        warmup: dict = {}
         if last is None:
             round_index = 0
             state = initial_state(len(graph), m, constraints)
             parent = spec.initial_bundle(data.names).to_bytes()
+            if spec.search.warmup_epochs:
+                parent, warmup = self._warm_up(job_id, spec, state, parent, dataset, start)
         else:
             round_index = last.index + 1
             state = graph.parse_state(last.winner_state, m)
@@ -138,6 +141,8 @@ class Orchestrator:
             self._check_cancel(job_id)
             started = time.time()
             winner, reports, extra = self._round(job_id, spec, round_index, state, parent, dataset, start)
+            if round_index == 0 and warmup:
+                extra = {**extra, "warmup": warmup}
             key = checkpoint_key(job_id, round_index)
             self.artifacts.put(key, winner.bundle)  # durable before the round becomes visible
             self.jobs.commit_round(job_id, RoundRecord(
@@ -159,6 +164,19 @@ class Orchestrator:
                 return
             round_index += 1
         self.jobs.set_status(job_id, STOPPED)
+
+    def _warm_up(self, job_id, spec: JobSpec, state, parent: bytes, dataset, start) -> tuple[bytes, dict]:
+        """The starting state trained ``warmup_epochs`` (seeded as round -1, so a resumed job warms
+        up exactly as before); returns the trained bundle and what round 0's record says of it."""
+        task = CandidateTask(Graph.format_state(state), candidate_seed(spec.train.seed, -1, state),
+                             spec.search.warmup_epochs)
+        resources = Resources(spec.resources.cpus_per_candidate, spec.resources.gpus_per_candidate)
+        [report] = self._train(job_id, 0, dataset, [parent], [task], spec.train_config(), resources, start,
+                               phase="warmup")
+        if not report.ok:
+            raise RuntimeError(f"warm-up of {task.state} failed: {report.error}")
+        return report.bundle, {"epochs": report.epochs, "train_loss": report.train_loss,
+                               "val_loss": report.val_loss, "wall_s": report.wall_s, "node": report.node}
 
     def _round(self, job_id, spec: JobSpec, k: int, state, parent: bytes, dataset, start):
         m = spec.digits()
@@ -239,6 +257,11 @@ class Orchestrator:
     def _emit(self, job_id, status, k, done, total, best, state, start, message) -> None:
         self.on_progress(Progress(job_id, status, k, done, total, best, state,
                                   time.perf_counter() - start, message))
+
+
+def trained_epochs(rounds: list[RoundRecord]) -> int:
+    """Epochs the last winner has trained in all: each round's winner, plus any warm-up."""
+    return rounds[0].extra.get("warmup", {}).get("epochs", 0) + sum(r.winner.epochs for r in rounds)
 
 
 def train_plain_baseline(spec: JobSpec, data: TrainingData, epochs: int) -> CandidateResult:

@@ -35,6 +35,10 @@ class SearchSpec(_Strict):
     radius: int = Field(1, ge=0, le=4)
     epochs_per_round: int = Field(30, ge=1)
     max_rounds: int = Field(20, ge=1)
+    warmup_epochs: int = Field(0, ge=0, description=(
+        "train the starting state this many epochs before round 0, so that round 0's candidates grow "
+        "from fitted parameters (B_c's trained weights) rather than the initial values, where the "
+        "analytical state wins by converging fastest"))
     max_neural: int | None = Field(None, ge=0)
     fixed: dict[str, int] = Field(default_factory=dict, description="position name -> digit it keeps")
     allowed: dict[str, list[int]] = Field(default_factory=dict, description="position name -> digits it may take")

@@ -189,3 +189,46 @@ def test_a_stopping_process_leaves_the_job_to_resume(stores):
     assert halted.status == JobStatus.RUNNING and halted.error is None and halted.last_round == 0
     assert Orchestrator(jobs, artifacts, InlineExecutor()).resume_all() == [job.id]
     assert _path(jobs, job.id) == expected
+
+
+def test_warm_up_trains_the_starting_state_before_round_0(orchestrator, stores):
+    """Round 0 grows from the starting state trained ``warmup_epochs`` (recorded in round 0), and
+    its stay candidate is exactly that bundle trained E epochs more: checked by calling
+    ``train_candidate`` directly, outside the orchestrator and executor."""
+    from neuenh.train import train_candidate
+    from neuenh.search import candidate_seed
+    from orchestrator.dataset import prepare_dataset
+    from orchestrator.runner import trained_epochs
+
+    jobs, artifacts = stores
+    spec = tiny_spec(warmup_epochs=2, max_rounds=1)
+    job = orchestrator.run(orchestrator.submit(spec)[0].id)
+    [round0] = jobs.rounds(job.id)
+    warmup = round0.extra["warmup"]
+    assert warmup["epochs"] == 2 and warmup["val_loss"] > 0 and trained_epochs([round0]) == 2 + 1
+
+    data, _ = prepare_dataset(spec, artifacts)
+    zeros = (0,) * 11
+    warm = train_candidate(spec.initial_bundle(data.names), "0" * 11, data, spec.train_config(2),
+                           candidate_seed(spec.train.seed, -1, zeros))
+    assert warm.val_loss == warmup["val_loss"]
+    stay = train_candidate(warm.bundle, "0" * 11, data, spec.train_config(), candidate_seed(spec.train.seed, 0, zeros))
+    assert next(c for c in round0.candidates if c.state == "0" * 11).val_loss == stay.val_loss
+
+    cold = orchestrator.run(orchestrator.submit(tiny_spec(max_rounds=1))[0].id)
+    assert "warmup" not in jobs.rounds(cold.id)[0].extra
+
+
+def test_resume_before_round_0_warms_up_the_same_way(stores):
+    jobs, artifacts = stores
+    spec = tiny_spec(warmup_epochs=2, max_rounds=2)
+    reference = Orchestrator(jobs, artifacts, InlineExecutor())
+    expected = _path(jobs, reference.run(reference.submit(spec, idempotency_key="ref")[0].id).id)
+
+    crashing = Orchestrator(jobs, artifacts, CrashingExecutor(after=1 + 5))  # warm-up done, mid round 0
+    job, _ = crashing.submit(spec)
+    with pytest.raises(_Crash):
+        crashing.run(job.id)
+    assert jobs.get_job(job.id).last_round is None
+    Orchestrator(jobs, artifacts, InlineExecutor()).resume_all()
+    assert _path(jobs, job.id) == expected
