@@ -24,6 +24,11 @@ constant over it too. The unit-square samples are a jittered n × n stratified g
 seeded generator, drawn once and kept: every BRDF rendered with this map sees the very same
 directions, so a ground truth and a model share their noise. A constant map turns into exactly
 stratified uniform sphere sampling (cos θ = 1 - 2u₁, φ = 2πu₂).
+
+These samples are the renderer's ``sampling="light"`` estimator. The default, ``"mis"``
+(``sampling.py``), uses the same inversion (``EnvironmentMap.sample_directions``) as one strategy
+of a BRDF-independent mixture, and ``EnvironmentMap.lookup`` for the radiance and density at the
+other strategies' directions.
 """
 
 from __future__ import annotations
@@ -174,6 +179,11 @@ class EnvironmentMap:
         row, col = self.texel(direction)
         return self._luminance[row, col] / self._distribution[3]
 
+    def lookup(self, direction: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``radiance`` (n, 3) and ``pdf`` (n,) at world directions, with one texel lookup."""
+        row, col = self.texel(direction)
+        return self.image[row, col], self._luminance[row, col] / self._distribution[3]
+
     # -- the fixed samples ------------------------------------------------------------------
     def samples(self) -> LightSamples:
         """The map's fixed stratified samples (computed once, then the same object)."""
@@ -183,8 +193,6 @@ class EnvironmentMap:
 
     def _draw(self) -> LightSamples:
         n = self.samples_per_axis
-        h, w = self.shape
-        row_cdf, col_cdf, weight, total = self._distribution
         # jittered n × n grid in the unit square, from a seeded generator
         generator = torch.Generator().manual_seed(self.seed)
         cell = torch.arange(n, dtype=torch.float64)
@@ -192,6 +200,16 @@ class EnvironmentMap:
         jitter = torch.rand(n * n, 2, generator=generator, dtype=torch.float64)
         u1 = ((g1.reshape(-1) + jitter[:, 0]) / n).clamp(0.0, 1.0 - 1e-12)
         u2 = ((g2.reshape(-1) + jitter[:, 1]) / n).clamp(0.0, 1.0 - 1e-12)
+        direction, pdf, radiance = self.sample_directions(torch.stack([u1, u2], dim=-1))
+        # Monte Carlo weight: L / (pdf · N)
+        return LightSamples(direction, radiance, pdf, radiance / (pdf[:, None] * (n * n)))
+
+    def sample_directions(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """World directions (m, 3), their pdf (m,) and radiance (m, 3) of unit-square points
+        ``u`` (m, 2) in [0, 1): the inversion of the texel distribution (module docstring)."""
+        h, w = self.shape
+        row_cdf, col_cdf, weight, total = self._distribution
+        u1, u2 = u[:, 0].contiguous(), u[:, 1].contiguous()
         # row: the first row whose CDF exceeds u1; the remainder, rescaled, places cos θ in it
         row = (torch.searchsorted(row_cdf, u1, right=True) - 1).clamp(0, h - 1)
         r1 = (u1 - row_cdf[row]) / (row_cdf[row + 1] - row_cdf[row])
@@ -207,9 +225,7 @@ class EnvironmentMap:
         direction = torch.stack([sin_t * torch.sin(phi), cos_t, sin_t * torch.cos(phi)], dim=-1)
         # pdf in solid angle: P_ij / ΔΩ_i
         pdf = weight[row, col] / total / self._solid_angle[row]
-        radiance = self.image[row, col]
-        # Monte Carlo weight: L / (pdf · N)
-        return LightSamples(direction, radiance, pdf, radiance / (pdf[:, None] * (n * n)))
+        return direction, pdf, self.image[row, col]
 
 
 Light = DirectionalLight | EnvironmentMap

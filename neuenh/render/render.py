@@ -1,10 +1,19 @@
 """``render``: direct lighting of a scene by a BRDF, with the lights' fixed samples.
 
-    L_o(x, wo) = Σ_k f_r(wi_k, wo) · L_k · max(cos θ_k, 0) / (pdf_k · N_light(k))
+Directional lights are exact (one sample each, weight E). An environment map is estimated with
 
-over the samples k of every light (``LightSamples.weight`` = L / (pdf · N), or E for a
-directional light). Directions below the shading horizon contribute 0 and the BRDF is never
-asked about them. No visibility: a sphere does not shadow itself (a convex object).
+* ``sampling="mis"`` (the default): BRDF-independent multiple importance sampling — per pixel,
+  N = n² fixed directions from a mixture of the map's luminance sampling, a cosine lobe and GGX
+  reflection lobes about the mirror direction, weighted by the balance heuristic
+  ``f_r L cos / Σ_k m_k p_k`` (``sampling.py``);
+* ``sampling="light"``: the map's own samples only (``LightSamples.weight`` = L / (pdf · N)),
+
+    L_o(x, wo) = Σ_k f_r(wi_k, wo) · L_k · max(cos θ_k, 0) / (pdf_k · N_light(k)).
+
+Either way the directions and weights never depend on the BRDF, so every BRDF rendered with the
+same lights shares the same noise. Directions below the shading horizon contribute 0 (they still
+count in the estimator) and the BRDF is never asked about them. No visibility: a sphere does not
+shadow itself (a convex object).
 
 ``brdf`` is any callable ``f(wi, wo) -> (n, 3)`` f_r without the cosine, in the local shading
 frame (z = normal, x = tangent): a measured material's ``.evaluate`` (``load_measured``), an
@@ -14,11 +23,12 @@ material of a bundle (``bundle_brdf(bundle, i)``).
 
 from __future__ import annotations
 
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Literal, Mapping, Sequence
 
 import torch
 
-from .lights import Light, gather
+from .lights import DirectionalLight, EnvironmentMap, Light, gather
+from .sampling import DEFAULT_ALPHAS, mixture_density, mixture_directions, mixture_samples
 from .scene import SphereScene
 
 BRDF = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
@@ -46,18 +56,95 @@ def bundle_brdf(bundle, material: int | str) -> BRDF:
     return model_brdf(bundle.model, bundle.materials.as_params(index))
 
 
+def _check(f: torch.Tensor, n: int) -> None:
+    if f.shape != (n, 3):
+        raise ValueError(f"the BRDF must return (n, 3) f_r, got shape {tuple(f.shape)} for n = {n}")
+
+
 @torch.no_grad()
 def render(
     brdf: BRDF,
     scene: SphereScene,
     lights: Light | Sequence[Light],
     *,
+    sampling: Literal["mis", "light"] = "mis",
+    alphas: Sequence[float] = DEFAULT_ALPHAS,
+    shares: Sequence[float] | None = None,
     dtype: torch.dtype = torch.float32,
     max_pairs: int = 1 << 18,
 ) -> torch.Tensor:
     """(H, W, 3) float64 linear radiance of ``scene`` lit by ``lights``; 0 outside the mask.
 
-    The BRDF sees ``dtype`` directions; at most ``max_pairs`` (pixel, sample) pairs at a time."""
+    Environment maps are sampled with ``sampling`` ("mis": the mixture of ``sampling.py`` with
+    GGX lobes of roughnesses ``alphas`` and sample ``shares`` (env, cosine, one per roughness);
+    "light": the map's own samples); directional lights are exact. The BRDF sees ``dtype``
+    directions; at most ``max_pairs`` (pixel, sample) pairs at a time."""
+    if sampling not in ("mis", "light"):
+        raise ValueError(f"sampling must be 'mis' or 'light', got {sampling!r}")
+    if isinstance(lights, (DirectionalLight, EnvironmentMap)):
+        lights = [lights]
+    lights = list(lights)
+    if not lights:
+        raise ValueError("no lights")
+    if sampling == "light":
+        return _render_light_samples(brdf, scene, lights, dtype=dtype, max_pairs=max_pairs)
+    envs = [light for light in lights if isinstance(light, EnvironmentMap)]
+    others = [light for light in lights if not isinstance(light, EnvironmentMap)]
+    image = torch.zeros(*scene.shape, 3, dtype=torch.float64)
+    if others:
+        image = image + _render_light_samples(brdf, scene, others, dtype=dtype, max_pairs=max_pairs)
+    for env in envs:
+        image = image + _render_mis(brdf, scene, env, alphas=alphas, shares=shares, dtype=dtype, max_pairs=max_pairs)
+    return image
+
+
+def _render_mis(brdf: BRDF, scene: SphereScene, env: EnvironmentMap, *, alphas, shares, dtype,
+                max_pairs: int) -> torch.Tensor:
+    """One environment map by the mixture estimator of ``sampling.py``."""
+    samples = mixture_samples(env, alphas, shares)
+    frames = scene.frames()  # (P, 3, 3) rows t, b, n
+    wo = scene.wo_local[scene.mask]  # (P, 3)
+    k = len(samples)
+    out = torch.zeros(frames.shape[0], 3, dtype=torch.float64)
+    chunk = max(1, max_pairs // k)
+    for start in range(0, frames.shape[0], chunk):
+        frame, wo_c = frames[start:start + chunk], wo[start:start + chunk]
+        c = frame.shape[0]
+        # every strategy's direction for every pixel, local (c, K, 3) and world (frameᵀ · local)
+        wi = mixture_directions(samples, frame, wo_c)
+        world = torch.einsum("pji,pkj->pki", frame, wi)
+        # L(wi) and the map's own density there, from the texel the direction falls in
+        radiance, env_pdf = env.lookup(world.reshape(-1, 3))
+        radiance, env_pdf = radiance.reshape(c, k, 3), env_pdf.reshape(c, k)
+        # Σ_k m_k p_k(wi): every strategy's density at every direction (= N · p_mix)
+        density = mixture_density(samples, wi, env_pdf, wo_c)
+        # max(cos θ_i, 0) / (N p_mix) · L, the BRDF-independent part of each term
+        weight = (wi[..., 2:3] / density[..., None]) * radiance
+        # below the horizon (or grazing exactly) a direction contributes 0 but still counts in N
+        wi, weight = wi.reshape(c * k, 3), weight.reshape(c * k, 3)
+        lit = torch.nonzero(wi[:, 2] > 0).squeeze(1)  # flat (pixel, sample) pair indices
+        pixel = lit // k
+        # f_r at the lit pairs only, in the BRDF's dtype
+        f = brdf(wi[lit].to(dtype), wo_c[pixel].to(dtype)).to(torch.float64)
+        _check(f, lit.shape[0])
+        # f_r · L cos / (N p_mix) per lit pair, zero for the others, summed over the samples
+        contribution = torch.zeros(c * k, 3, dtype=torch.float64)
+        contribution.index_copy_(0, lit, f * weight[lit])
+        out[start:start + c] = contribution.reshape(c, k, 3).sum(dim=1)
+    image = torch.zeros(*scene.shape, 3, dtype=torch.float64)
+    image[scene.mask] = out
+    return image
+
+
+def _render_light_samples(
+    brdf: BRDF,
+    scene: SphereScene,
+    lights: Sequence[Light],
+    *,
+    dtype: torch.dtype,
+    max_pairs: int,
+) -> torch.Tensor:
+    """The lights' own samples (directional lights exactly, maps by their luminance sampling)."""
     samples = gather(lights)
     frames = scene.frames()  # (P, 3, 3) rows t, b, n
     wo = scene.wo_local[scene.mask]  # (P, 3)
@@ -76,8 +163,7 @@ def render(
         wi_lit = wi[lit]
         # f_r at the lit pairs only, in the BRDF's dtype
         f = brdf(wi_lit.to(dtype), wo[start + pixel].to(dtype)).to(torch.float64)
-        if f.shape != (lit.shape[0], 3):
-            raise ValueError(f"the BRDF must return (n, 3) f_r, got shape {tuple(f.shape)} for n = {lit.shape[0]}")
+        _check(f, lit.shape[0])
         # f_r · cos θ_i · weight per lit pair, zero for the others, summed over the samples
         contribution = torch.zeros(c * k, 3, dtype=torch.float64)
         contribution.index_copy_(0, lit, f * wi_lit[:, 2:3] * samples.weight[sample])
