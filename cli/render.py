@@ -70,6 +70,9 @@ def add_parser(commands) -> None:
     p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
                    help=f"environment samples: a stratified N x N set per pixel (default {DEFAULT_SAMPLES})")
     p.add_argument("--seed", type=int, default=0, help="seed of the environment samples (default 0)")
+    p.add_argument("--sampling", choices=("mis", "light"), default="mis",
+                   help="environment sampling: mis (default; the map, a cosine lobe and GGX reflection lobes "
+                        "mixed, right for glossy materials) or light (the map alone)")
     p.add_argument("--size", type=int, default=256, help="image width and height in pixels (default 256)")
     p.add_argument("--exposure", type=float, default=0.0, help="exposure of the PNGs and SSIM, in stops")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: all)")
@@ -107,7 +110,7 @@ def _lighting(args) -> dict:
     if env not in (None, "studio") and not Path(env).is_file():
         raise FileNotFoundError(f"--env {env}: no such file (give 'studio' or a lat-long .exr)")
     return {"environment": env, "samples": (args.samples ** 2) if env else 0, "samples_per_axis": args.samples,
-            "seed": args.seed, "directional": [{"direction": list(d), "irradiance": list(e)} for d, e in directional]}
+            "seed": args.seed, "sampling": args.sampling, "directional": [{"direction": list(d), "irradiance": list(e)} for d, e in directional]}
 
 
 def _lights(info: dict) -> list:
@@ -266,7 +269,7 @@ def run(args) -> int:
         if brdf is None:
             continue
         start = time.perf_counter()
-        image = render(brdf, scene, lights)
+        image = render(brdf, scene, lights, sampling=light_info["sampling"])
         seconds = time.perf_counter() - start
         if not torch.isfinite(image).all():
             raise ValueError(f"the {key} render has non-finite pixels ({info})")
@@ -299,7 +302,7 @@ def _summary(report: dict) -> str:
     light = report["lighting"]
     parts = []
     if light["environment"]:
-        parts.append(f"env {light['environment']} ({light['samples']} samples)")
+        parts.append(f"env {light['environment']} ({light['samples']} samples, {light['sampling']} sampling)")
     if light["directional"]:
         parts.append(f"{len(light['directional'])} directional light(s)")
     lines = [f"{report['size']}x{report['size']} sphere, " + ", ".join(parts)]
