@@ -96,17 +96,17 @@ def summarise(history: dict, results: Path, spec_path: Path, data_dir: Path) -> 
     same data (trained here, after the service stopped, so the comparison is fair)."""
     from neuenh.checkpoint import Bundle
     from orchestrator.dataset import prepare_dataset
-    from orchestrator.runner import train_plain_baseline
+    from orchestrator.runner import train_plain_baseline, trained_epochs
     from orchestrator.spec import load_spec
-    from storage import LocalArtifactStore
+    from storage import LocalArtifactStore, SQLiteJobStore
 
     rounds = history["rounds"]
     if not rounds:
         return
     bundle = Bundle.load(results / "model")
     final = rounds[-1]["winner_val_loss"]
-    epochs = rounds[0]["extra"].get("warmup", {}).get("epochs", 0) + sum(  # as orchestrator.runner.trained_epochs
-        next(c["epochs"] for c in r["candidates"] if c["winner"]) for r in rounds)
+    with SQLiteJobStore(data_dir / "jobs.sqlite") as jobs:  # the service has stopped: read its records
+        epochs = trained_epochs(jobs.rounds(history["job_id"]))
     spec = load_spec(spec_path)
     print(f"\nfinal state  {history['current_state']}  {bundle.model.describe()}  ({bundle.model.n_weights()} weights)")
     print(f"val log-L1   {final:.5f} after {epochs} epochs; training plain GGX the same {epochs} epochs ...",

@@ -102,38 +102,20 @@ def _render_mis(brdf: BRDF, scene: SphereScene, env: EnvironmentMap, *, alphas, 
                 max_pairs: int) -> torch.Tensor:
     """One environment map by the mixture estimator of ``sampling.py``."""
     samples = mixture_samples(env, alphas, shares)
-    frames = scene.frames()  # (P, 3, 3) rows t, b, n
-    wo = scene.wo_local[scene.mask]  # (P, 3)
-    k = len(samples)
-    out = torch.zeros(frames.shape[0], 3, dtype=torch.float64)
-    chunk = max(1, max_pairs // k)
-    for start in range(0, frames.shape[0], chunk):
-        frame, wo_c = frames[start:start + chunk], wo[start:start + chunk]
-        c = frame.shape[0]
+
+    def terms(frame: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         # every strategy's direction for every pixel, local (c, K, 3) and world (frameᵀ · local)
-        wi = mixture_directions(samples, frame, wo_c)
+        wi = mixture_directions(samples, frame, wo)
         world = torch.einsum("pji,pkj->pki", frame, wi)
         # L(wi) and the map's own density there, from the texel the direction falls in
         radiance, env_pdf = env.lookup(world.reshape(-1, 3))
-        radiance, env_pdf = radiance.reshape(c, k, 3), env_pdf.reshape(c, k)
+        radiance, env_pdf = radiance.reshape(wi.shape), env_pdf.reshape(wi.shape[:2])
         # Σ_k m_k p_k(wi): every strategy's density at every direction (= N · p_mix)
-        density = mixture_density(samples, wi, env_pdf, wo_c)
+        density = mixture_density(samples, wi, env_pdf, wo)
         # max(cos θ_i, 0) / (N p_mix) · L, the BRDF-independent part of each term
-        weight = (wi[..., 2:3] / density[..., None]) * radiance
-        # below the horizon (or grazing exactly) a direction contributes 0 but still counts in N
-        wi, weight = wi.reshape(c * k, 3), weight.reshape(c * k, 3)
-        lit = torch.nonzero(wi[:, 2] > 0).squeeze(1)  # flat (pixel, sample) pair indices
-        pixel = lit // k
-        # f_r at the lit pairs only, in the BRDF's dtype
-        f = brdf(wi[lit].to(dtype), wo_c[pixel].to(dtype)).to(torch.float64)
-        _check(f, lit.shape[0])
-        # f_r · L cos / (N p_mix) per lit pair, zero for the others, summed over the samples
-        contribution = torch.zeros(c * k, 3, dtype=torch.float64)
-        contribution.index_copy_(0, lit, f * weight[lit])
-        out[start:start + c] = contribution.reshape(c, k, 3).sum(dim=1)
-    image = torch.zeros(*scene.shape, 3, dtype=torch.float64)
-    image[scene.mask] = out
-    return image
+        return wi, (wi[..., 2:3] / density[..., None]) * radiance
+
+    return _accumulate(brdf, scene, len(samples), terms, dtype=dtype, max_pairs=max_pairs)
 
 
 def _render_light_samples(
@@ -146,27 +128,38 @@ def _render_light_samples(
 ) -> torch.Tensor:
     """The lights' own samples (directional lights exactly, maps by their luminance sampling)."""
     samples = gather(lights)
+
+    def terms(frame: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        # every sample direction in every pixel's shading frame: (c, k, 3)
+        wi = torch.einsum("pij,kj->pki", frame, samples.direction)
+        # cos θ_i · the sample's estimator weight (radiance / pdf)
+        return wi, wi[..., 2:3] * samples.weight
+
+    return _accumulate(brdf, scene, len(samples), terms, dtype=dtype, max_pairs=max_pairs)
+
+
+def _accumulate(brdf: BRDF, scene: SphereScene, k: int, terms, *, dtype: torch.dtype,
+                max_pairs: int) -> torch.Tensor:
+    """Σ over ``k`` samples of f_r(wi, wo) · weight per pixel, where ``terms(frame, wo)`` gives
+    each chunk's local directions and BRDF-independent weights, both (c, k, 3). Pairs below the
+    horizon contribute 0 (the BRDF is not called there); at most ``max_pairs`` pairs at a time."""
     frames = scene.frames()  # (P, 3, 3) rows t, b, n
     wo = scene.wo_local[scene.mask]  # (P, 3)
-    k = len(samples)
     out = torch.zeros(frames.shape[0], 3, dtype=torch.float64)
     chunk = max(1, max_pairs // k)
     for start in range(0, frames.shape[0], chunk):
-        frame = frames[start:start + chunk]
-        # every sample direction in every pixel's shading frame: (c, k, 3)
-        wi = torch.einsum("pij,kj->pki", frame, samples.direction)
+        frame, wo_c = frames[start:start + chunk], wo[start:start + chunk]
         c = frame.shape[0]
-        # cos θ_i = wi.z; below the horizon (or grazing exactly) contributes nothing
-        wi = wi.reshape(c * k, 3)
+        wi, weight = terms(frame, wo_c)
+        wi, weight = wi.reshape(c * k, 3), weight.reshape(c * k, 3)
+        # below the horizon (or grazing exactly) a direction contributes 0 but still counts
         lit = torch.nonzero(wi[:, 2] > 0).squeeze(1)  # flat (pixel, sample) pair indices
-        pixel, sample = lit // k, lit % k
-        wi_lit = wi[lit]
         # f_r at the lit pairs only, in the BRDF's dtype
-        f = brdf(wi_lit.to(dtype), wo[start + pixel].to(dtype)).to(torch.float64)
+        f = brdf(wi[lit].to(dtype), wo_c[lit // k].to(dtype)).to(torch.float64)
         _check(f, lit.shape[0])
-        # f_r · cos θ_i · weight per lit pair, zero for the others, summed over the samples
+        # f_r · weight per lit pair, zero for the others, summed over the samples
         contribution = torch.zeros(c * k, 3, dtype=torch.float64)
-        contribution.index_copy_(0, lit, f * wi_lit[:, 2:3] * samples.weight[sample])
+        contribution.index_copy_(0, lit, f * weight[lit])
         out[start:start + c] = contribution.reshape(c, k, 3).sum(dim=1)
     image = torch.zeros(*scene.shape, 3, dtype=torch.float64)
     image[scene.mask] = out
