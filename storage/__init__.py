@@ -1,9 +1,10 @@
 """Durable state of the search service: the ``JobStore`` (jobs, committed rounds, events) and the
-``ArtifactStore`` (checkpoints, cached datasets). Abstract contracts plus one backend each
-(``SQLiteJobStore``, ``LocalArtifactStore``); the service builds them and passes them in.
+``ArtifactStore`` (checkpoints, cached datasets). Abstract contracts plus their backends
+(``SQLiteJobStore``; ``LocalArtifactStore`` and ``S3ArtifactStore``); the service builds them and
+passes them in.
 
-Imports only the standard library (``neuenh`` ← ``storage`` ← ``orchestrator``): checkpoints travel
-as bytes (``Bundle.to_bytes()``).
+Imports only the standard library (``neuenh`` ← ``storage`` ← ``orchestrator``), and boto3 for
+``S3ArtifactStore`` when it is first used: checkpoints travel as bytes (``Bundle.to_bytes()``).
 """
 
 from .artifacts import ArtifactStore, checkpoint_key, content_digest, content_key, validate_key
@@ -16,7 +17,7 @@ from .lock import OwnerLock, StoreLockedError
 from .sqlite import SQLiteJobStore
 
 __all__ = [
-    "ArtifactStore", "LocalArtifactStore", "checkpoint_key", "content_digest", "content_key",
+    "ArtifactStore", "LocalArtifactStore", "S3ArtifactStore", "checkpoint_key", "content_digest", "content_key",
     "validate_key",
     "JobStore", "SQLiteJobStore", "JobStatus", "TRANSITIONS", "UNFINISHED", "EVENT_STATUS",
     "EVENT_ROUND", "JobRecord", "JobPage", "RoundRecord", "CandidateRecord", "EventRecord",
@@ -24,3 +25,12 @@ __all__ = [
     "SchemaVersionError", "InvalidKeyError", "CorruptArtifactError",
     "OwnerLock", "StoreLockedError",
 ]
+
+
+def __getattr__(name: str):
+    """``S3ArtifactStore`` on first use: boto3 is imported only by processes that use a bucket."""
+    if name == "S3ArtifactStore":
+        from .s3 import S3ArtifactStore
+
+        return S3ArtifactStore
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
 
+from s3_server import CREDENTIALS, MotoServer
 from storage import ArtifactStore, JobStore, LocalArtifactStore, SQLiteJobStore
 
 
@@ -33,11 +35,11 @@ class Harness:
                 close()
 
 
-def _sqlite(tmp_path: Path) -> Harness:
+def _sqlite(request, tmp_path: Path) -> Harness:
     return Harness(lambda: SQLiteJobStore(tmp_path / "jobs.sqlite3"))
 
 
-def _local(tmp_path: Path) -> Harness:
+def _local(request, tmp_path: Path) -> Harness:
     root = tmp_path / "artifacts"
 
     def overwrite_raw(key: str, data: bytes) -> None:
@@ -46,13 +48,39 @@ def _local(tmp_path: Path) -> Harness:
     return Harness(lambda: LocalArtifactStore(root), overwrite_raw)
 
 
+def _s3(request, tmp_path: Path) -> Harness:
+    """A fresh bucket on the session's S3 server, under a prefix (as a deployment sharing a
+    bucket would use it)."""
+    from storage.s3 import S3ArtifactStore
+
+    server: MotoServer = request.getfixturevalue("s3_server")
+    bucket = server.create_bucket(f"test-{uuid.uuid4().hex[:20]}")
+
+    def overwrite_raw(key: str, data: bytes) -> None:
+        server.client().put_object(Bucket=bucket, Key=f"neuenh/{key}", Body=data)
+
+    return Harness(lambda: S3ArtifactStore(bucket, prefix="neuenh", endpoint_url=server.url,
+                                           access_key_id=CREDENTIALS["aws_access_key_id"],
+                                           secret_access_key=CREDENTIALS["aws_secret_access_key"]),
+                   overwrite_raw)
+
+
 JOB_BACKENDS = {"sqlite": _sqlite}
-ARTIFACT_BACKENDS = {"local": _local}
+ARTIFACT_BACKENDS = {"local": _local, "s3": _s3}
+
+
+@pytest.fixture(scope="session")
+def s3_server():
+    """One S3 server (moto's server mode, a subprocess on loopback) for the whole session; each
+    test gets its own bucket."""
+    server = MotoServer()
+    yield server
+    server.stop()
 
 
 @pytest.fixture(params=sorted(JOB_BACKENDS))
 def job_backend(request, tmp_path) -> Harness:
-    harness = JOB_BACKENDS[request.param](tmp_path)
+    harness = JOB_BACKENDS[request.param](request, tmp_path)
     yield harness
     harness.close_all()
 
@@ -64,7 +92,7 @@ def job_store(job_backend) -> JobStore:
 
 @pytest.fixture(params=sorted(ARTIFACT_BACKENDS))
 def artifact_backend(request, tmp_path) -> Harness:
-    harness = ARTIFACT_BACKENDS[request.param](tmp_path)
+    harness = ARTIFACT_BACKENDS[request.param](request, tmp_path)
     yield harness
     harness.close_all()
 

@@ -1,0 +1,64 @@
+"""A real S3-compatible server for tests: moto's server mode (``moto_server``, a werkzeug HTTP
+server speaking the S3 REST protocol) as a subprocess on a free loopback port. The stores under test
+talk HTTP to it exactly as they would to MinIO or AWS; nothing is patched in the test process.
+Its state lives in memory and dies with the process."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import boto3
+from botocore.config import Config
+
+MOTO_SERVER = str(Path(sys.executable).parent / "moto_server")
+CREDENTIALS = {"aws_access_key_id": "neuenh-test", "aws_secret_access_key": "neuenh-test-secret"}
+
+
+class MotoServer:
+    def __init__(self, command: list[str] | None = None, env: dict[str, str] | None = None):
+        """``command`` defaults to ``moto_server -H 127.0.0.1 -p 0`` (a free port, announced)."""
+        self.proc = subprocess.Popen(command or [MOTO_SERVER, "-H", "127.0.0.1", "-p", "0"],
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                     env={**os.environ, **(env or {})}, start_new_session=True)
+        self.lines: list[str] = []
+        self.url: str | None = None
+        announced = threading.Event()
+
+        def pump() -> None:
+            for line in self.proc.stdout:
+                self.lines.append(line.rstrip("\n"))
+                found = re.search(r"Running on (http://[\d.]+:\d+)", line)
+                if found and self.url is None:
+                    self.url = found.group(1)
+                    announced.set()
+            announced.set()
+
+        threading.Thread(target=pump, daemon=True).start()
+        announced.wait(60)
+        if self.url is None:
+            self.stop()
+            raise AssertionError("moto_server did not start:\n" + "\n".join(self.lines))
+
+    def client(self):
+        return boto3.client("s3", endpoint_url=self.url, region_name="us-east-1",
+                            config=Config(s3={"addressing_style": "path"}), **CREDENTIALS)
+
+    def create_bucket(self, name: str) -> str:
+        self.client().create_bucket(Bucket=name)
+        return name
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGTERM)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+
