@@ -1,6 +1,7 @@
 """The FastAPI app. ``create_app(settings)`` builds nothing at import time; its lifespan builds
 
-* ``SQLiteJobStore(data_dir/jobs.sqlite)`` and ``LocalArtifactStore(data_dir/artifacts)``,
+* ``SQLiteJobStore(data_dir/jobs.sqlite)`` and the artifact store (``artifact_store``: the
+  ``NEUENH_S3_BUCKET`` bucket when set, else ``LocalArtifactStore(data_dir/artifacts)``),
 * the executor (``RayExecutor`` joining ``ray_address`` or an embedded Ray; tests pass
   ``executor_factory`` returning an ``InlineExecutor``),
 * the store's ``OwnerLock`` (one process runs a store's jobs at a time; ``serve`` takes it before
@@ -24,7 +25,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 import neuenh
 from orchestrator.executor import Executor
-from storage import LocalArtifactStore, OwnerLock, SQLiteJobStore
+from storage import ArtifactStore, LocalArtifactStore, OwnerLock, SQLiteJobStore
 
 from . import deps, errors
 from .routes import cluster, dashboard, fit, health, jobs
@@ -42,6 +43,21 @@ def ray_executor(settings: Settings) -> Executor:
     return RayExecutor(address=settings.ray_address, num_cpus=settings.ray_num_cpus)
 
 
+def artifact_store(settings: Settings) -> ArtifactStore:
+    """The bucket when ``s3_bucket`` is set (checked: a ``StorageError`` naming a missing bucket or
+    an unreachable endpoint), else the directory ``data_dir/artifacts``."""
+    if not settings.s3_bucket:
+        return LocalArtifactStore(settings.data_dir / "artifacts")
+    from storage.s3 import S3ArtifactStore  # boto3 only for a bucket
+
+    secret = settings.s3_secret_access_key
+    return S3ArtifactStore(settings.s3_bucket, prefix=settings.s3_prefix,
+                           endpoint_url=settings.s3_endpoint_url, region=settings.s3_region,
+                           access_key_id=settings.s3_access_key_id,
+                           secret_access_key=secret.get_secret_value() if secret else None,
+                           max_attempts=settings.s3_max_attempts)
+
+
 def owner_lock(settings: Settings) -> OwnerLock:
     return OwnerLock(settings.data_dir / "owner.lock", owner="neuenh serve")
 
@@ -56,14 +72,15 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
     async def lifespan(app: FastAPI):
         s = settings if settings is not None else Settings()
         s.data_dir.mkdir(parents=True, exist_ok=True)
+        artifacts = artifact_store(s)
         owned = lock if lock is not None and lock.held else owner_lock(s).acquire()
         store = SQLiteJobStore(s.data_dir / "jobs.sqlite")
-        artifacts = LocalArtifactStore(s.data_dir / "artifacts")
         executor = (executor_factory or ray_executor)(s)
         worker = JobWorker(store, artifacts, executor)
         app.state.settings, app.state.jobs, app.state.artifacts, app.state.worker = s, store, artifacts, worker
         worker.start()
-        log.info("neuenh service: data in %s, auth %s", s.data_dir, "on" if s.api_token else "off")
+        log.info("neuenh service: data in %s, artifacts in %r, auth %s", s.data_dir, artifacts,
+                 "on" if s.api_token else "off")
         try:
             yield
         finally:
@@ -71,6 +88,7 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
             if stopped:  # never pull the store or executor from under a job still running
                 executor.close()
                 store.close()
+                artifacts.close()
                 owned.release()  # also serve's: uvicorn ends the process by re-raising the signal
 
     app = FastAPI(

@@ -1,5 +1,6 @@
 """Run the service: ``serve(settings)`` checks what a user can get wrong before anything starts
-(a network address without a token, a store owned by another process, a port in use), each as a
+(a network address without a token, an artifact bucket that is missing or unreachable, a store
+owned by another process, a port in use), each as a
 one-line ``ValueError``/``StorageError``, then runs uvicorn until SIGINT/SIGTERM and shuts down
 cleanly (the running job stops at a safe point and resumes on the next start; Ray is shut down)."""
 
@@ -15,9 +16,10 @@ from .settings import Settings, check_listen_address
 def serve(settings: Settings, announce: Callable[[str], None] = print) -> None:
     import uvicorn
 
-    from .app import create_app, owner_lock
+    from .app import artifact_store, create_app, owner_lock
 
     check_listen_address(settings)
+    artifact_store(settings).close()  # a wrong bucket or endpoint is one line now, not a startup traceback
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     lock = owner_lock(settings).acquire()
     try:

@@ -1,6 +1,9 @@
 """Service settings, read from the environment (prefix ``NEUENH_``) or passed in by tests.
 
     NEUENH_DATA_DIR=./neuenh-data NEUENH_API_TOKEN=... NEUENH_RAY_ADDRESS=ray://head:10001 python -m api
+
+With ``NEUENH_S3_BUCKET`` set, artifacts (checkpoints, cached datasets) live in that bucket of an
+S3-compatible store instead of ``data_dir/artifacts``; the job store stays in ``data_dir``.
 """
 
 from __future__ import annotations
@@ -39,6 +42,16 @@ class Settings(BaseSettings):
     max_request_bytes: int = Field(1_000_000, ge=1, description="largest request body; 413 beyond")
     max_upload_bytes: int = Field(64_000_000, ge=1, description="largest measurement upload to "
                                                                   "POST /v1/jobs/{id}/fit; 413 beyond")
+
+    # Artifacts in an S3-compatible bucket (AWS S3, MinIO, ...) instead of data_dir/artifacts.
+    s3_bucket: str | None = Field(None, description="store artifacts in this bucket (it must exist)")
+    s3_prefix: str = Field("", description="key prefix inside the bucket, e.g. 'neuenh/prod'")
+    s3_endpoint_url: str | None = Field(None, description="e.g. http://minio:9000; AWS when unset")
+    s3_region: str | None = Field(None, description="the bucket's region (default us-east-1)")
+    s3_access_key_id: str | None = Field(None, description="with the secret; boto3's usual chain "
+                                                             "(AWS_* variables, instance role) when unset")
+    s3_secret_access_key: SecretStr | None = None
+    s3_max_attempts: int = Field(5, ge=1, description="tries per S3 request on transient errors")
 
     shutdown_grace_s: float = Field(
         30.0, ge=0.0, description="how long shutdown waits for the running job to reach a safe stop")

@@ -101,6 +101,7 @@ class ArtifactStore(ABC):
       nothing when that key already exists.
     * Keys are validated (``validate_key``) by every method; ``put`` refuses content keys.
     * One store object may be used from many threads and processes at once.
+    * ``close()`` releases what the store holds open (connections); nothing for a directory.
     """
 
     def put(self, key: str, data: Data) -> str:
@@ -133,6 +134,9 @@ class ArtifactStore(ABC):
         if not self._exists(key):
             self._write(key, data)
         return key
+
+    def close(self) -> None:
+        """Release connections; the store is not used afterwards."""
 
     # Backend primitives: ``key`` is valid; ``_read`` raises NotFoundError for a missing key.
 

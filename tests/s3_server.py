@@ -14,6 +14,7 @@ import threading
 from pathlib import Path
 
 import boto3
+import pytest
 from botocore.config import Config
 
 MOTO_SERVER = str(Path(sys.executable).parent / "moto_server")
@@ -62,3 +63,12 @@ class MotoServer:
                 os.killpg(self.proc.pid, signal.SIGKILL)
                 self.proc.wait()
 
+
+
+@pytest.fixture(scope="session")
+def s3_server():
+    """One S3 server for the session (import this fixture into a conftest); each test makes its
+    own bucket."""
+    server = MotoServer()
+    yield server
+    server.stop()

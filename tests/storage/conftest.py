@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from s3_server import CREDENTIALS, MotoServer
+from s3_server import CREDENTIALS, MotoServer, s3_server  # noqa: F401  (fixture)
 from storage import ArtifactStore, JobStore, LocalArtifactStore, SQLiteJobStore
 
 
@@ -67,15 +67,6 @@ def _s3(request, tmp_path: Path) -> Harness:
 
 JOB_BACKENDS = {"sqlite": _sqlite}
 ARTIFACT_BACKENDS = {"local": _local, "s3": _s3}
-
-
-@pytest.fixture(scope="session")
-def s3_server():
-    """One S3 server (moto's server mode, a subprocess on loopback) for the whole session; each
-    test gets its own bucket."""
-    server = MotoServer()
-    yield server
-    server.stop()
 
 
 @pytest.fixture(params=sorted(JOB_BACKENDS))
