@@ -369,9 +369,9 @@ def run_slice(args) -> int:
                                "draws RGL, MERL or NBRDF files")
     model = None
     if args.model:
-        from cli.fit import load_model
+        from neuenh.pretrained import load_model
 
-        model = load_model(args.model)
+        model, trained = load_model(args.model)
     material = load_measured(args.file, name=args.material)
     if isinstance(material, TableMaterial):
         raise DataCommandError(f"{args.file}: a measurement table has no continuous evaluation to slice; slice "
@@ -387,7 +387,8 @@ def run_slice(args) -> int:
         from neuenh.fit import FitConfig, fit_materials
 
         samples = sample_materials([material], args.fit_samples, args.seed)
-        result = fit_materials(model, samples, FitConfig(method="fast", epochs=args.epochs), seed=args.seed)
+        result = fit_materials(model, samples, FitConfig(method="fast", epochs=args.epochs), seed=args.seed,
+                                trained=trained)
         params = result.materials.as_params(0)
         with torch.no_grad():
             predicted = _luminance(model.evaluate(wi.float(), wo.float(), params), wi, wo, n)

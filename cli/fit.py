@@ -32,8 +32,8 @@ from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
 from neuenh.evaluate import heldout_log_l1, predict_f_r, write_predictions
 from neuenh.fit import FitConfig, fit_materials
-from neuenh.graph import BRDFModel
-from neuenh.models import available_models, get_model
+from neuenh.models import available_models
+from neuenh.pretrained import load_model, shipped_models
 
 
 def add_parser(commands) -> None:
@@ -41,7 +41,11 @@ def add_parser(commands) -> None:
                             description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("tables", nargs="+", metavar="MEASUREMENTS", help="one table (.npz or CSV) per material")
     p.add_argument("--model", default="ggx",
-                   help=f"an analytical model ({', '.join(available_models())}) or a bundle directory")
+                   help=f"an analytical model ({', '.join(available_models())}), a shipped model "
+                        f"({', '.join(shipped_models()) or 'none'}) or a bundle directory")
+    p.add_argument("--starts", choices=("analytical", "paper"), default="analytical",
+                   help="an enhanced model's starting points: analytical (default) fits the analytical "
+                        "model first and starts from it; paper: the range means and latent 0.5")
     p.add_argument("--method", choices=("fast", "paper"), default="fast",
                    help="fast (default): Adam with cosine decay; paper: RMSProp lr 1e-3, 1000 epochs")
     p.add_argument("--epochs", type=int, default=None, help="override the method's epoch count")
@@ -56,29 +60,19 @@ def add_parser(commands) -> None:
     p.set_defaults(run=run)
 
 
-def load_model(spec: str) -> BRDFModel:
-    """A model name from the registry, or a bundle directory."""
-    path = Path(spec)
-    if path.is_dir():
-        return Bundle.load(path).model
-    if spec in available_models():
-        return get_model(spec)
-    raise ValueError(f"--model {spec!r} is neither a model ({', '.join(available_models())}) "
-                     "nor a bundle directory")
-
-
 def run(args) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     _check_heldout_args(args)
-    model = load_model(args.model)
+    model, trained = load_model(args.model)
     samples = Samples.concat([read_table(t) for t in args.tables])
     if len(set(samples.names)) != len(samples.names):
         raise ValueError(f"two tables share a material name: {samples.names}")
     test = None
     if args.test:
         test = Samples.concat([read_table(t, name=samples.names[i]) for i, t in enumerate(args.test)])
-    result = fit_materials(model, samples, FitConfig(method=args.method, epochs=args.epochs))
+    result = fit_materials(model, samples, FitConfig(method=args.method, epochs=args.epochs, starts=args.starts),
+                           trained=trained)
     report = result.report(model, args.method, samples)
     metrics: dict = {"fit_loss": result.losses}
     if test is not None:

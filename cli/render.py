@@ -46,7 +46,7 @@ import torch
 from neuenh.checkpoint import Bundle
 from neuenh.materials import LATENT_INIT
 
-from .fit import load_model
+from neuenh.pretrained import load_model
 
 DEFAULT_SAMPLES = 16
 
@@ -176,7 +176,7 @@ def _model_source(spec: str, params_file: Path | None, material: str | None, fla
     from neuenh.render import model_brdf
 
     bundle = Bundle.load(spec) if Path(spec).is_dir() else None
-    model = bundle.model if bundle is not None else load_model(spec)
+    model = bundle.model if bundle is not None else load_model(spec)[0]
     if params_file is not None:
         name, params = _read_params(params_file, material)
         origin = str(params_file)

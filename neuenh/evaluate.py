@@ -140,9 +140,10 @@ def draw_fit_test(material, n_fit: int, n_test: int | None, seed: int) -> tuple[
 
 
 def fit_and_evaluate(model: BRDFModel, material, n_fit: int, n_test: int | None = None, seed: int = 0,
-                     config: FitConfig = FitConfig()) -> dict:
-    """Fit one measured material with ``model`` (module weights frozen) on ``n_fit`` samples and
-    measure it on ``n_test`` others (see :func:`draw_fit_test`). Returns plain data::
+                     config: FitConfig = FitConfig(), trained: MaterialTable | None = None) -> dict:
+    """Fit one measured material with ``model`` (module weights frozen; ``trained``: its training
+    materials, see ``fit.fit_materials``) on ``n_fit`` samples and measure it on ``n_test`` others
+    (see :func:`draw_fit_test`). Returns plain data::
 
         {"name", "model", "state", "split", "seed", "n_fit", "n_test", "epochs",
          "fit_loss",        # mean log-L1 on the fit set after fitting
@@ -151,7 +152,7 @@ def fit_and_evaluate(model: BRDFModel, material, n_fit: int, n_test: int | None 
          "params"}          # fitted parameters, as in ``neuenh fit --json``
     """
     fit, test, split = draw_fit_test(material, n_fit, n_test, seed)
-    result = fit_materials(model, fit, config, seed=seed)
+    result = fit_materials(model, fit, config, seed=seed, trained=trained)
     (heldout,) = heldout_log_l1(model, result.materials, test)
     (entry,) = result.report(model, config.method, fit)["materials"]
     return {

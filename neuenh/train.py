@@ -35,14 +35,19 @@ class TrainConfig:
     rmsprop_alpha: float = 0.9
     batch_size: int = 100_000
     eval_batch_size: int = 200_000
+    # None: a constant lr (the paper). Otherwise the lr follows a cosine from ``lr`` down to
+    # ``lr_final`` over the candidate's epochs, so candidates are compared settled, not mid-step.
+    lr_final: float | None = None
 
     def __post_init__(self) -> None:
-        if self.epochs < 0 or self.batch_size < 1 or self.lr <= 0 or not 0 <= self.rmsprop_alpha < 1:
+        if self.epochs < 0 or self.batch_size < 1 or self.lr <= 0 or not 0 <= self.rmsprop_alpha < 1 \
+                or (self.lr_final is not None and not 0 < self.lr_final <= self.lr):
             raise ValueError(f"invalid training config {self}")
 
     def to_json(self) -> dict:
-        return {"epochs": self.epochs, "lr": self.lr, "rmsprop_alpha": self.rmsprop_alpha,
-                "batch_size": self.batch_size}
+        out = {"epochs": self.epochs, "lr": self.lr, "rmsprop_alpha": self.rmsprop_alpha,
+               "batch_size": self.batch_size}
+        return out if self.lr_final is None else {**out, "lr_final": self.lr_final}
 
 
 @dataclass
@@ -128,6 +133,8 @@ def train_candidate(
     materials = copy.deepcopy(parent.materials)
     params = [*model.neural.parameters(), *materials.parameters()]
     optimizer = torch.optim.RMSprop(params, lr=config.lr, alpha=config.rmsprop_alpha)
+    schedule = None if config.lr_final is None else torch.optim.lr_scheduler.CosineAnnealingLR(
+        optimizer, T_max=max(config.epochs, 1), eta_min=config.lr_final)
     generator = torch.Generator().manual_seed(seed)
     train = data.train
     epoch_losses: list[float] = []
@@ -143,6 +150,8 @@ def train_candidate(
             optimizer.step()
             total += float(loss.detach()) * len(index)
         epoch_losses.append(total / len(train))
+        if schedule is not None:
+            schedule.step()
         if not math.isfinite(epoch_losses[-1]):
             error = f"training loss became {epoch_losses[-1]} in epoch {len(epoch_losses)}"
             break

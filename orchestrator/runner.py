@@ -126,6 +126,7 @@ class Orchestrator:
         m, constraints = spec.digits(), spec.constraints()
         last = self.jobs.last_round(job_id)
         warmup: dict = {}
+        finished = False  # the search itself is over (converged or out of rounds)
         if last is None:
             round_index = 0
             state = initial_state(len(graph), m, constraints)
@@ -133,37 +134,61 @@ class Orchestrator:
             if spec.search.warmup_epochs:
                 parent, warmup = self._warm_up(job_id, spec, state, parent, dataset, start)
         else:
+            if last.extra.get("polish"):  # crashed after the last commit, before the status
+                self.jobs.set_status(job_id, CONVERGED if last.extra["polish"] == CONVERGED.value else STOPPED)
+                return
             round_index = last.index + 1
             state = graph.parse_state(last.winner_state, m)
             parent = self.artifacts.get(last.artifact_key)
-
-        while round_index < spec.search.max_rounds:
+            finished = last.winner_state == last.parent_state
+        outcome = CONVERGED if finished else STOPPED
+        while not finished and round_index < spec.search.max_rounds:
             self._check_cancel(job_id)
             started = time.time()
             winner, reports, extra = self._round(job_id, spec, round_index, state, parent, dataset, start)
             if round_index == 0 and warmup:
                 extra = {**extra, "warmup": warmup}
-            key = checkpoint_key(job_id, round_index)
-            self.artifacts.put(key, winner.bundle)  # durable before the round becomes visible
-            self.jobs.commit_round(job_id, RoundRecord(
-                index=round_index,
-                parent_state=Graph.format_state(state),
-                winner_state=winner.task.state,
-                candidates=tuple(_candidate_record(r, extra) for r in reports),
-                started_at=started,
-                finished_at=time.time(),
-                artifact_key=key,
-                extra=extra,
-            ))
-            converged = winner.task.state == Graph.format_state(state)
+            self._commit(job_id, round_index, state, winner, reports, extra, started)
+            finished = winner.task.state == Graph.format_state(state)
+            outcome = CONVERGED if finished else STOPPED
             state, parent = graph.parse_state(winner.task.state, m), winner.bundle
             self._emit(job_id, RUNNING, round_index, len(reports), len(reports), winner.val_loss,
-                       winner.task.state, start, "converged" if converged else "committed")
-            if converged:
-                self.jobs.set_status(job_id, CONVERGED)
-                return
+                       winner.task.state, start, "converged" if finished else "committed")
             round_index += 1
-        self.jobs.set_status(job_id, STOPPED)
+        if spec.search.polish_epochs:
+            self._polish(job_id, spec, round_index, state, parent, dataset, start, outcome)
+        self.jobs.set_status(job_id, outcome)
+
+    def _commit(self, job_id, k: int, state, winner: CandidateReport, reports, extra: dict, started: float) -> None:
+        """Round ``k``'s winner checkpoint, durably, then the round itself in one transaction."""
+        key = checkpoint_key(job_id, k)
+        self.artifacts.put(key, winner.bundle)  # durable before the round becomes visible
+        self.jobs.commit_round(job_id, RoundRecord(
+            index=k,
+            parent_state=Graph.format_state(state),
+            winner_state=winner.task.state,
+            candidates=tuple(_candidate_record(r, extra) for r in reports),
+            started_at=started,
+            finished_at=time.time(),
+            artifact_key=key,
+            extra=extra,
+        ))
+
+    def _polish(self, job_id, spec: JobSpec, k: int, state, parent: bytes, dataset, start, outcome) -> None:
+        """The final state trained ``polish_epochs`` more with a decaying lr, committed as round
+        ``k`` (its only candidate is the final state; ``extra.polish`` holds the search's outcome,
+        so a job resumed after this commit only sets its status)."""
+        self._check_cancel(job_id)
+        started = time.time()
+        name = Graph.format_state(state)
+        task = CandidateTask(name, candidate_seed(spec.train.seed, k, state), spec.search.polish_epochs)
+        resources = Resources(spec.resources.cpus_per_candidate, spec.resources.gpus_per_candidate)
+        [report] = self._train(job_id, k, dataset, [parent], [task], spec.polish_config(), resources, start,
+                               phase="polish")
+        if not report.ok:
+            raise RuntimeError(f"polishing {name} failed: {report.error}")
+        self._commit(job_id, k, state, report, [report], {"polish": outcome.value}, started)
+        self._emit(job_id, RUNNING, k, 1, 1, report.val_loss, name, start, "polished")
 
     def _warm_up(self, job_id, spec: JobSpec, state, parent: bytes, dataset, start) -> tuple[bytes, dict]:
         """The starting state trained ``warmup_epochs`` (seeded as round -1, so a resumed job warms

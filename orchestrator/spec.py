@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -46,6 +47,10 @@ class SearchSpec(_Strict):
     min_improvement: float = Field(0.0, ge=0.0, lt=1.0, description="relative gain a change must bring over stay")
     prune: Literal["none", "halving"] = "none"
     halving_fraction: float = Field(0.34, gt=0.0, lt=1.0, description="share of the epochs before halving")
+    polish_epochs: int = Field(0, ge=0, description=(
+        "when the search ends (converged or max_rounds), train the final state this many more epochs "
+        "with the lr decayed by a cosine to train.lr_final (lr/100 when unset); committed as one last "
+        "round whose only candidate is the final state"))
 
 
 Widths = Annotated[list[Annotated[int, Field(ge=1)]], Field(min_length=1)]
@@ -65,6 +70,15 @@ class TrainSpec(_Strict):
     batch_size: int = Field(100_000, ge=1)
     val_fraction: float = Field(0.1, gt=0.0, lt=1.0)
     seed: int = 0
+    lr_final: float | None = Field(None, gt=0.0, description=(
+        "unset: a constant lr (the paper); else each candidate's lr follows a cosine from lr down to "
+        "lr_final over its epochs, so candidates are compared settled"))
+
+    @model_validator(mode="after")
+    def _check_lr(self) -> "TrainSpec":
+        if self.lr_final is not None and self.lr_final > self.lr:
+            raise ValueError(f"lr_final ({self.lr_final}) must not exceed lr ({self.lr})")
+        return self
 
 
 class ResourcesSpec(_Strict):
@@ -115,7 +129,12 @@ class JobSpec(_Strict):
 
     def train_config(self, epochs: int | None = None) -> TrainConfig:
         return TrainConfig(epochs=self.search.epochs_per_round if epochs is None else epochs,
-                           lr=self.train.lr, batch_size=self.train.batch_size)
+                           lr=self.train.lr, batch_size=self.train.batch_size, lr_final=self.train.lr_final)
+
+    def polish_config(self) -> TrainConfig:
+        """The final state's last training: ``polish_epochs``, lr decayed to ``lr_final`` (lr/100)."""
+        return dataclasses.replace(self.train_config(self.search.polish_epochs),
+                                   lr_final=self.train.lr_final or self.train.lr / 100)
 
 
 class SpecError(ValueError):

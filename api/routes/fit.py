@@ -53,9 +53,11 @@ def fit_job(
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"epochs: {epochs} exceeds this service's limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)")
     samples = _read_uploads(files, settings.max_samples)
-    model = Bundle.from_bytes(artifacts.get(last.artifact_key)).model
+    bundle = Bundle.from_bytes(artifacts.get(last.artifact_key))
+    model = bundle.model
     with _one_fit_at_a_time:
-        result = fit_materials(model, samples, FitConfig(method=method, epochs=epochs or None))
+        result = fit_materials(model, samples, FitConfig(method=method, epochs=epochs or None),
+                               trained=bundle.materials)
     return FitPublic(job_id=job_id, round=last.index, **result.report(model, method, samples))
 
 

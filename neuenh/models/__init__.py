@@ -12,13 +12,14 @@ from typing import Callable
 from ..graph import BRDFModel, Graph
 from ..modules import ModuleConfig
 from ..params import ParamSpecs
-from . import blinn_phong, cook_torrance, ggx, ward
+from . import blinn_phong, cook_torrance, ggx, ggx_residual, ward
 
 _BUILDERS: dict[str, Callable[[], tuple[Graph, ParamSpecs]]] = {
     "ggx": ggx.build,
     "cook_torrance": cook_torrance.build,
     "ward": ward.build,
     "blinn_phong": blinn_phong.build,
+    "ggx_residual": ggx_residual.build,  # baseline: GGX + R, R zero until neural
 }
 
 

@@ -153,6 +153,7 @@ SPECULAR: dict[str, Callable] = {
     "cook_torrance": _cook_torrance_spec,
     "ward": _ward_spec,
     "blinn_phong": _blinn_phong_spec,
+    "ggx_residual": _ggx_spec,  # its residual R is zero in the analytical model
 }
 
 

@@ -3,7 +3,7 @@ import torch
 
 from neuenh.data.samples import sample_materials
 from neuenh.data.synthetic import synthetic_ggx
-from neuenh.fit import FitConfig, fit_materials
+from neuenh.fit import FitConfig, fit_materials, per_material_loss
 from neuenh.models import get_model
 
 
@@ -49,3 +49,37 @@ def test_fitting_leaves_module_weights_frozen(clean_ggx):
         assert torch.equal(value, before[key])
     assert all(p.requires_grad for p in model.parameters())
     assert not torch.equal(result.materials.latent, torch.full_like(result.materials.latent, 0.5))
+
+
+@pytest.fixture(scope="module")
+def two_zoo_materials():
+    from neuenh.data.synthetic import synthetic_zoo
+
+    return sample_materials(synthetic_zoo(2, seed=5), 3000, seed=1)
+
+
+def test_enhanced_fits_keep_the_best_start_per_material(two_zoo_materials):
+    """``starts="analytical"`` fits the paper's start among others (one from the training
+    materials' mean latent code) and keeps, per material, the lowest fit loss: never worse than
+    the paper's start alone, and the losses are those of the returned parameters."""
+    from neuenh.materials import MaterialTable
+
+    samples = two_zoo_materials
+    model = get_model("ggx", state="00010001000", seed=3)
+    config = FitConfig(epochs=40)
+    paper = fit_materials(model, samples, FitConfig(epochs=40, starts="paper"))
+    trained = MaterialTable(model.specs, ("t1", "t2"), model.latent_dim, latent=torch.tensor([[0.1] * 27, [0.3] * 27]))
+    best = fit_materials(model, samples, config, trained=trained)
+    for mine, theirs in zip(best.losses, paper.losses):
+        assert mine <= theirs
+    assert per_material_loss(model, best.materials, samples) == pytest.approx(best.losses, rel=1e-6)
+
+
+def test_an_analytical_model_has_one_start(clean_ggx):
+    _, samples = clean_ggx
+    model = get_model("ggx")
+    one = fit_materials(model, samples, FitConfig(epochs=20))
+    paper = fit_materials(model, samples, FitConfig(epochs=20, starts="paper"))
+    assert one.losses == paper.losses
+    with pytest.raises(ValueError, match="starts"):
+        FitConfig(starts="random")

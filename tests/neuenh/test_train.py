@@ -84,3 +84,27 @@ def test_a_diverging_candidate_is_reported_not_raised(small_data):
 def test_parent_materials_must_match_the_data(small_data):
     with pytest.raises(ValueError, match="parent bundle's materials"):
         train_candidate(Bundle.initial("ggx", ["other"]), PAPER_STATE, small_data, QUICK, seed=0)
+
+
+def test_lr_final_decays_the_learning_rate_by_a_cosine():
+    """``lr_final == lr`` is the constant lr bit for bit; a lower ``lr_final`` changes only epochs
+    after the first (the cosine steps after each epoch); ``lr_final > lr`` is refused."""
+    import dataclasses
+
+    from neuenh.data.samples import sample_materials
+    from neuenh.data.synthetic import synthetic_zoo
+
+    materials = synthetic_zoo(2, seed=2)
+    data = TrainingData(sample_materials(materials, 600, seed=0), sample_materials(materials, 200, seed=1))
+    parent = Bundle.initial("ggx", data.names)
+    constant = TrainConfig(epochs=3, lr=5e-3, batch_size=256)
+
+    def run(config):
+        return train_candidate(parent, "00010000000", data, config, seed=7)
+
+    assert run(constant).epoch_losses == run(dataclasses.replace(constant, lr_final=5e-3)).epoch_losses
+    decayed = run(dataclasses.replace(constant, lr_final=5e-5)).epoch_losses
+    steady = run(constant).epoch_losses
+    assert decayed[0] == steady[0] and decayed[1:] != steady[1:]
+    with pytest.raises(ValueError, match="invalid training config"):
+        TrainConfig(lr=1e-3, lr_final=2e-3)

@@ -232,3 +232,72 @@ def test_resume_before_round_0_warms_up_the_same_way(stores):
     assert jobs.get_job(job.id).last_round is None
     Orchestrator(jobs, artifacts, InlineExecutor()).resume_all()
     assert _path(jobs, job.id) == expected
+
+
+def test_polish_trains_the_final_state_once_more_as_a_last_round(orchestrator, stores):
+    """``polish_epochs``: after the search, one more round whose only candidate is the final
+    state, trained from its checkpoint with the decaying lr — checked against ``train_candidate``
+    called directly; the job keeps the search's outcome (here STOPPED at max_rounds)."""
+    from neuenh.search import candidate_seed
+    from neuenh.train import train_candidate
+    from orchestrator.dataset import prepare_dataset
+    from orchestrator.runner import trained_epochs
+
+    jobs, artifacts = stores
+    spec = tiny_spec(max_rounds=1, polish_epochs=2)
+    job = orchestrator.run(orchestrator.submit(spec)[0].id)
+    round0, polish = jobs.rounds(job.id)
+    assert job.status == JobStatus.STOPPED and polish.extra == {"polish": "STOPPED"}
+    assert polish.parent_state == polish.winner_state == round0.winner_state
+    assert [c.state for c in polish.candidates] == [round0.winner_state] and polish.winner.epochs == 2
+    assert trained_epochs([round0, polish]) == 1 + 2
+
+    data, _ = prepare_dataset(spec, artifacts)
+    digits = tuple(int(d) for d in round0.winner_state)
+    expected = train_candidate(Bundle.from_bytes(artifacts.get(round0.artifact_key)), round0.winner_state, data,
+                               spec.polish_config(), candidate_seed(spec.train.seed, 1, digits))
+    assert spec.polish_config().lr_final == pytest.approx(spec.train.lr / 100)
+    assert polish.winner_val_loss == expected.val_loss
+    assert Bundle.from_bytes(artifacts.get(polish.artifact_key)).metrics["val_loss"] == expected.val_loss
+
+
+def test_a_crash_while_polishing_resumes_to_the_same_result(stores):
+    jobs, artifacts = stores
+    spec = tiny_spec(max_rounds=2, polish_epochs=1)
+    reference = Orchestrator(jobs, artifacts, InlineExecutor())
+    done = reference.run(reference.submit(spec, idempotency_key="ref")[0].id)
+    expected = _path(jobs, done.id)
+    searched = sum(len(r.candidates) for r in jobs.rounds(done.id)[:-1])
+
+    crashing = Orchestrator(jobs, artifacts, CrashingExecutor(after=searched))  # the polish candidate
+    job, _ = crashing.submit(spec)
+    with pytest.raises(_Crash):
+        crashing.run(job.id)
+    assert len(jobs.rounds(job.id)) == len(expected) - 1
+    assert Orchestrator(jobs, artifacts, InlineExecutor()).resume_all() == [job.id]
+    assert _path(jobs, job.id) == expected and jobs.get_job(job.id).status == done.status
+
+
+def test_a_crash_between_the_polish_commit_and_the_status_trains_nothing_more(stores, tmp_path):
+    from storage import SQLiteJobStore
+
+    class StatusCrash(SQLiteJobStore):
+        def set_status(self, job_id, status, **kwargs):
+            if JobStatus(status) in (JobStatus.CONVERGED, JobStatus.STOPPED):
+                raise _Crash()
+            return super().set_status(job_id, status, **kwargs)
+
+    _, artifacts = stores
+    crashing_store = StatusCrash(tmp_path / "crash.sqlite")
+    orchestrator = Orchestrator(crashing_store, artifacts, InlineExecutor())
+    job, _ = orchestrator.submit(tiny_spec(max_rounds=1, polish_epochs=1))
+    with pytest.raises(_Crash):
+        orchestrator.run(job.id)
+    crashing_store.close()
+    jobs = SQLiteJobStore(tmp_path / "crash.sqlite")
+    before = _path(jobs, job.id)
+    assert len(before) == 2 and jobs.get_job(job.id).status == JobStatus.RUNNING
+    executor = CrashingExecutor(after=0)  # any training at all would raise
+    assert Orchestrator(jobs, artifacts, executor).resume_all() == [job.id]
+    assert jobs.get_job(job.id).status == JobStatus.STOPPED and _path(jobs, job.id) == before
+    jobs.close()

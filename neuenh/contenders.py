@@ -1,0 +1,111 @@
+"""The models compared on measured materials (issue 6), behind one small interface.
+
+A :class:`Contender` is fitted to one material's measurements and gives back a
+:class:`FittedMaterial`: its raw prediction (what the loss sees, as in training), its BRDF (what
+the renderer sees: clipped at 0, zero below either horizon), and its costs — parameters per
+material, weights, fit time. Two kinds cover every model of the comparison:
+
+* :class:`GraphContender` — a ``BRDFModel`` in some state with its module weights frozen, fitted
+  with ``fit.fit_materials``: the analytical models (GGX, Cook-Torrance, Ward), the enhanced GGX,
+  the residual MLPs appended to GGX (``models.ggx_residual``) and the all-positions-neural state.
+  Parameters per material: the analytical ones plus the latent code if a module reads it.
+* :class:`NBRDFContender` — a network fitted from scratch per material (``nbrdf_fit``); its 675
+  weights are per material, so they count as parameters per material, and it has no shared weights.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+
+from .data.samples import Samples
+from .fit import FitConfig, fit_materials
+from .graph import BRDFModel
+from .materials import MaterialTable
+from .nbrdf_fit import NBRDFConfig, fit_nbrdf
+
+__all__ = ["Contender", "FittedMaterial", "GraphContender", "NBRDFContender"]
+
+Directions = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+@dataclass
+class FittedMaterial:
+    """One contender fitted to one material."""
+
+    contender: str
+    predict: Directions  # raw f_r (n, 3) at float32 (wi, wo): what the loss sees
+    brdf: Directions  # f_r (n, 3) for rendering: clipped at 0, zero below either horizon
+    fit_loss: float  # mean log-L1 on the fitted samples
+    fit_s: float
+    params_per_material: int
+    shared_weights: int
+
+
+class Contender(ABC):
+    """A model of the comparison. ``name`` is short and stable (file names, tables); ``label`` is
+    what a reader sees."""
+
+    name: str
+    label: str
+    family: str  # "analytical", "enhanced", "residual", "neural"
+
+    @abstractmethod
+    def fit(self, samples: Samples, seed: int = 0) -> FittedMaterial:
+        """Fit to ``samples`` of exactly one material."""
+
+
+def _one_material(samples: Samples) -> None:
+    if len(samples.names) != 1:
+        raise ValueError(f"a contender is fitted to one material at a time, got {len(samples.names)}")
+
+
+class GraphContender(Contender):
+    def __init__(self, name: str, label: str, family: str, model: BRDFModel,
+                 trained: MaterialTable | None = None, config: FitConfig = FitConfig()):
+        self.name, self.label, self.family = name, label, family
+        self.model, self.trained, self.config = model, trained, config
+
+    def fit(self, samples: Samples, seed: int = 0) -> FittedMaterial:
+        _one_material(samples)
+        result = fit_materials(self.model, samples, self.config, seed=seed, trained=self.trained)
+        values, latent = result.materials.gather(torch.zeros(1, dtype=torch.long))
+        values = {k: v.detach() for k, v in values.items()}
+        latent = latent.detach()
+        params = {**values, "latent": latent} if self.model.latent_dim else values
+        model = self.model
+
+        @torch.no_grad()
+        def predict(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+            n = len(wi)
+            return model(wi, wo, {k: v.expand(n, -1) for k, v in values.items()},
+                         latent.expand(n, -1) if model.latent_dim else None)
+
+        @torch.no_grad()
+        def brdf(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+            return model.evaluate(wi, wo, params)
+
+        per_material = sum(s.width for s in model.specs) + (model.latent_dim if model.uses_latent else 0)
+        return FittedMaterial(self.name, predict, brdf, result.losses[0], result.wall_s, per_material,
+                              model.n_weights())
+
+
+class NBRDFContender(Contender):
+    name, label, family = "nbrdf", "NBRDF (per-material 6-21-21-3)", "neural"
+
+    def __init__(self, config: NBRDFConfig = NBRDFConfig()):
+        self.config = config
+
+    def fit(self, samples: Samples, seed: int = 0) -> FittedMaterial:
+        _one_material(samples)
+        result = fit_nbrdf(samples, self.config, seed=seed)
+        net = result.networks[0]
+
+        @torch.no_grad()
+        def predict(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+            return net(wi, wo)
+
+        return FittedMaterial(self.name, predict, net.evaluate, result.losses[0], result.wall_s, net.n_weights(), 0)

@@ -1,0 +1,50 @@
+"""Models by name: analytical models of the registry, models shipped with neuenh, bundle folders.
+
+Shipped models are bundles committed under ``models/<name>/`` at the root of the source tree (the
+enhanced GGX trained by ``examples/reference.yaml`` is ``models/enhanced-ggx``); they are found
+next to the package in a checkout or an editable install, or under ``NEUENH_MODELS_DIR``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from .checkpoint import Bundle
+from .graph import BRDFModel
+from .materials import MaterialTable
+from .models import available_models, get_model
+
+__all__ = ["load_model", "shipped_models"]
+
+
+def _models_dirs() -> list[Path]:
+    dirs = [Path(os.environ["NEUENH_MODELS_DIR"])] if os.environ.get("NEUENH_MODELS_DIR") else []
+    return dirs + [Path(__file__).resolve().parent.parent / "models"]
+
+
+def shipped_models() -> dict[str, Path]:
+    """Name -> bundle folder of every shipped model (a folder holding a ``model.json``)."""
+    found: dict[str, Path] = {}
+    for root in reversed(_models_dirs()):  # NEUENH_MODELS_DIR wins on a shared name
+        if root.is_dir():
+            found.update({p.name: p for p in sorted(root.iterdir()) if (p / "model.json").is_file()})
+    return dict(sorted(found.items()))
+
+
+def load_model(spec: str) -> tuple[BRDFModel, MaterialTable | None]:
+    """The model ``spec`` names and its training materials (``None`` for an analytical model):
+    a bundle folder if ``spec`` is one, else a shipped model, else an analytical model. The
+    training materials give new fits a starting latent code (``neuenh.fit``)."""
+    path = Path(spec)
+    if path.is_dir():
+        bundle = Bundle.load(path)
+        return bundle.model, bundle.materials
+    shipped = shipped_models()
+    if spec in shipped:
+        bundle = Bundle.load(shipped[spec])
+        return bundle.model, bundle.materials
+    if spec in available_models():
+        return get_model(spec), None
+    raise ValueError(f"model {spec!r} is neither an analytical model ({', '.join(available_models())}), "
+                     f"a shipped model ({', '.join(shipped) or 'none found'}) nor a bundle folder")

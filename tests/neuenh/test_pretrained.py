@@ -1,0 +1,41 @@
+"""Models by name: analytical, shipped (models/ or NEUENH_MODELS_DIR), bundle folders."""
+
+from pathlib import Path
+
+import pytest
+
+from neuenh.checkpoint import Bundle
+from neuenh.pretrained import load_model, shipped_models
+
+REPO_MODELS = Path(__file__).resolve().parents[2] / "models"
+
+
+def test_an_analytical_name_has_no_training_materials():
+    model, trained = load_model("cook_torrance")
+    assert model.name == "cook_torrance" and model.state == "0" * len(model.positions) and trained is None
+
+
+def test_a_bundle_folder_and_a_shipped_name_load_the_same_bundle(tmp_path, monkeypatch):
+    bundle = Bundle.initial("ggx", ["a", "b"])
+    bundle.model = bundle.model.enhance("00010000000", seed=1)
+    bundle.save(tmp_path / "mine")
+    monkeypatch.setenv("NEUENH_MODELS_DIR", str(tmp_path))
+    assert shipped_models()["mine"] == tmp_path / "mine"
+    for spec in ("mine", str(tmp_path / "mine")):
+        model, trained = load_model(spec)
+        assert model.state == "00010000000" and trained.names == ("a", "b")
+
+
+def test_an_unknown_name_lists_what_exists(monkeypatch, tmp_path):
+    monkeypatch.setenv("NEUENH_MODELS_DIR", str(tmp_path))
+    with pytest.raises(ValueError, match=r"neither an analytical model \(ggx, .*\), a shipped model"):
+        load_model("enhanced-ggz")
+
+
+@pytest.mark.skipif(not (REPO_MODELS / "enhanced-ggx" / "model.json").exists(), reason="no shipped model in this tree")
+def test_the_shipped_enhanced_ggx_is_small_enhanced_and_trained_without_rgl():
+    model, trained = load_model("enhanced-ggx")
+    assert model.name == "ggx" and set(model.state) != {"0"} and model.latent_dim == 27
+    size = sum(p.stat().st_size for p in (REPO_MODELS / "enhanced-ggx").iterdir())
+    assert size < 200_000
+    assert len(trained) == 200 and not any("rgb" in name for name in trained.names)
