@@ -22,11 +22,10 @@ CREDENTIALS = {"aws_access_key_id": "neuenh-test", "aws_secret_access_key": "neu
 
 
 class MotoServer:
-    def __init__(self, command: list[str] | None = None, env: dict[str, str] | None = None):
-        """``command`` defaults to ``moto_server -H 127.0.0.1 -p 0`` (a free port, announced)."""
-        self.proc = subprocess.Popen(command or [MOTO_SERVER, "-H", "127.0.0.1", "-p", "0"],
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                     env={**os.environ, **(env or {})}, start_new_session=True)
+    def __init__(self):
+        # port 0: the server picks a free one and announces it
+        self.proc = subprocess.Popen([MOTO_SERVER, "-H", "127.0.0.1", "-p", "0"], stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, text=True, start_new_session=True)
         self.lines: list[str] = []
         self.url: str | None = None
         announced = threading.Event()
@@ -55,14 +54,11 @@ class MotoServer:
         return name
 
     def stop(self) -> None:
+        """SIGKILL: its state is in memory and nothing needs flushing (and moto_server's own
+        signal handler does not end its serving thread on SIGTERM)."""
         if self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGTERM)
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
-
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait()
 
 
 @pytest.fixture(scope="session")
