@@ -53,6 +53,10 @@ class Settings(BaseSettings):
     s3_secret_access_key: SecretStr | None = None
     s3_max_attempts: int = Field(5, ge=1, description="tries per S3 request on transient errors")
 
+    default_gpus_per_candidate: float = Field(
+        0.0, ge=0.0, description="resources.gpus_per_candidate of a job whose spec does not set it "
+                                 "(a cluster with GPU workers: e.g. 0.25 puts four candidates on a GPU)")
+
     shutdown_grace_s: float = Field(
         30.0, ge=0.0, description="how long shutdown waits for the running job to reach a safe stop")
 

@@ -34,6 +34,9 @@ def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, worke
                idempotency_key: Annotated[str | None, Header(max_length=200)] = None) -> JobPublic:
     """Validate and queue a job (202). A repeated ``Idempotency-Key`` with the same spec returns
     the job it created (200)."""
+    if "gpus_per_candidate" not in spec.resources.model_fields_set and settings.default_gpus_per_candidate:
+        # stored explicitly, so the job runs the same wherever and whenever it resumes
+        spec.resources.gpus_per_candidate = settings.default_gpus_per_candidate
     check_limits(spec, settings)
     job, created = worker.orchestrator.submit(spec, idempotency_key=idempotency_key)
     if created:
