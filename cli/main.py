@@ -12,7 +12,7 @@ import sys
 
 from storage import StorageError
 
-from . import data, fit, render, search, serve
+from . import data, fit, render, report, search, serve
 
 
 class UsageError(Exception):
@@ -30,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_parser(commands)
     serve.add_parser(commands)
     render.add_parser(commands)
+    report.add_parser(commands)
     return parser
 
 

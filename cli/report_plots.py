@@ -1,0 +1,141 @@
+"""The report's figures (matplotlib, Agg): speed against error with the Pareto front, the search,
+held-out error per material, and one render grid per material. Every figure is written atomically."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+_COLOURS = {"enhanced": "#d62728", "analytical": "#1f77b4", "residual": "#2ca02c", "neural": "#9467bd"}
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> Path:
+    tmp = path.with_name(f".{path.stem}.tmp.png")
+    try:
+        fig.savefig(tmp, dpi=110)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+        _plt().close(fig)
+    return path
+
+
+def pareto_front(points: list[tuple[float, float]]) -> list[int]:
+    """Indices of the points no other point beats on both axes (x higher is better, y lower is
+    better), sorted by x."""
+    front = [i for i, (x, y) in enumerate(points)
+             if not any((x2 >= x and y2 <= y) and (x2 > x or y2 < y) for x2, y2 in points)]
+    return sorted(front, key=lambda i: points[i][0])
+
+
+def speed_vs_error(path: Path, models: list[dict]) -> Path:
+    """``models``: dicts with label, family, evals_per_s, rays_per_s, params_per_material,
+    log_l1, delta_e (medians over materials). Three panels, each with its Pareto front."""
+    plt = _plt()
+    panels = [("evals_per_s", "BRDF evaluations per second (1 thread)", "log_l1", "median held-out log-L1", True),
+              ("rays_per_s", "render throughput (rays per second)", "delta_e", "median ΔE_ITP (BT.2124) of renders", True),
+              ("params_per_material", "parameters per material (fewer is better →)", "log_l1",
+               "median held-out log-L1", False)]
+    fig, axes = plt.subplots(1, 3, figsize=(16, 5), constrained_layout=True)
+    for ax, (xkey, xlabel, ykey, ylabel, higher_better) in zip(axes, panels):
+        xs = [m[xkey] for m in models]
+        ys = [m[ykey] for m in models]
+        signed = [(x if higher_better else -x, y) for x, y in zip(xs, ys)]
+        front = pareto_front(signed)
+        ax.plot([xs[i] for i in front], [ys[i] for i in front], "--", color="#888", zorder=1, label="Pareto front")
+        for m, x, y in zip(models, xs, ys):
+            ax.scatter([x], [y], s=60, color=_COLOURS.get(m["family"], "#333"), zorder=2,
+                       edgecolor="black" if m["family"] == "enhanced" else "none")
+            ax.annotate(m["label"], (x, y), textcoords="offset points", xytext=(5, 4), fontsize=8)
+        ax.set_xscale("log")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        if not higher_better:
+            ax.invert_xaxis()
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    fig.suptitle("Speed against error on the RGL materials (up and right on the Pareto front is better)")
+    return _save(fig, path)
+
+
+def search_path(path: Path, rounds: list[dict]) -> Path:
+    """Every candidate's validation loss against its neural weights, round by round, with the
+    path taken (the winners) drawn through them."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(9, 5.5), constrained_layout=True)
+    cmap = plt.get_cmap("viridis")
+    winners = []
+    for k, r in enumerate(rounds):
+        colour = cmap(k / max(len(rounds) - 1, 1))
+        c = [x for x in r["candidates"] if x.get("val_loss") is not None]
+        ax.scatter([x["weights"] for x in c], [x["val_loss"] for x in c], s=18, color=colour, alpha=0.7,
+                   label=f"round {r['index']}" + (" (polish)" if r.get("polish") else ""))
+        win = next(x for x in r["candidates"] if x["state"] == r["winner_state"])
+        winners.append((win["weights"], win["val_loss"], r["winner_state"]))
+    ax.plot([w[0] for w in winners], [w[1] for w in winners], "-o", color="#d62728", lw=1.5, ms=5, label="path taken")
+    for w, v, state in winners:
+        ax.annotate(state, (w, v), textcoords="offset points", xytext=(4, -10), fontsize=7, color="#d62728")
+    ax.set_xscale("symlog", linthresh=100)
+    ax.set_yscale("log")
+    ax.set_xlabel("neural weights of the state (cost)")
+    ax.set_ylabel("validation log-L1 after the round's training")
+    ax.set_title("The hypercube search of the shipped enhanced GGX")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, ncol=2)
+    return _save(fig, path)
+
+
+def heldout_bars(path: Path, materials: list[str], models: list[dict], values: dict[str, list[float]]) -> Path:
+    """Held-out log-L1 per material (groups) and model (bars), log scale."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(14, 5), constrained_layout=True)
+    width = 0.8 / len(models)
+    x = np.arange(len(materials))
+    for j, m in enumerate(models):
+        ax.bar(x + (j - (len(models) - 1) / 2) * width, values[m["name"]], width,
+               color=_COLOURS.get(m["family"], "#333"), alpha=0.45 + 0.55 * (m["family"] == "enhanced"),
+               edgecolor="black", linewidth=0.4, label=m["label"])
+    ax.set_xticks(x, [name.replace("_rgb", "") for name in materials], rotation=15)
+    ax.set_yscale("log")
+    ax.set_ylabel("held-out log-L1 (lower is better)")
+    ax.legend(fontsize=8, ncol=4)
+    ax.grid(axis="y", alpha=0.3)
+    return _save(fig, path)
+
+
+def render_grid(path: Path, title: str, columns: list[tuple[str, np.ndarray]], truth: np.ndarray,
+                mask: np.ndarray) -> Path:
+    """Top row: the truth then each column's render (tone-mapped); bottom row: each column's
+    relative luminance error against the truth, one shared colour scale."""
+    from neuenh.render.output import error_map, tonemap
+
+    plt = _plt()
+    n = len(columns) + 1
+    fig, axes = plt.subplots(2, n, figsize=(2.6 * n, 5.6), constrained_layout=True)
+    axes[0, 0].imshow(tonemap(truth))
+    axes[0, 0].set_title("measured (truth)", fontsize=9)
+    axes[1, 0].axis("off")
+    errors = [np.where(mask, error_map(truth, image), np.nan) for _, image in columns]
+    vmax = float(np.nanpercentile(np.concatenate([e[np.isfinite(e)] for e in errors]), 99)) or 1.0
+    shown = None
+    for j, ((label, image), error) in enumerate(zip(columns, errors), start=1):
+        axes[0, j].imshow(tonemap(image))
+        axes[0, j].set_title(label, fontsize=9)
+        shown = axes[1, j].imshow(error, cmap="inferno", vmin=0, vmax=vmax)
+    for ax in axes.flat:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.colorbar(shown, ax=list(axes[1, 1:]), shrink=0.8, label="relative luminance error")
+    fig.suptitle(title, fontsize=10)
+    return _save(fig, path)

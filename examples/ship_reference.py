@@ -1,0 +1,80 @@
+"""Ship the reference search's result as ``models/enhanced-ggx`` (issue 6).
+
+    .venv/bin/python examples/ship_reference.py runs/reference [--to models/enhanced-ggx]
+
+Takes the finished job of ``examples/reference.yaml`` from the store in that data folder, and
+writes its final bundle (the winner of the last committed round: module weights, the 200 training
+materials' parameters) with the search written into its provenance — every round's candidates with
+their validation loss, epochs and neural weights, the path, and the epoch budget
+(``orchestrator.baselines.search_budget``) that ``neuenh report --train-baselines`` gives the
+baselines. ``neuenh report`` draws the search from there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from neuenh.checkpoint import Bundle  # noqa: E402
+from neuenh.models import get_model  # noqa: E402
+from orchestrator.baselines import search_budget  # noqa: E402
+from orchestrator.spec import parse_spec  # noqa: E402
+from storage import JobStatus, LocalArtifactStore, SQLiteJobStore  # noqa: E402
+
+SPEC_NAME = "reference-enhanced-ggx"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("data_dir", type=Path)
+    parser.add_argument("--to", type=Path, default=ROOT / "models" / "enhanced-ggx")
+    args = parser.parse_args()
+    jobs = SQLiteJobStore(args.data_dir / "jobs.sqlite")
+    artifacts = LocalArtifactStore(args.data_dir / "artifacts")
+    finished = jobs.list_jobs(status=(JobStatus.CONVERGED, JobStatus.STOPPED), limit=1000).jobs
+    done = [j for j in finished if j.spec.get("name") == SPEC_NAME]
+    if not done:
+        sys.exit(f"{args.data_dir}: no finished {SPEC_NAME} job")
+    job = done[0]  # newest first
+    spec = parse_spec(job.spec)
+    rounds = jobs.rounds(job.id)
+    config = spec.module.config()
+
+    @functools.lru_cache(maxsize=None)
+    def weights(state: str) -> int:
+        return get_model(spec.model, state=state, module_config=config, latent_dim=spec.latent_dim).n_weights()
+
+    bundle = Bundle.from_bytes(artifacts.get(rounds[-1].artifact_key))
+    budget = search_budget(spec, rounds)
+    train_s = sum(r.finished_at - r.started_at for r in rounds)
+    path = " → ".join([rounds[0].parent_state] + [r.winner_state for r in rounds if r.winner_state != r.parent_state])
+    bundle.provenance = {
+        **bundle.provenance,
+        "search": {
+            "spec": "examples/reference.yaml", "job": job.id, "status": job.status.value, "budget": list(budget),
+            "summary": (f"{len(rounds)} rounds ({job.status.value.lower()}), path {path}, {sum(budget)} epochs in all "
+                        f"(warm-up {budget[0]}, rounds {budget[1]}, polish {budget[2]}), "
+                        f"{train_s / 60:.0f} min on 2 cores"),
+            "train_s": round(train_s, 1),
+            "rounds": [{"index": r.index, "parent_state": r.parent_state, "winner_state": r.winner_state,
+                        "polish": bool(r.extra.get("polish")), "warmup": r.extra.get("warmup"),
+                        "candidates": [{"state": c.state, "val_loss": c.val_loss, "epochs": c.epochs,
+                                        "weights": weights(c.state), "wall_s": round(c.wall_s, 1)}
+                                       for c in r.candidates]}
+                       for r in rounds],
+        },
+    }
+    bundle.save(args.to)
+    size = sum(p.stat().st_size for p in args.to.iterdir())
+    print(f"shipped {bundle.model.describe()} (state {bundle.model.state}, {bundle.model.n_weights()} weights, "
+          f"val log-L1 {rounds[-1].winner_val_loss:.5f}) to {args.to}, {size / 1024:.0f} KB")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

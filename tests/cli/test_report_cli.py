@@ -1,0 +1,113 @@
+"""``neuenh report`` end to end on one real RGL material with small settings: every model fitted,
+measured and rendered, RESULTS.md, results.json and the figures written and consistent; usage
+errors are one line with exit code 2. Untrained baseline bundles stand in for the trained ones
+(the report's arithmetic does not depend on how good they are)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cli.report import BASELINES, markdown
+from cli.report_plots import pareto_front
+from neuenh.checkpoint import Bundle
+from neuenh.modules import ModuleConfig
+
+RGL = Path(__file__).resolve().parents[3] / "shared" / "data" / "rgl"
+needs_rgl = pytest.mark.skipif(not (RGL / "paper_white_rgb.bsdf").exists(), reason="../shared/data/rgl is absent")
+SMALL = ["--fit-samples", 300, "--test-samples", 300, "--size", 12, "--samples", 2, "--jobs", 1]
+
+
+def neuenh(*args, timeout=300):
+    return subprocess.run([sys.executable, "-m", "cli.main", "report", *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def bundles(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bundles")
+    for name, (_, _, model, state, hidden) in BASELINES.items():
+        config = ModuleConfig(choices=(tuple(hidden),)) if hidden else ModuleConfig()
+        bundle = Bundle.initial(model, ["train"], config)
+        bundle.model = bundle.model.enhance(state, seed=0)
+        bundle.save(root / "baselines" / name)
+    enhanced = Bundle.initial("ggx", ["a", "b"])
+    enhanced.model = enhanced.model.enhance("00010000000", seed=0)
+    candidates = [{"state": s, "val_loss": v, "weights": w, "epochs": 2} for s, v, w in
+                  (("00000000000", 0.02, 0), ("00010000000", 0.015, 1825))]
+    enhanced.provenance = {"search": {"budget": [1, 2, 0], "summary": "a test", "rounds": [
+        {"index": 0, "parent_state": "00000000000", "winner_state": "00010000000", "candidates": candidates}]}}
+    enhanced.save(root / "enhanced")
+    return root
+
+
+@pytest.fixture(scope="module")
+def report(bundles, tmp_path_factory):
+    out = tmp_path_factory.mktemp("report")
+    done = neuenh("--rgl", RGL, "--model", bundles / "enhanced", "--baselines", bundles / "baselines",
+                  "--materials", "paper_white_rgb", "--out", out, *SMALL)
+    return done, out
+
+
+@needs_rgl
+def test_the_report_measures_every_model_and_writes_its_files(report):
+    done, out = report
+    assert done.returncode == 0, done.stderr
+    results = json.loads((out / "results.json").read_text())
+    [material] = results["materials"]
+    names = [r["contender"] for r in material["results"]]
+    assert names == ["enhanced", "ggx", "cook_torrance", "ward", *BASELINES, "nbrdf"]
+    for r in material["results"]:
+        assert np.isfinite([r["heldout_log_l1"], r["ssim"], r["delta_e_itp"], r["evals_per_s"]]).all()
+        assert 0 < r["heldout_log_l1"] < 1 and -1 <= r["ssim"] <= 1 and r["rays"] > 0
+    by = {r["contender"]: r for r in material["results"]}
+    reduction = 1 - by["enhanced"]["heldout_log_l1"] / by["ggx"]["heldout_log_l1"]
+    assert results["median_reduction_vs_ggx"] == pytest.approx(reduction)
+    assert results["enhanced_beats_ggx"] == int(reduction > 0)
+    text = (out / "RESULTS.md").read_text()
+    assert f"{100 * reduction:+.1f} %" in text and "| paper_white |" in text and "## The search" in text
+    for png in ("speed_vs_error", "heldout", "search", "paper_white_rgb"):
+        image = __import__("matplotlib.image", fromlist=["imread"]).imread(out / "img" / "results" / f"{png}.png")
+        assert image.shape[0] > 200 and image[..., :3].std() > 0.05, png  # drawn, not blank
+    assert not list(out.rglob(".*tmp*"))
+
+
+@needs_rgl
+@pytest.mark.parametrize("args, message", [
+    (["--materials", "velvet"], "--materials: no velvet in"),
+    (["--baselines", "/nonexistent"], "no trained residual-1x, residual-5x, all-neural"),
+    (["--fit-samples", "0"], "--fit-samples must be at least 1"),
+    (["--model", "enhanced-ggz"], "neither an analytical model"),
+])
+def test_usage_errors_are_one_line(args, message, bundles, tmp_path):
+    flags = {"--model": bundles / "enhanced", "--baselines": bundles / "baselines", **dict(zip(args[::2], args[1::2]))}
+    done = neuenh("--rgl", RGL, "--out", tmp_path, *[x for kv in flags.items() for x in kv], timeout=60)
+    assert done.returncode == 2 and message in done.stderr and "Traceback" not in done.stderr
+    assert not (tmp_path / "RESULTS.md").exists()
+
+
+def test_the_pareto_front_keeps_only_undominated_points():
+    # (throughput, error): higher throughput and lower error win
+    points = [(1.0, 0.5), (2.0, 0.4), (3.0, 0.6), (0.5, 0.1), (2.0, 0.45), (3.0, 0.6)]
+    assert pareto_front(points) == [3, 1, 2, 5]  # ties stay on the front, in input order
+
+
+def test_markdown_counts_wins_and_bolds_the_best():
+    results = lambda e, g: [{"contender": "enhanced", "heldout_log_l1": e, "ssim": 0.9, "delta_e_itp": 1.0},  # noqa: E731
+                            {"contender": "ggx", "heldout_log_l1": g, "ssim": 0.8, "delta_e_itp": 2.0}]
+    comparisons = [{"material": "a_rgb", "results": results(0.01, 0.02)}, {"material": "b_rgb", "results": results(0.03, 0.02)}]
+    models = [{"name": "enhanced", "label": "ours", "family": "enhanced", "evals_per_s": 1e6, "rays_per_s": 1e5,
+               "fit_s": 1.0, "params_per_material": 39, "shared_weights": 1825, "log_l1": 0.02, "ssim": 0.9, "delta_e": 1.0},
+              {"name": "ggx", "label": "GGX", "family": "analytical", "evals_per_s": 2e6, "rays_per_s": 2e5,
+               "fit_s": 0.5, "params_per_material": 12, "shared_weights": 0, "log_l1": 0.02, "ssim": 0.8, "delta_e": 2.0}]
+    summary = {"command": "neuenh report", "generated": "today", "wall_s": 60, "models": models,
+               "settings": {"fit_samples": 10, "test_samples": 10, "size": 8, "light_samples": 4, "jobs": 1},
+               "enhanced": {"model": "enhanced-ggx", "formula": "f", "state": "1", "weights": 1825},
+               "enhanced_beats_ggx": 1, "median_reduction_vs_ggx": 0.0, "render_ratio_enhanced_to_ggx": 0.5,
+               "eval_ratio_enhanced_to_ggx": 0.5}
+    text = markdown(summary, comparisons, {})
+    assert "| a | **0.0100** | 0.0200 | +50.0 % |" in text and "| b | 0.0300 | **0.0200** | -50.0 % |" in text
+    assert "**1 of 2**" in text and "## The search" not in text
