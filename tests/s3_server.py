@@ -6,16 +6,16 @@ Its state lives in memory and dies with the process."""
 from __future__ import annotations
 
 import os
-import re
 import signal
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import boto3
 import pytest
 from botocore.config import Config
+
+from serve_process import follow
 
 MOTO_SERVER = str(Path(sys.executable).parent / "moto_server")
 CREDENTIALS = {"aws_access_key_id": "neuenh-test", "aws_secret_access_key": "neuenh-test-secret"}
@@ -26,21 +26,7 @@ class MotoServer:
         # port 0: the server picks a free one and announces it
         self.proc = subprocess.Popen([MOTO_SERVER, "-H", "127.0.0.1", "-p", "0"], stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True, start_new_session=True)
-        self.lines: list[str] = []
-        self.url: str | None = None
-        announced = threading.Event()
-
-        def pump() -> None:
-            for line in self.proc.stdout:
-                self.lines.append(line.rstrip("\n"))
-                found = re.search(r"Running on (http://[\d.]+:\d+)", line)
-                if found and self.url is None:
-                    self.url = found.group(1)
-                    announced.set()
-            announced.set()
-
-        threading.Thread(target=pump, daemon=True).start()
-        announced.wait(60)
+        self.lines, self.url = follow(self.proc, r"Running on (http://[\d.]+:\d+)")
         if self.url is None:
             self.stop()
             raise AssertionError("moto_server did not start:\n" + "\n".join(self.lines))

@@ -24,6 +24,28 @@ def clean_env(**extra: str) -> dict[str, str]:
     return {**env, **extra}
 
 
+def follow(proc: subprocess.Popen, pattern: str, timeout: float = 60) -> tuple[list[str], str | None]:
+    """Read ``proc``'s output in a thread for as long as it runs (so it never blocks on a full
+    pipe) into the returned list of lines; wait until a line matches ``pattern`` (or the output
+    ends) and return its first group, e.g. the address a server announces."""
+    lines: list[str] = []
+    found: list[str] = []
+    announced = threading.Event()
+
+    def pump() -> None:
+        for line in proc.stdout:
+            lines.append(line.rstrip("\n"))
+            match = re.search(pattern, line)
+            if match and not found:
+                found.append(match.group(1))
+                announced.set()
+        announced.set()
+
+    threading.Thread(target=pump, daemon=True).start()
+    announced.wait(timeout)
+    return lines, (found[0] if found else None)
+
+
 class ServeProcess:
     def __init__(self, data_dir: Path, *args: str, env: dict[str, str] | None = None):
         self.data_dir = data_dir
@@ -31,21 +53,7 @@ class ServeProcess:
             [NEUENH, "serve", "--port", "0", "--cpus", "2", "--data-dir", str(data_dir), *args],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=REPO,
             env=clean_env(**(env or {})))
-        self.lines: list[str] = []
-        self.url: str | None = None
-        announced = threading.Event()
-
-        def pump() -> None:  # keep reading so the server never blocks on a full pipe
-            for line in self.proc.stdout:
-                self.lines.append(line.rstrip("\n"))
-                found = re.search(r"dashboard (http://\S+?)/ ", line)
-                if found and self.url is None:
-                    self.url = found.group(1)
-                    announced.set()
-            announced.set()
-
-        threading.Thread(target=pump, daemon=True).start()
-        announced.wait(60)
+        self.lines, self.url = follow(self.proc, r"dashboard (http://\S+?)/ ")
 
     @property
     def output(self) -> str:

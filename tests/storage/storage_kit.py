@@ -1,6 +1,15 @@
-"""Builders shared by the storage tests (and the writer subprocess): Hamming-1 rounds."""
+"""Builders shared by the storage tests (and the writer subprocess): Hamming-1 rounds, and a
+writer process killed mid-write."""
 
 from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
 
 from storage import CandidateRecord, JobStatus, JobStore, RoundRecord
 
@@ -46,3 +55,36 @@ def commit_rounds(store: JobStore, job_id: str, n: int) -> list[RoundRecord]:
         done.append(store.commit_round(job_id, record))
         state = record.winner_state
     return done
+
+
+REPO = Path(__file__).resolve().parents[2]
+VERSIONS = (b"A" * (8 << 20), b"B" * (8 << 20))  # what the writer alternates under WRITTEN_KEY
+WRITTEN_KEY = "k/checkpoint"
+WRITER = textwrap.dedent(f"""
+    import sys
+    from storage import *
+    store = eval(sys.argv[1])
+    old, new = {VERSIONS[0][:1]!r} * (8 << 20), {VERSIONS[1][:1]!r} * (8 << 20)
+    store.put({WRITTEN_KEY!r}, old)
+    print("ready", flush=True)
+    i = 0
+    while True:
+        store.put({WRITTEN_KEY!r}, new if i % 2 == 0 else old)
+        i += 1
+""")
+
+
+def kill_a_writer_mid_write(opener: str, delay_s: float) -> None:
+    """Start a process that opens an artifact store with the expression ``opener`` (names from
+    ``storage``, e.g. ``"LocalArtifactStore('/tmp/x')"``) and rewrites ``WRITTEN_KEY`` with the
+    two ``VERSIONS`` for ever; SIGKILL it ``delay_s`` after its first write (mid-write)."""
+    writer = subprocess.Popen([sys.executable, "-c", WRITER, opener], cwd=REPO, stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        assert writer.stdout.readline().strip() == "ready"
+        time.sleep(delay_s)  # the writer is somewhere in its put loop
+        os.kill(writer.pid, signal.SIGKILL)
+    finally:
+        writer.kill()
+        writer.wait()
+        writer.stdout.close()

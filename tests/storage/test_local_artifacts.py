@@ -3,21 +3,13 @@
 from __future__ import annotations
 
 import hashlib
-import os
-import signal
-import subprocess
-import sys
-import textwrap
-import time
 from pathlib import Path
 
 import pytest
 
-import storage
 from storage import ConflictError, LocalArtifactStore
 from storage.local import TEMP_PREFIX
-
-REPO = Path(storage.__file__).resolve().parents[1]
+from storage_kit import VERSIONS, WRITTEN_KEY, kill_a_writer_mid_write
 
 
 def files(root: Path) -> list[str]:
@@ -57,40 +49,17 @@ def test_a_key_cannot_be_both_file_and_directory(tmp_path):
     assert store.get("a/b") == b"x" and files(tmp_path) == ["a/b"]
 
 
-WRITER = textwrap.dedent("""
-    import sys
-    from storage import LocalArtifactStore
-    store = LocalArtifactStore(sys.argv[1])
-    old, new = b"A" * (8 << 20), b"B" * (8 << 20)
-    store.put("k/checkpoint", old)
-    print("ready", flush=True)
-    i = 0
-    while True:
-        store.put("k/checkpoint", new if i % 2 == 0 else old)
-        i += 1
-""")
-
-
 @pytest.mark.parametrize("delay_s", [0.05, 0.2])
 def test_a_writer_killed_mid_write_leaves_old_or_new(tmp_path, delay_s):
     """SIGKILL a process that keeps rewriting an 8 MiB artifact: the key holds one whole version,
     and whatever the writer left behind is a temp file no key can name, which the sweep removes."""
     root = tmp_path / "store"
-    writer = subprocess.Popen([sys.executable, "-c", WRITER, str(root)], cwd=REPO,
-                              stdout=subprocess.PIPE, text=True)
-    try:
-        assert writer.stdout.readline().strip() == "ready"
-        store = LocalArtifactStore(root)
-        time.sleep(delay_s)  # the writer is somewhere in its put loop
-        os.kill(writer.pid, signal.SIGKILL)
-    finally:
-        writer.kill()
-        writer.wait()
-        writer.stdout.close()
-    data = store.get("k/checkpoint")
-    assert data in (b"A" * (8 << 20), b"B" * (8 << 20))
-    leftovers = [f for f in files(root) if f != "k/checkpoint"]
+    kill_a_writer_mid_write(f"LocalArtifactStore({str(root)!r})", delay_s)
+    store = LocalArtifactStore(root)
+    data = store.get(WRITTEN_KEY)
+    assert data in VERSIONS
+    leftovers = [f for f in files(root) if f != WRITTEN_KEY]
     assert all(Path(f).name.startswith(TEMP_PREFIX) for f in leftovers)
     assert store.remove_stale_temp_files(older_than_s=3600) == 0  # young: maybe still being written
     assert store.remove_stale_temp_files(older_than_s=-1) == len(leftovers)
-    assert files(root) == ["k/checkpoint"] and store.get("k/checkpoint") == data
+    assert files(root) == [WRITTEN_KEY] and store.get(WRITTEN_KEY) == data
