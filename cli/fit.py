@@ -64,7 +64,7 @@ def run(args) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     _check_heldout_args(args)
-    model, trained = load_model(args.model)
+    model, trained = load_model(args.model, "--model")
     samples = Samples.concat([read_table(t) for t in args.tables])
     if len(set(samples.names)) != len(samples.names):
         raise ValueError(f"two tables share a material name: {samples.names}")

@@ -14,7 +14,7 @@ bundle's fitted materials (``--material``, default the first), else the paper's 
 Ground truth is ``--truth FILE`` (an RGL .bsdf, MERL .binary or NBRDF .npz; ``--truth-material``
 picks an NBRDF network) or ``--truth-model NAME|BUNDLE_DIR`` with ``--truth-params FILE`` /
 ``--truth-material`` as for the model. With a truth and a model, both are rendered with the same
-light samples (they share their noise) and the error map, SSIM and ΔE_ITP×10³ are reported.
+light samples (they share their noise) and the error map, SSIM and ΔE_ITP are reported.
 Without ``--model``, a truth is rendered alone; with neither, the model is ``ggx``.
 
 Lighting: ``--env studio`` (procedural, neuenh.render.envmaps) or ``--env FILE.exr`` (lat-long), and
@@ -28,7 +28,8 @@ timings and metrics. Existing files are not overwritten without ``--force``.
 
 Metrics (neuenh.render.metrics, over the sphere's pixels): SSIM of the tone-mapped images at the
 PNGs' ``--exposure``, and mean ΔE_ITP of the linear renders (linear 1.0 = 100 cd/m², exposure not
-applied), reported as ΔE_ITP × 10³ as in the paper.
+applied), in ITU-R BT.2124 units (1 ≈ one just-noticeable difference). The paper's "ΔE_ITP × 10³"
+values imply a luminance scale it does not state; ours are not multiplied (neuenh.render.metrics).
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ import torch
 from neuenh.checkpoint import Bundle
 from neuenh.materials import LATENT_INIT
 
-from neuenh.pretrained import load_model
+from neuenh.pretrained import bundle_path, load_model
 
 DEFAULT_SAMPLES = 16
 
@@ -175,8 +176,10 @@ def _model_source(spec: str, params_file: Path | None, material: str | None, fla
     """(description, brdf) of a model with its parameters."""
     from neuenh.render import model_brdf
 
-    bundle = Bundle.load(spec) if Path(spec).is_dir() else None
-    model = bundle.model if bundle is not None else load_model(spec)[0]
+    path = bundle_path(spec)
+    bundle = Bundle.load(path) if path is not None else None
+    model = bundle.model if bundle is not None else load_model(spec, "--truth-model" if flag.startswith("--truth")
+                                                               else "--model")[0]
     if params_file is not None:
         name, params = _read_params(params_file, material)
         origin = str(params_file)
@@ -282,7 +285,7 @@ def run(args) -> int:
         truth, model = images["truth"], images["model"]
         write_error_map(out / "error.png", truth, model, mask=mask, title="relative luminance error, model vs truth")
         report["metrics"] = {"ssim": ssim(truth, model, mask=mask, exposure=args.exposure),
-                             "delta_e_itp_x1e3": 1e3 * delta_e_itp(truth, model, mask=mask)}
+                             "delta_e_itp": delta_e_itp(truth, model, mask=mask)}
     report["files"] = [str(out / n) for n in names]
     _write_json(out / "render.json", report)
     print(json.dumps(report, indent=2) if args.json else _summary(report))
@@ -313,7 +316,7 @@ def _summary(report: dict) -> str:
             lines.append(f"  {key}: {what}, material {r['material']!r}, {r['render_s']:.2f} s")
     if "metrics" in report:
         m = report["metrics"]
-        lines.append(f"  SSIM {m['ssim']:.4f}  ΔE_ITP×10³ {m['delta_e_itp_x1e3']:.2f}")
+        lines.append(f"  SSIM {m['ssim']:.4f}  ΔE_ITP {m['delta_e_itp']:.3f}")
     lines.append("wrote " + ", ".join(report["files"]))
     return "\n".join(lines)
 

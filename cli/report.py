@@ -75,7 +75,7 @@ def run(args) -> int:
     materials = _materials(args.rgl, args.materials)
     from neuenh.pretrained import load_model
 
-    enhanced, _ = load_model(args.model)  # fails early on a wrong name
+    enhanced, _ = load_model(args.model, "--model")  # fails early on a wrong name
     provenance = _provenance(args.model)
     if args.train_baselines:
         _train_missing(args, provenance)
@@ -131,9 +131,9 @@ def _materials(folder: Path, names: list[str] | None) -> list[Path]:
 
 def _provenance(spec: str) -> dict:
     from neuenh.checkpoint import Bundle
-    from neuenh.pretrained import shipped_models
+    from neuenh.pretrained import bundle_path
 
-    path = Path(spec) if Path(spec).is_dir() else shipped_models().get(spec)
+    path = bundle_path(spec)
     return Bundle.load(path).provenance if path else {}
 
 

@@ -15,7 +15,7 @@ from .graph import BRDFModel
 from .materials import MaterialTable
 from .models import available_models, get_model
 
-__all__ = ["load_model", "shipped_models"]
+__all__ = ["bundle_path", "load_model", "shipped_models"]
 
 
 def _models_dirs() -> list[Path]:
@@ -32,19 +32,22 @@ def shipped_models() -> dict[str, Path]:
     return dict(sorted(found.items()))
 
 
-def load_model(spec: str) -> tuple[BRDFModel, MaterialTable | None]:
+def bundle_path(spec: str) -> Path | None:
+    """The bundle folder ``spec`` names: itself if it is a folder, else a shipped model's, else None."""
+    path = Path(spec)
+    return path if path.is_dir() else shipped_models().get(spec)
+
+
+def load_model(spec: str, what: str = "model") -> tuple[BRDFModel, MaterialTable | None]:
     """The model ``spec`` names and its training materials (``None`` for an analytical model):
     a bundle folder if ``spec`` is one, else a shipped model, else an analytical model. The
-    training materials give new fits a starting latent code (``neuenh.fit``)."""
-    path = Path(spec)
-    if path.is_dir():
+    training materials give new fits a starting latent code (``neuenh.fit``). ``what`` names
+    ``spec`` in the error (e.g. the command-line flag)."""
+    path = bundle_path(spec)
+    if path is not None:
         bundle = Bundle.load(path)
-        return bundle.model, bundle.materials
-    shipped = shipped_models()
-    if spec in shipped:
-        bundle = Bundle.load(shipped[spec])
         return bundle.model, bundle.materials
     if spec in available_models():
         return get_model(spec), None
-    raise ValueError(f"model {spec!r} is neither an analytical model ({', '.join(available_models())}), "
-                     f"a shipped model ({', '.join(shipped) or 'none found'}) nor a bundle folder")
+    raise ValueError(f"{what} {spec!r} is neither an analytical model ({', '.join(available_models())}), "
+                     f"a shipped model ({', '.join(shipped_models()) or 'none found'}) nor a bundle folder")

@@ -38,9 +38,10 @@ to structural similarity", IEEE TIP 13(4)):
    ``720 · sqrt(ΔI² + (ΔCt / 2)² + ΔCp²)`` per pixel; the result is the mean over the (masked)
    pixels.
 
-The functions return the plain ΔE_ITP (1 ≈ one just-noticeable difference); multiply by 1e3 for
-the paper's "ΔE_ITP × 10³" column. The paper does not state its absolute luminance scale, so its
-numbers compare with ours only in ranking, not in value.
+The functions return the plain ΔE_ITP (1 ≈ one just-noticeable difference), which is what
+``neuenh render`` and ``neuenh report`` show. The paper's column is "ΔE_ITP × 10³" with values near
+1–2 for visibly different renders: that only fits a much dimmer absolute luminance than BT.2124's
+(which it does not state), so its numbers compare with ours in ranking, not in value.
 
 **Held-out log-L1**: the metric *is* the paper's loss, :func:`neuenh.train.log_l1`;
 :func:`log_l1` here only accepts numpy or torch inputs, validates them and returns the mean as a
@@ -168,7 +169,7 @@ def delta_e_itp(reference: Any, test: Any, mask: Any = None, peak_nits: float = 
 
     Linear 1.0 is shown at ``peak_nits`` cd/m² (default 100); ICtCp and ΔE_ITP are computed by
     colour-science (see the module docstring). ``mask`` (boolean, shape ``(...)``) restricts the
-    mean to the selected pixels. Returns the plain ΔE_ITP: multiply by 1e3 for the paper's units.
+    mean to the selected pixels. Returns the plain ΔE_ITP (see the module doc on the paper's units).
     """
     ref, tst = _check_pair(reference, test, image=False)
     mask = _check_mask(mask, ref.shape[:-1])

@@ -50,7 +50,7 @@ def test_fit_with_a_bundle_directory(table, tmp_path):
     "args,message",
     [
         (["fit", "missing.npz"], "missing.npz: no such file"),
-        (["fit", "--model", "phong", "TABLE"], "--model 'phong' is neither a model"),
+        (["fit", "--model", "phong", "TABLE"], "--model 'phong' is neither an analytical model"),
         (["fit", "BAD"], "f_r has negative values"),
     ],
     ids=["missing-file", "unknown-model", "bad-table"],

@@ -85,7 +85,7 @@ def test_the_same_model_as_truth_and_model_is_identical(runs):
     result, out = runs["identity"]
     report = ok(result)
     assert report["truth"]["params"] == report["model"]["params"]
-    assert report["metrics"]["ssim"] == 1.0 and report["metrics"]["delta_e_itp_x1e3"] == 0.0
+    assert report["metrics"]["ssim"] == 1.0 and report["metrics"]["delta_e_itp"] == 0.0
     assert sorted(p.name for p in out.iterdir()) == sorted(
         ["model.exr", "model.png", "truth.exr", "truth.png", "error.png", "render.json"])
     np.testing.assert_array_equal(read_rgb_exr(out / "truth.exr"), read_rgb_exr(out / "model.exr"))
@@ -98,7 +98,7 @@ def test_measured_truth_against_a_default_ggx(runs):
     report = ok(result)
     assert report["truth"]["measured"] == str(RGL) and report["truth"]["material"] == "paper_white_rgb"
     m = report["metrics"]
-    assert 0 < m["ssim"] < 1 and m["delta_e_itp_x1e3"] > 0
+    assert 0 < m["ssim"] < 1 and m["delta_e_itp"] > 0
     assert json.loads((out / "render.json").read_text())["metrics"] == m
     truth = read_rgb_exr(out / "truth.exr")
     assert truth.shape == (SIZE, SIZE, 3) and np.isfinite(truth).all() and truth.max() > 0
@@ -156,7 +156,7 @@ def test_refuses_to_overwrite_without_force(tmp_path, capsys):
     (["--truth", "MISSING", "--model", "ggx"], ["missing.bsdf", "no such file"]),
     (["--env", "MISSING"], ["--env", "missing.bsdf", "no such file"]),
     (["--light", "0,0,0:1"], ["--light '0,0,0:1'"]),
-    (["--model", "phong"], ["--model 'phong' is neither a model"]),
+    (["--model", "phong"], ["--model 'phong' is neither an analytical model"]),
     (["--model", "ggx", "--material", "steel"], ["--material 'steel' needs parameters"]),
     (["--truth-model", "ggx", "--truth-params", "PARAMS", "--truth-material", "steel"], ["no material 'steel'"]),
 ], ids=["missing-truth", "missing-env", "zero-light", "unknown-model", "material-without-params", "unknown-material"])
