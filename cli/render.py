@@ -75,6 +75,8 @@ def add_parser(commands) -> None:
                    help="environment sampling: mis (default; the map, a cosine lobe and GGX reflection lobes "
                         "mixed, right for glossy materials) or light (the map alone)")
     p.add_argument("--size", type=int, default=256, help="image width and height in pixels (default 256)")
+    p.add_argument("--scene", choices=("sphere", "ball"), default="sphere",
+                   help="the sphere alone, or resting on a grey ground plane with shadows (ball)")
     p.add_argument("--exposure", type=float, default=0.0, help="exposure of the PNGs and SSIM, in stops")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: all)")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
@@ -256,7 +258,7 @@ def run(args) -> int:
         if path is not None and not path.is_file():
             raise FileNotFoundError(f"{flag} {path}: no such file")
 
-    from neuenh.render import render, sphere_scene, write_error_map, write_exr, write_png
+    from neuenh.render import ball_scene, render, sphere_scene, write_error_map, write_exr, write_png
     from neuenh.render.metrics import delta_e_itp, ssim
 
     lights = _lights(light_info)
@@ -264,9 +266,9 @@ def run(args) -> int:
     model_info, model_brdf = _model_source(model_spec, args.params, args.material, "--material") \
         if model_spec else (None, None)
 
-    scene = sphere_scene(args.size)
+    scene = ball_scene(args.size) if args.scene == "ball" else sphere_scene(args.size)
     out.mkdir(parents=True, exist_ok=True)
-    report: dict = {"size": args.size, "exposure": args.exposure, "lighting": light_info}
+    report: dict = {"size": args.size, "scene": args.scene, "exposure": args.exposure, "lighting": light_info}
     images = {}
     for key, info, brdf in (("truth", truth_info, truth_brdf), ("model", model_info, model_brdf)):
         if brdf is None:

@@ -2,7 +2,7 @@
 measured on held-out samples and on renders, speed against error, the search, render grids.
 
     neuenh report [--rgl ../shared/data/rgl] [--model enhanced-ggx] [--baselines models/baselines]
-                  [--out docs] [--fit-samples 20000] [--test-samples 20000] [--size 96] [--samples 12]
+                  [--out docs] [--fit-samples 10000] [--test-samples 10000] [--size 96] [--samples 12]
                   [--jobs 2] [--materials NAME ...] [--train-baselines SPEC [--work-dir runs/report]]
 
 Writes ``OUT/RESULTS.md``, ``OUT/results.json`` and the figures in ``OUT/img/results/``: speed
@@ -60,10 +60,12 @@ def add_parser(commands) -> None:
     p.add_argument("--work-dir", type=Path, default=Path("runs/report"), help="dataset cache for --train-baselines")
     p.add_argument("--out", type=Path, default=Path("docs"), help="where RESULTS.md, results.json and img/ go")
     p.add_argument("--materials", nargs="+", metavar="NAME", help="only these materials (file stems)")
-    p.add_argument("--fit-samples", type=int, default=20_000)
-    p.add_argument("--test-samples", type=int, default=20_000)
+    p.add_argument("--fit-samples", type=int, default=10_000)
+    p.add_argument("--test-samples", type=int, default=10_000)
     p.add_argument("--size", type=int, default=96, help="render size in pixels")
     p.add_argument("--samples", type=int, default=12, help="light samples per pixel: the square of this")
+    p.add_argument("--scene", choices=("ball", "sphere"), default="ball",
+                   help="renders: the sphere on a ground plane with shadows (default) or alone")
     p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="materials measured at once")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(run=run)
@@ -199,7 +201,7 @@ def _measure(args: dict, path: str) -> dict:
     torch.set_num_threads(1)
     material = load_measured(path)
     comparison = compare_material(material, _contenders(args), args["fit_samples"], args["test_samples"],
-                                  seed=args["seed"], setup=RenderSetup(args["size"], args["samples"], args["seed"]))
+                                  seed=args["seed"], setup=RenderSetup(args["size"], args["samples"], args["seed"], args["scene"]))
     return {"material": comparison.material, "n_fit": comparison.n_fit, "n_test": comparison.n_test,
             "split": comparison.split, "results": [r.row() for r in comparison.results],
             "truth": comparison.truth.numpy(), "mask": comparison.mask.numpy(),
@@ -231,6 +233,7 @@ def _summarise(args, contenders: list[dict], comparisons: list[dict], provenance
         "generated": time.strftime("%Y-%m-%d", time.gmtime()),
         "wall_s": round(wall_s, 1),
         "settings": {"fit_samples": args.fit_samples, "test_samples": args.test_samples, "size": args.size,
+                     "scene": args.scene,
                      "light_samples": args.samples ** 2, "seed": args.seed, "jobs": args.jobs},
         "enhanced": {"model": args.model, "state": enhanced.state, "formula": enhanced.describe(),
                      "weights": enhanced.n_weights()},
@@ -244,8 +247,9 @@ def _summarise(args, contenders: list[dict], comparisons: list[dict], provenance
 
 def _command_flags(args) -> list[str]:
     flags = []
-    defaults = {"rgl": Path("../shared/data/rgl"), "model": "enhanced-ggx", "out": Path("docs"), "fit_samples": 20_000,
-                "test_samples": 20_000, "size": 96, "samples": 12, "seed": 0, "baselines": Path("models/baselines")}
+    defaults = {"rgl": Path("../shared/data/rgl"), "model": "enhanced-ggx", "out": Path("docs"), "fit_samples": 10_000,
+                "test_samples": 10_000, "size": 96, "samples": 12, "seed": 0, "baselines": Path("models/baselines"),
+                "scene": "ball"}
     for key, default in defaults.items():
         if getattr(args, key) != default:
             flags.append(f"--{key.replace('_', '-')} {getattr(args, key)}")
@@ -308,8 +312,10 @@ def markdown(summary: dict, comparisons: list[dict], provenance: dict) -> str:
         f"**Materials:** the {len(comparisons)} EPFL RGL materials of `../shared/data/rgl` (Dupuy & Jakob 2018), "
         "never seen in training. **Protocol:** every model is fitted per material to the same "
         f"{s['fit_samples']:,} measurements (Rusinkiewicz-uniform directions) and measured on {s['test_samples']:,} "
-        "other, independently drawn ones; renders are a sphere under the procedural studio environment, "
-        f"{s['size']}² pixels, {s['light_samples']} MIS light samples per pixel shared by truth and models.",
+        "other, independently drawn ones. Renders: "
+        + ("a sphere on a grey ground plane (shadows both ways)" if s.get("scene", "ball") == "ball" else "a sphere")
+        + f" under the procedural studio environment, {s['size']}² pixels, {s['light_samples']} MIS light "
+        "samples per pixel shared by truth and models; the metrics cover the sphere.",
         "",
         f"**The shipped model** (`{e['model'] if '/' in e['model'] else 'models/' + e['model']}`): `{e['formula']}`, state `{e['state']}`, "
         f"{e['weights']:,} weights.",

@@ -20,7 +20,7 @@ import torch
 from .contenders import Contender, Directions
 from .data.sampling import sample_directions
 from .evaluate import draw_fit_test
-from .render import EnvironmentMap, render, sphere_scene
+from .render import EnvironmentMap, ball_scene, render, sphere_scene
 from .render.envmaps import studio_environment
 from .render.metrics import delta_e_itp, ssim
 from .train import log_l1
@@ -30,11 +30,18 @@ __all__ = ["ContenderResult", "MaterialComparison", "RenderSetup", "compare_mate
 
 @dataclass(frozen=True)
 class RenderSetup:
-    """The comparison's scene: a sphere under the procedural studio environment."""
+    """The comparison's scene under the procedural studio environment: the sphere on a ground plane
+    (``render.ball_scene``, with shadows) or alone; metrics cover the sphere's pixels."""
 
     size: int = 96  # pixels per side
     samples_per_axis: int = 12  # light samples per pixel: its square
     seed: int = 0
+    scene: str = "ball"  # or "sphere"
+
+    def build_scene(self):
+        if self.scene not in ("ball", "sphere"):
+            raise ValueError(f"scene must be 'ball' or 'sphere', got {self.scene!r}")
+        return ball_scene(self.size) if self.scene == "ball" else sphere_scene(self.size)
 
     def lights(self) -> EnvironmentMap:
         return EnvironmentMap(studio_environment(), samples_per_axis=self.samples_per_axis, seed=self.seed)
@@ -86,7 +93,7 @@ def compare_material(material, contenders: Sequence[Contender], n_fit: int, n_te
     """Every contender fitted to ``material`` and measured (module doc); ``material`` is any
     measured source with ``evaluate`` and ``samples`` (RGL, MERL, NBRDF, analytical)."""
     fit, test, split = draw_fit_test(material, n_fit, n_test, seed)
-    scene, lights = sphere_scene(setup.size), setup.lights()
+    scene, lights = setup.build_scene(), setup.lights()
     truth = render(lambda wi, wo: material.evaluate(wi, wo).float(), scene, lights)
     rays = int(scene.mask.sum()) * setup.samples_per_axis ** 2
     results, images = [], {}

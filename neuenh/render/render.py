@@ -23,6 +23,8 @@ material of a bundle (``bundle_brdf(bundle, i)``).
 
 from __future__ import annotations
 
+import math
+
 from typing import Callable, Literal, Mapping, Sequence
 
 import torch
@@ -141,19 +143,39 @@ def _render_light_samples(
 def _accumulate(brdf: BRDF, scene: SphereScene, k: int, terms, *, dtype: torch.dtype,
                 max_pairs: int) -> torch.Tensor:
     """Σ over ``k`` samples of f_r(wi, wo) · weight per pixel, where ``terms(frame, wo)`` gives
-    each chunk's local directions and BRDF-independent weights, both (c, k, 3). Pairs below the
-    horizon contribute 0 (the BRDF is not called there); at most ``max_pairs`` pairs at a time."""
-    frames = scene.frames()  # (P, 3, 3) rows t, b, n
-    wo = scene.wo_local[scene.mask]  # (P, 3)
+    each chunk's local directions and BRDF-independent weights, both (c, k, 3). The sphere's pixels
+    use ``brdf``; the ball scene's ground pixels its Lambertian albedo."""
+    image = torch.zeros(*scene.shape, 3, dtype=torch.float64)
+    image[scene.mask] = _shade(brdf, scene, scene.mask, False, k, terms, dtype, max_pairs)
+    if scene.ground is not None and scene.ground.any():
+        albedo = scene.ground_albedo / math.pi
+
+        def ground(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+            return torch.full((wi.shape[0], 3), albedo, dtype=wi.dtype)
+
+        image[scene.ground] = _shade(ground, scene, scene.ground, True, k, terms, dtype, max_pairs)
+    return image
+
+
+def _shade(brdf: BRDF, scene: SphereScene, pixels: torch.Tensor, on_ground: bool, k: int, terms,
+           dtype: torch.dtype, max_pairs: int) -> torch.Tensor:
+    """(P, 3) radiance of the ``pixels``. Pairs below the horizon or blocked (``scene.visible``)
+    contribute 0 (the BRDF is not called there); at most ``max_pairs`` pairs at a time."""
+    frames = scene.frames(pixels)  # (P, 3, 3) rows t, b, n
+    wo = scene.wo_local[pixels]  # (P, 3)
+    points = scene.position[pixels]
     out = torch.zeros(frames.shape[0], 3, dtype=torch.float64)
     chunk = max(1, max_pairs // k)
     for start in range(0, frames.shape[0], chunk):
         frame, wo_c = frames[start:start + chunk], wo[start:start + chunk]
         c = frame.shape[0]
         wi, weight = terms(frame, wo_c)
+        lit = wi[..., 2] > 0  # below the horizon (or grazing exactly) a direction contributes 0 but counts
+        if scene.shadowed:  # and so does a direction something blocks
+            world = torch.einsum("pji,pkj->pki", frame, wi)
+            lit &= scene.visible(points[start:start + c], world, torch.full((c,), on_ground))
         wi, weight = wi.reshape(c * k, 3), weight.reshape(c * k, 3)
-        # below the horizon (or grazing exactly) a direction contributes 0 but still counts
-        lit = torch.nonzero(wi[:, 2] > 0).squeeze(1)  # flat (pixel, sample) pair indices
+        lit = torch.nonzero(lit.reshape(-1)).squeeze(1)  # flat (pixel, sample) pair indices
         # f_r at the lit pairs only, in the BRDF's dtype
         f = brdf(wi[lit].to(dtype), wo_c[lit // k].to(dtype)).to(torch.float64)
         _check(f, lit.shape[0])
@@ -161,6 +183,4 @@ def _accumulate(brdf: BRDF, scene: SphereScene, k: int, terms, *, dtype: torch.d
         contribution = torch.zeros(c * k, 3, dtype=torch.float64)
         contribution.index_copy_(0, lit, f * weight[lit])
         out[start:start + c] = contribution.reshape(c, k, 3).sum(dim=1)
-    image = torch.zeros(*scene.shape, 3, dtype=torch.float64)
-    image[scene.mask] = out
-    return image
+    return out

@@ -1,4 +1,6 @@
-"""The scene: an orthographic camera looking at a unit sphere, as per-pixel shading data.
+"""The scenes: an orthographic camera looking at a unit sphere, alone (:func:`sphere_scene`) or
+resting on a ground plane that shadows it and that it shadows (:func:`ball_scene`), as per-pixel
+shading data.
 
 World frame: x to the right of the image, y up, z towards the camera. The camera looks along
 -z; pixel (row i, col j) is the ray through ``x = -e + (j + 1/2) 2e / W``,
@@ -10,6 +12,14 @@ longitude (the direction of ∂p/∂φ about the y axis, so an anisotropic mater
 runs around the sphere, like a lathe-brushed ball), the bitangent ``b = n × t`` and the view
 direction ``wo`` both in world space and in the local shading frame (x = t, y = b, z = n), the
 convention of ``BRDFModel.evaluate``.
+
+**The ball scene** (a material-ball-like stage, with visibility): the same sphere resting on the
+plane ``y = -1`` (a disc of radius ``ground_radius``), seen from ``elevation`` degrees above the
+horizon. The plane is Lambertian with albedo ``ground_albedo`` in every render (``ground`` marks its
+pixels, shaded with the frame t = x, b = -z, n = y); only the sphere carries the BRDF under test.
+Light is direct only: a direction towards the light is blocked by the plane for the sphere
+(``d_y < 0``) and by the sphere for the plane (the ray meets it); :meth:`SphereScene.visible`
+answers it, for every BRDF alike, so renders still share their noise.
 """
 
 from __future__ import annotations
@@ -35,15 +45,37 @@ class SphereScene:
     bitangent: torch.Tensor
     wo_world: torch.Tensor
     wo_local: torch.Tensor
+    ground: torch.Tensor | None = None  # (H, W) bool: ground-plane pixels (ball scene), or None
+    ground_albedo: float = 0.18
 
     @property
     def shape(self) -> tuple[int, int]:
         return tuple(self.mask.shape)
 
-    def frames(self) -> torch.Tensor:
-        """(P, 3, 3) shading frames of the P covered pixels (row-major order): rows t, b, n, so
-        ``frames @ d`` takes a world direction ``d`` into the local frame."""
-        return torch.stack([self.tangent[self.mask], self.bitangent[self.mask], self.normal[self.mask]], dim=1)
+    @property
+    def shadowed(self) -> bool:
+        """Whether anything can block the light (the ball scene): the renderer then asks
+        :meth:`visible`."""
+        return self.ground is not None
+
+    def visible(self, points: torch.Tensor, directions: torch.Tensor, on_ground: torch.Tensor) -> torch.Tensor:
+        """(P, K) bool: whether the ray from ``points`` (P, 3) along world ``directions`` (P, K, 3)
+        escapes the scene. ``on_ground`` (P,) marks points on the plane: only the sphere can block
+        them; for points on the sphere, only the plane can (a sphere never shadows itself)."""
+        if not self.shadowed:
+            return torch.ones(directions.shape[:2], dtype=torch.bool)
+        below = directions[..., 1] < 0  # towards the plane y = -1, which lies below every point
+        # |p + t d|² = 1: t² + 2 (p·d) t + |p|² - 1 = 0 has a root t > 0 when p·d < 0 and the
+        # discriminant is positive (|p| > 1 for a point on the plane off the contact point)
+        pd = torch.einsum("pj,pkj->pk", points, directions)
+        hits_sphere = (pd < 0) & (pd**2 - ((points**2).sum(-1, keepdim=True) - 1.0) > 0)
+        return torch.where(on_ground[:, None], ~hits_sphere, ~below)
+
+    def frames(self, pixels: torch.Tensor | None = None) -> torch.Tensor:
+        """(P, 3, 3) shading frames of the P pixels of ``pixels`` (default: the sphere's ``mask``),
+        in row-major order: rows t, b, n, so ``frames @ d`` takes a world direction into the local frame."""
+        pixels = self.mask if pixels is None else pixels
+        return torch.stack([self.tangent[pixels], self.bitangent[pixels], self.normal[pixels]], dim=1)
 
 
 def sphere_scene(width: int, height: int | None = None, *, extent: float = 1.1) -> SphereScene:
@@ -82,3 +114,53 @@ def sphere_scene(width: int, height: int | None = None, *, extent: float = 1.1) 
     # wo in the shading frame: its projections on t, b, n
     wo_local = torch.stack([(wo_world * f).sum(-1) for f in (tangent, bitangent, normal)], dim=-1)
     return SphereScene(mask, position, normal, tangent, bitangent, wo_world.contiguous(), wo_local)
+
+
+def ball_scene(width: int, height: int | None = None, *, elevation: float = 20.0, extent: float = 1.6,
+               ground_radius: float = 4.0, ground_albedo: float = 0.18) -> SphereScene:
+    """The unit sphere on the plane y = -1 (module doc), seen orthographically from ``elevation``
+    degrees above the horizon through a ``width`` × ``height`` image covering ±``extent`` on the
+    shorter axis, centred on the sphere. ``mask`` marks the sphere's pixels, ``ground`` the plane's."""
+    height = width if height is None else height
+    if width < 1 or height < 1:
+        raise ValueError(f"resolution must be positive, got {width}x{height}")
+    if not 0 < elevation < 90:
+        raise ValueError(f"elevation must be between 0 and 90 degrees, got {elevation}")
+    e = torch.deg2rad(torch.tensor(elevation, dtype=torch.float64))
+    view = torch.stack([torch.zeros(()), -torch.sin(e), -torch.cos(e)]).double()  # where the camera looks
+    right = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
+    up = torch.linalg.cross(right, view)  # completes the camera frame: up = right × view
+    pixel = 2.0 * extent / min(width, height)
+    x = (torch.arange(width, dtype=torch.float64) + 0.5 - width / 2) * pixel
+    y = (height / 2 - torch.arange(height, dtype=torch.float64) - 0.5) * pixel
+    yy, xx = torch.meshgrid(y, x, indexing="ij")
+    # ray origins on the image plane, far enough back that everything lies ahead (t > 0)
+    origin = xx[..., None] * right + yy[..., None] * up - 10.0 * view
+    # the sphere: |o + t v|² = 1, nearer root; the plane: o_y + t v_y = -1
+    ov = (origin * view).sum(-1)
+    disc = ov**2 - ((origin**2).sum(-1) - 1.0)
+    t_sphere = torch.where(disc > 0, -ov - disc.clamp_min(0).sqrt(), torch.full_like(ov, float("inf")))
+    t_plane = (-1.0 - origin[..., 1]) / view[1]
+    on_plane = origin + t_plane[..., None] * view
+    plane_hit = (on_plane[..., 0] ** 2 + on_plane[..., 2] ** 2) < ground_radius**2
+    t_plane = torch.where(plane_hit, t_plane, torch.full_like(t_plane, float("inf")))
+    mask = torch.isfinite(t_sphere) & (t_sphere <= t_plane)
+    ground = torch.isfinite(t_plane) & ~mask
+    t = torch.where(mask, t_sphere, torch.where(ground, t_plane, torch.zeros_like(t_plane)))
+    hit = origin + t[..., None] * view
+    covered = (mask | ground)[..., None]
+    position = torch.where(covered, hit, torch.zeros_like(hit))
+    plane_frame = [torch.tensor(v, dtype=torch.float64).expand_as(hit) for v in ((1, 0, 0), (0, 0, -1), (0, 1, 0))]
+    # sphere pixels: longitude tangents about y, as in sphere_scene
+    normal = torch.where(mask[..., None], position, plane_frame[2])
+    tangent = torch.stack([normal[..., 2], torch.zeros_like(xx), -normal[..., 0]], dim=-1)
+    length2 = (tangent**2).sum(-1, keepdim=True)
+    pole = length2 < _POLE_EPS
+    tangent = torch.where(pole, plane_frame[0], tangent / length2.clamp_min(_POLE_EPS).sqrt())
+    tangent = torch.where(mask[..., None], tangent, plane_frame[0])
+    bitangent = torch.linalg.cross(normal, tangent, dim=-1)
+    normal, tangent, bitangent = (v * covered for v in (normal, tangent, bitangent))
+    wo_world = (-view).expand_as(hit) * covered
+    wo_local = torch.stack([(wo_world * f).sum(-1) for f in (tangent, bitangent, normal)], dim=-1)
+    return SphereScene(mask, position, normal, tangent, bitangent, wo_world.contiguous(), wo_local,
+                       ground=ground, ground_albedo=ground_albedo)

@@ -23,6 +23,7 @@ from neuenh.models import get_model
 from neuenh.render import (
     DirectionalLight,
     EnvironmentMap,
+    ball_scene,
     bundle_brdf,
     error_map,
     model_brdf,
@@ -527,3 +528,47 @@ def test_mis_removes_the_speckle_of_a_glossy_measured_material():
     energy = {s: high_pass_energy(render(material.evaluate, scene, env, sampling=s).numpy(), mask)
               for s in ("mis", "light")}
     assert energy["light"] > 8 * energy["mis"], energy
+
+
+def _ball_errors(samples_per_axis: int, sampling: str) -> tuple[float, float]:
+    """Median relative errors (sphere, ground) of the ball scene under a constant white sky against
+    closed forms: a Lambertian point whose normal is tilted θ from the vertical sees the sky above
+    the plane with view factor (1 + cos θ) / 2, so its radiance is ρ (1 + n_y) / 2; a ground point at
+    distance r from the contact point loses the sphere's projected solid angle π sin²α cos θ_c with
+    sin α = cos θ_c = 1 / D, D = √(r² + 1): radiance = albedo (1 − 1 / D³)."""
+    scene = ball_scene(24)
+    image = render(lambertian((0.6, 0.6, 0.6)), scene, EnvironmentMap.constant(1.0, samples_per_axis=samples_per_axis),
+                   sampling=sampling)[..., 0]
+    sphere = 0.6 * (1 + scene.normal[..., 1]) / 2
+    r2 = scene.position[..., 0] ** 2 + scene.position[..., 2] ** 2
+    ground = scene.ground_albedo * (1 - (r2 + 1) ** -1.5)
+    return (float(((image - sphere).abs() / sphere)[scene.mask].median()),
+            float(((image - ground).abs() / ground)[scene.ground].median()))
+
+
+@pytest.mark.parametrize("sampling", ["mis", "light"])
+def test_ball_scene_shadows_match_closed_forms_and_converge(sampling):
+    coarse, fine = _ball_errors(8, sampling), _ball_errors(32, sampling)
+    assert max(fine) < 0.015
+    assert fine[0] < coarse[0] / 3 and fine[1] < coarse[1] / 3
+
+
+def test_ball_scene_geometry():
+    scene = ball_scene(40, elevation=20.0)
+    assert scene.mask.any() and scene.ground.any() and not (scene.mask & scene.ground).any()
+    on_sphere = scene.position[scene.mask]
+    assert torch.allclose(on_sphere.norm(dim=-1), torch.ones(len(on_sphere), dtype=torch.float64))
+    assert torch.allclose(scene.position[scene.ground][:, 1], torch.tensor(-1.0, dtype=torch.float64))
+    # every visible point faces the camera, and the frames are orthonormal
+    assert (scene.wo_local[scene.mask | scene.ground][:, 2] > 0).all()
+    frames = scene.frames(scene.mask | scene.ground)
+    assert torch.allclose(frames @ frames.transpose(1, 2), torch.eye(3, dtype=torch.float64).expand_as(frames), atol=1e-9)
+    # visibility: the plane blocks downward light for the sphere, the sphere blocks light for the plane
+    up, down = torch.tensor([[[0.0, 1.0, 0.0]]]), torch.tensor([[[0.0, -1.0, 0.0]]])
+    top, beside = torch.tensor([[0.0, 1.0, 0.0]]), torch.tensor([[2.0, -1.0, 0.0]])
+    assert scene.visible(top, up, torch.tensor([False])).item() and not scene.visible(top, down, torch.tensor([False])).item()
+    towards_sphere = torch.nn.functional.normalize(torch.tensor([[[-2.0, 1.0, 0.0]]]), dim=-1)
+    assert not scene.visible(beside, towards_sphere, torch.tensor([True])).item()
+    assert scene.visible(beside, up, torch.tensor([True])).item()
+    with pytest.raises(ValueError, match="elevation"):
+        ball_scene(8, elevation=95)
