@@ -419,7 +419,8 @@ def fit_comparison(models: dict, targets: dict, n: int, trace_every: int, paper_
                 wait_quiet(60.0, max_background)
                 probe = Background()
                 probe.start()
-                fit = fit_materials(model, samples, FitConfig(method=method, epochs=epochs),
+                # one start: this compares the two optimisers, not the multi-start of neuenh.fit
+                fit = fit_materials(model, samples, FitConfig(method=method, epochs=epochs, starts="paper"),
                                     trace_every=trace_every)
                 load = probe.stop()
                 if method not in fits or load < background[method]:
