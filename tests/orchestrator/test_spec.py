@@ -10,6 +10,13 @@ def test_the_quickstart_spec_is_valid():
     assert spec.model == "ggx" and spec.search.radius == 1 and spec.digits() == 2
 
 
+def test_the_reference_spec_decays_its_lr_and_polishes():
+    spec = load_spec("examples/reference.yaml")
+    assert spec.train_config().lr_final == spec.train.lr_final == 5e-4
+    polish = spec.polish_config()
+    assert (polish.epochs, polish.lr, polish.lr_final) == (30, 5e-3, 5e-4)
+
+
 @pytest.mark.parametrize(
     "change,message",
     [
@@ -22,8 +29,10 @@ def test_the_quickstart_spec_is_valid():
         ({"train": {"lr": 0}}, "train.lr"),
         ({"data": [{"source": "merl_raw"}]}, "does not match any of the expected tags"),
         ({"data": [{"source": "synthetic_zoo", "families": ["velvet"]}]}, "unknown zoo families"),
+        ({"train": {"lr": 1e-3, "lr_final": 1e-2}}, r"train: .*lr_final \(0.01\) must not exceed lr \(0.001\)"),
+        ({"search": {"polish_epochs": -1}}, "search.polish_epochs"),
     ],
-    ids=["no-data", "model", "typo", "radius", "position", "digit", "lr", "source", "family"],
+    ids=["no-data", "model", "typo", "radius", "position", "digit", "lr", "source", "family", "lr-final", "polish"],
 )
 def test_bad_specs_name_the_field(change, message):
     with pytest.raises(SpecError, match=message):
