@@ -109,7 +109,8 @@ class RoundPublic(BaseModel):
     parent_state: str
     winner_state: str
     winner_val_loss: float
-    converged: bool = Field(description="the stay candidate won: the search stopped here")
+    converged: bool = Field(description="the stay candidate won: the search stopped here (false for the "
+                                        "polish round, extra.polish, that may follow)")
     started_at: datetime
     finished_at: datetime
     wall_s: float
@@ -119,7 +120,7 @@ class RoundPublic(BaseModel):
     @classmethod
     def from_record(cls, r: RoundRecord) -> "RoundPublic":
         return cls(round=r.index, parent_state=r.parent_state, winner_state=r.winner_state,
-                   winner_val_loss=r.winner_val_loss, converged=r.winner_state == r.parent_state,
+                   winner_val_loss=r.winner_val_loss, converged=r.winner_state == r.parent_state and not r.extra.get("polish"),
                    started_at=_time(r.started_at), finished_at=_time(r.finished_at),
                    wall_s=r.finished_at - r.started_at,
                    candidates=[CandidatePublic.from_record(c, r.winner_state) for c in r.candidates],

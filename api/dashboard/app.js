@@ -484,7 +484,8 @@
       prevLoss = r.winner_val_loss;
       const change = changed.size
         ? el("td", { class: "change" }, describeChange(r.parent_state, r.winner_state, positions))
-        : el("td", { class: "change stay" }, r.converged ? "stay: converged" : "stay");
+        : el("td", { class: "change stay" }, r.extra && r.extra.polish ? "polish: trained on, lr decaying"
+          : r.converged ? "stay: converged" : "stay");
       body.appendChild(el("tr", { "data-round": r.round, "data-state": r.winner_state },
         el("td", { class: "num", text: String(r.round) }),
         cells,
