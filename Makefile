@@ -37,6 +37,7 @@ bench: $(STAMP)
 	$(PY) bench/bench_data.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_search.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_api.py --write docs/BENCHMARKS.md
+	$(PY) bench/bench_cluster.py --write docs/BENCHMARKS.md
 
 clean:
 	rm -rf $(VENV) build *.egg-info

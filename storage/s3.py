@@ -4,8 +4,10 @@ object ``<prefix>/a/b/c`` of ``bucket``.
 Atomic writes: an artifact is written with one ``PutObject`` of its whole content. S3 publishes an
 object only once its upload is complete, so a reader gets the old object or the new one, never a
 part; a writer that dies mid-upload publishes nothing (and leaves nothing behind to clean up,
-unlike the local store's temp files). Content-addressed keys are checked on read like every
-backend (``ArtifactStore.get``), so bit rot or a foreign write under ``sha256/`` is detected.
+unlike the local store's temp files). Each upload carries its Content-MD5, so S3 refuses bytes
+damaged on the way (moto, the test server, does not check it; AWS and MinIO do). Content-addressed
+keys are checked on read like every backend (``ArtifactStore.get``), so bit rot or a foreign write
+under ``sha256/`` is detected.
 
 Transient failures (connection resets, timeouts, 5xx, throttling) are retried by botocore's
 "standard" retry mode with jittered exponential backoff, ``max_attempts`` in all; what remains is
@@ -18,6 +20,8 @@ Imports boto3, and only here: ``storage`` stays free of S3 for callers that neve
 
 from __future__ import annotations
 
+import base64
+import hashlib
 from typing import Any
 
 import boto3
@@ -46,10 +50,11 @@ class S3ArtifactStore(ArtifactStore):
         config = Config(
             retries={"mode": "standard", "total_max_attempts": max_attempts},
             connect_timeout=connect_timeout_s, read_timeout=read_timeout_s,
-            # path-style URLs (endpoint/bucket/key): MinIO and other self-hosted servers need no
-            # wildcard DNS for bucket sub-domains that way
-            s3={"addressing_style": "path"},
-            # Many S3-compatible servers do not understand the newer default CRC checksums.
+            # path-style URLs (endpoint/bucket/key) for a self-hosted endpoint: MinIO and the like
+            # need no wildcard DNS for bucket sub-domains that way
+            s3={"addressing_style": "path" if endpoint_url else "auto"},
+            # Older S3-compatible servers reject botocore's newer default CRC checksums; uploads
+            # carry a Content-MD5 instead (_write), which every S3 implementation verifies.
             request_checksum_calculation="when_required", response_checksum_validation="when_required",
         )
         self._client = boto3.session.Session().client(
@@ -87,7 +92,10 @@ class S3ArtifactStore(ArtifactStore):
             raise StorageError(f"S3 {what} of {self._where(key)} failed: {exc}") from None
 
     def _write(self, key: str, data: Data) -> None:
-        self._call("write", "put_object", key, Bucket=self.bucket, Key=self.prefix + key, Body=bytes(data))
+        body = bytes(data)
+        md5 = base64.b64encode(hashlib.md5(body).digest()).decode()  # the server refuses a damaged upload
+        self._call("write", "put_object", key, Bucket=self.bucket, Key=self.prefix + key, Body=body,
+                   ContentMD5=md5)
 
     def _read(self, key: str) -> bytes:
         for attempt in (1, 2):  # botocore retries requests, not a body cut off mid-stream
