@@ -22,6 +22,7 @@ import argparse
 import datetime as dt
 import math
 import os
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -97,7 +98,10 @@ def main() -> int:
     args = parser.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="bench-cluster-"))
     load_before = os.getloadavg()[0]
-    measured = {w: on_cluster(w, tmp) for w in (1, 2)}
+    try:
+        measured = {w: on_cluster(w, tmp) for w in (1, 2)}
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     load_after = os.getloadavg()[0]
 
     # Per-candidate time and fixed round cost from the 1-node radius-2 round: one worker contends
