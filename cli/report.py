@@ -67,6 +67,9 @@ def add_parser(commands) -> None:
     p.add_argument("--scene", choices=("ball", "sphere"), default="ball",
                    help="renders: the sphere on a ground plane with shadows (default) or alone")
     p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="materials measured at once")
+    p.add_argument("--fit-epochs", type=int, default=None,
+                   help="epochs of every per-material fit (default: each method's, 300)")
+    p.add_argument("--eval-pairs", type=int, default=200_000, help="direction pairs timing each BRDF's evaluation")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(run=run)
 
@@ -111,9 +114,11 @@ def run(args) -> int:
 
 # -- inputs ------------------------------------------------------------------------------------------
 def _check_args(args) -> None:
-    for flag in ("fit_samples", "test_samples", "size", "samples", "jobs"):
+    for flag in ("fit_samples", "test_samples", "size", "samples", "jobs", "eval_pairs"):
         if getattr(args, flag) < 1:
             raise ValueError(f"--{flag.replace('_', '-')} must be at least 1, got {getattr(args, flag)}")
+    if args.fit_epochs is not None and args.fit_epochs < 1:
+        raise ValueError(f"--fit-epochs must be at least 1, got {args.fit_epochs}")
     if not args.rgl.is_dir():
         raise FileNotFoundError(f"--rgl {args.rgl}: no such folder (the RGL .bsdf files, e.g. ../shared/data/rgl)")
 
@@ -178,16 +183,19 @@ def _contender_info(args) -> list[dict]:
 def _contenders(args: dict) -> list:
     from neuenh.checkpoint import Bundle
     from neuenh.contenders import GraphContender, NBRDFContender
+    from neuenh.fit import FitConfig
+    from neuenh.nbrdf_fit import NBRDFConfig
     from neuenh.models import get_model
     from neuenh.pretrained import load_model
 
+    fit = FitConfig(epochs=args["fit_epochs"])
     enhanced, trained = load_model(args["model"])
-    out = [GraphContender(ENHANCED, "Enhanced GGX (ours)", "enhanced", enhanced, trained)]
-    out += [GraphContender(n, label, "analytical", get_model(n)) for n, label in ANALYTICAL.items()]
+    out = [GraphContender(ENHANCED, "Enhanced GGX (ours)", "enhanced", enhanced, trained, fit)]
+    out += [GraphContender(n, label, "analytical", get_model(n), config=fit) for n, label in ANALYTICAL.items()]
     for name, (label, family, *_rest) in BASELINES.items():
         bundle = Bundle.load(Path(args["baselines"]) / name)
-        out.append(GraphContender(name, label, family, bundle.model, bundle.materials))
-    out.append(NBRDFContender())
+        out.append(GraphContender(name, label, family, bundle.model, bundle.materials, fit))
+    out.append(NBRDFContender(NBRDFConfig(epochs=args["fit_epochs"]) if args["fit_epochs"] else NBRDFConfig()))
     return out
 
 
@@ -201,7 +209,8 @@ def _measure(args: dict, path: str) -> dict:
     torch.set_num_threads(1)
     material = load_measured(path)
     comparison = compare_material(material, _contenders(args), args["fit_samples"], args["test_samples"],
-                                  seed=args["seed"], setup=RenderSetup(args["size"], args["samples"], args["seed"], args["scene"]))
+                                  seed=args["seed"], setup=RenderSetup(args["size"], args["samples"], args["seed"], args["scene"]),
+                                  eval_pairs=args["eval_pairs"])
     return {"material": comparison.material, "n_fit": comparison.n_fit, "n_test": comparison.n_test,
             "split": comparison.split, "results": [r.row() for r in comparison.results],
             "truth": comparison.truth.numpy(), "mask": comparison.mask.numpy(),
@@ -233,7 +242,7 @@ def _summarise(args, contenders: list[dict], comparisons: list[dict], provenance
         "generated": time.strftime("%Y-%m-%d", time.gmtime()),
         "wall_s": round(wall_s, 1),
         "settings": {"fit_samples": args.fit_samples, "test_samples": args.test_samples, "size": args.size,
-                     "scene": args.scene,
+                     "scene": args.scene, "eval_pairs": args.eval_pairs,
                      "light_samples": args.samples ** 2, "seed": args.seed, "jobs": args.jobs},
         "enhanced": {"model": args.model, "state": enhanced.state, "formula": enhanced.describe(),
                      "weights": enhanced.n_weights()},
@@ -249,7 +258,7 @@ def _command_flags(args) -> list[str]:
     flags = []
     defaults = {"rgl": Path("../shared/data/rgl"), "model": "enhanced-ggx", "out": Path("docs"), "fit_samples": 10_000,
                 "test_samples": 10_000, "size": 96, "samples": 12, "seed": 0, "baselines": Path("models/baselines"),
-                "scene": "ball"}
+                "scene": "ball", "eval_pairs": 200_000, "fit_epochs": None}
     for key, default in defaults.items():
         if getattr(args, key) != default:
             flags.append(f"--{key.replace('_', '-')} {getattr(args, key)}")
@@ -347,7 +356,8 @@ def markdown(summary: dict, comparisons: list[dict], provenance: dict) -> str:
                      + " | ".join(f"{r[n]['ssim']:.3f} / {r[n]['delta_e_itp']:.2f}" for n in names) + " |")
     lines += ["", "## Speed against error", "",
               "Medians over the materials, measured in the same run. *Evaluations/s*: the fitted BRDF on "
-              "200,000 direction pairs, one thread, best of 3. *Render rays/s*: (pixel, light sample) pairs per "
+              f"{s['eval_pairs']:,} direction pairs, one thread, best of 3. *Render rays/s*: (pixel, light sample) "
+              "pairs per "
               "second of the whole MIS render, so the BRDF's share of the time is diluted by the light sampling "
               "(the paper's Mitsuba figure, enhanced/plain GGX = 0.63, is the same kind of ratio). *Fit*: wall time "
               "of one material's fit (enhanced models: the analytical fit plus three starts, `neuenh.fit`).", "",

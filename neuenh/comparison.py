@@ -89,9 +89,10 @@ def _mean_log_l1(predict: Directions, wi, wo, f_r, batch: int = 100_000) -> floa
 
 
 def compare_material(material, contenders: Sequence[Contender], n_fit: int, n_test: int, seed: int = 0,
-                     setup: RenderSetup = RenderSetup()) -> MaterialComparison:
+                     setup: RenderSetup = RenderSetup(), eval_pairs: int = 200_000) -> MaterialComparison:
     """Every contender fitted to ``material`` and measured (module doc); ``material`` is any
-    measured source with ``evaluate`` and ``samples`` (RGL, MERL, NBRDF, analytical)."""
+    measured source with ``evaluate`` and ``samples`` (RGL, MERL, NBRDF, analytical);
+    ``eval_pairs`` direction pairs time the evaluation throughput."""
     fit, test, split = draw_fit_test(material, n_fit, n_test, seed)
     scene, lights = setup.build_scene(), setup.lights()
     truth = render(lambda wi, wo: material.evaluate(wi, wo).float(), scene, lights)
@@ -110,7 +111,7 @@ def compare_material(material, contenders: Sequence[Contender], n_fit: int, n_te
             contender=contender.name, fit_loss=fitted.fit_loss, heldout_log_l1=heldout, fit_s=fitted.fit_s,
             params_per_material=fitted.params_per_material, shared_weights=fitted.shared_weights,
             ssim=ssim(truth, image, mask=scene.mask), delta_e_itp=delta_e_itp(truth, image, mask=scene.mask),
-            render_s=render_s, rays=rays, evals_per_s=eval_throughput(fitted.brdf)))
+            render_s=render_s, rays=rays, evals_per_s=eval_throughput(fitted.brdf, eval_pairs)))
     return MaterialComparison(material.name, len(fit), len(test), split, results, truth, images, scene.mask)
 
 

@@ -18,7 +18,8 @@ from neuenh.modules import ModuleConfig
 
 RGL = Path(__file__).resolve().parents[3] / "shared" / "data" / "rgl"
 needs_rgl = pytest.mark.skipif(not (RGL / "paper_white_rgb.bsdf").exists(), reason="../shared/data/rgl is absent")
-SMALL = ["--fit-samples", 300, "--test-samples", 300, "--size", 12, "--samples", 2, "--jobs", 1]
+SMALL = ["--fit-samples", 300, "--test-samples", 300, "--size", 12, "--samples", 2, "--jobs", 1, "--eval-pairs", 2000,
+         "--fit-epochs", 40]
 
 
 def neuenh(*args, timeout=300):
@@ -104,7 +105,8 @@ def test_markdown_counts_wins_and_bolds_the_best():
               {"name": "ggx", "label": "GGX", "family": "analytical", "evals_per_s": 2e6, "rays_per_s": 2e5,
                "fit_s": 0.5, "params_per_material": 12, "shared_weights": 0, "log_l1": 0.02, "ssim": 0.8, "delta_e": 2.0}]
     summary = {"command": "neuenh report", "generated": "today", "wall_s": 60, "models": models,
-               "settings": {"fit_samples": 10, "test_samples": 10, "size": 8, "light_samples": 4, "jobs": 1},
+               "settings": {"fit_samples": 10, "test_samples": 10, "size": 8, "light_samples": 4, "jobs": 1,
+                            "eval_pairs": 100},
                "enhanced": {"model": "enhanced-ggx", "formula": "f", "state": "1", "weights": 1825},
                "enhanced_beats_ggx": 1, "median_reduction_vs_ggx": 0.0, "render_ratio_enhanced_to_ggx": 0.5,
                "eval_ratio_enhanced_to_ggx": 0.5}
