@@ -69,6 +69,8 @@ def add_parser(commands) -> None:
     p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="materials measured at once")
     p.add_argument("--fit-epochs", type=int, default=None,
                    help="epochs of every per-material fit (default: each method's, 300)")
+    p.add_argument("--fit-starts", choices=("analytical", "paper"), default="analytical",
+                   help="starting points of the models with modules (neuenh.fit): several, or the paper's alone")
     p.add_argument("--eval-pairs", type=int, default=200_000, help="direction pairs timing each BRDF's evaluation")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(run=run)
@@ -188,7 +190,7 @@ def _contenders(args: dict) -> list:
     from neuenh.models import get_model
     from neuenh.pretrained import load_model
 
-    fit = FitConfig(epochs=args["fit_epochs"])
+    fit = FitConfig(epochs=args["fit_epochs"], starts=args["fit_starts"])
     enhanced, trained = load_model(args["model"])
     out = [GraphContender(ENHANCED, "Enhanced GGX (ours)", "enhanced", enhanced, trained, fit)]
     out += [GraphContender(n, label, "analytical", get_model(n), config=fit) for n, label in ANALYTICAL.items()]
@@ -242,7 +244,7 @@ def _summarise(args, contenders: list[dict], comparisons: list[dict], provenance
         "generated": time.strftime("%Y-%m-%d", time.gmtime()),
         "wall_s": round(wall_s, 1),
         "settings": {"fit_samples": args.fit_samples, "test_samples": args.test_samples, "size": args.size,
-                     "scene": args.scene, "eval_pairs": args.eval_pairs,
+                     "scene": args.scene, "eval_pairs": args.eval_pairs, "fit_starts": args.fit_starts,
                      "light_samples": args.samples ** 2, "seed": args.seed, "jobs": args.jobs},
         "enhanced": {"model": args.model, "state": enhanced.state, "formula": enhanced.describe(),
                      "weights": enhanced.n_weights()},
@@ -258,7 +260,8 @@ def _command_flags(args) -> list[str]:
     flags = []
     defaults = {"rgl": Path("../shared/data/rgl"), "model": "enhanced-ggx", "out": Path("docs"), "fit_samples": 10_000,
                 "test_samples": 10_000, "size": 96, "samples": 12, "seed": 0, "baselines": Path("models/baselines"),
-                "scene": "ball", "eval_pairs": 200_000, "fit_epochs": None}
+                "scene": "ball", "eval_pairs": 200_000, "fit_epochs": None,
+                "fit_starts": "analytical"}
     for key, default in defaults.items():
         if getattr(args, key) != default:
             flags.append(f"--{key.replace('_', '-')} {getattr(args, key)}")
