@@ -23,8 +23,8 @@ the model's training materials when given. Each imitation, and the paper's start
 to the measurements, and each material keeps the one with the lowest *fit* loss (held-out samples
 play no part). An imitation starts the enhanced model close to where the analytical model ended, so
 it improves on the analytical fit wherever its modules allow. The imitations take a third of the
-fit's epochs; in all, about 4.7 times the work of one fit (docs/RESULTS.md has the fit times). ``"paper"`` keeps the paper's start alone. A plain analytical
-model always has one start.
+fit's epochs: in all, one analytical fit and about 3.7 enhanced ones (docs/RESULTS.md has the fit
+times). ``"paper"`` keeps the paper's start alone. A plain analytical model always has one start.
 """
 
 from __future__ import annotations
