@@ -1,11 +1,12 @@
 """Baselines trained on a search's data with the search's budget (issue 6).
 
 A search trains its final state, in all, ``trained_epochs(rounds)`` epochs: the warm-up in the
-analytical state, one round's epochs per committed round, and the polish. A fixed-state baseline
-(the residual MLPs appended to GGX, the all-positions-neural state) gets exactly that: the same
-data, the same optimiser and lr schedule, the same number of epochs in the same three stages — the
-analytical state for the warm-up, its own state for the rounds' epochs (one cosine, as a round
-trains), then the polish — so a comparison with the enhanced model differs only in the state.
+analytical state, one round's epochs per committed round (each round's training restarts the lr
+schedule), and the polish. A fixed-state baseline (the residual MLPs appended to GGX, the
+all-positions-neural state) is trained exactly that way (:func:`training_stages`): the warm-up in
+its analytical state, then its own state for as many rounds of ``epochs_per_round`` as the search
+ran, then the polish — same data, optimiser and schedules — so a comparison with the enhanced model
+differs only in the state.
 """
 
 from __future__ import annotations
@@ -14,13 +15,13 @@ import dataclasses
 
 from neuenh.checkpoint import Bundle
 from neuenh.modules import ModuleConfig
-from neuenh.train import CandidateResult, TrainingData, train_candidate
+from neuenh.train import CandidateResult, TrainConfig, TrainingData, train_candidate
 from storage import RoundRecord
 
 from .runner import trained_epochs
 from .spec import JobSpec
 
-__all__ = ["search_budget", "train_like_search"]
+__all__ = ["search_budget", "train_like_search", "training_stages"]
 
 
 def search_budget(spec: JobSpec, rounds: list[RoundRecord]) -> tuple[int, int, int]:
@@ -34,24 +35,32 @@ def search_budget(spec: JobSpec, rounds: list[RoundRecord]) -> tuple[int, int, i
     return warmup, total - warmup - polish, polish
 
 
+def training_stages(spec: JobSpec, budget: tuple[int, int, int], positions: int,
+                    state: str) -> list[tuple[str, TrainConfig, int]]:
+    """(state, config, seed) of each stage, in order: the warm-up (all-zero state), the rounds'
+    epochs cut into ``epochs_per_round`` pieces (the last one shorter if they do not divide), then
+    the polish; stages of no epochs are left out."""
+    warmup, main, polish = budget
+    per_round = spec.search.epochs_per_round
+    pieces = [per_round] * (main // per_round) + ([main % per_round] if main % per_round else [])
+    stages = [("0" * positions, spec.train_config(warmup))]
+    stages += [(state, spec.train_config(epochs)) for epochs in pieces]
+    stages.append((state, dataclasses.replace(spec.polish_config(), epochs=polish)))
+    return [(s, config, spec.train.seed + i) for i, (s, config) in enumerate(stages) if config.epochs]
+
+
 def train_like_search(spec: JobSpec, data: TrainingData, budget: tuple[int, int, int], model: str, state: str,
                       module_config: ModuleConfig) -> CandidateResult:
-    """Train ``state`` of ``model`` (modules ``module_config``) on ``data`` with the stages of
-    ``budget`` (:func:`search_budget`), seeded by the spec; returns the last stage's result (its
-    ``epochs`` is the last stage's, the bundle has trained all of them)."""
-    warmup, main, polish = budget
+    """Train ``state`` of ``model`` (modules ``module_config``) on ``data`` through the stages of
+    ``budget`` (:func:`training_stages`); returns the last stage's result (its bundle has trained
+    every stage)."""
     bundle = Bundle.initial(model, data.names, module_config, spec.latent_dim)
-    zero = "0" * len(bundle.model.positions)
-    stages = [(zero, spec.train_config(warmup)), (state, spec.train_config(main)),
-              (state, dataclasses.replace(spec.polish_config(), epochs=polish))]
-    result = None
-    for i, (stage_state, config) in enumerate(stages):
-        if config.epochs == 0:
-            continue
-        result = train_candidate(bundle, stage_state, data, config, spec.train.seed + i)
+    stages = training_stages(spec, budget, len(bundle.model.positions), state)
+    if not stages:
+        raise ValueError(f"a budget of {budget} epochs trains nothing")
+    for stage_state, config, seed in stages:
+        result = train_candidate(bundle, stage_state, data, config, seed)
         if result.error:
             raise RuntimeError(f"training {model} {stage_state} failed: {result.error}")
         bundle = result.bundle
-    if result is None:
-        raise ValueError(f"a budget of {budget} epochs trains nothing")
     return result

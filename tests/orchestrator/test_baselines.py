@@ -27,20 +27,21 @@ def test_the_budget_is_the_epochs_the_final_state_trained(orchestrator, stores):
 
 
 def test_a_baseline_trains_in_the_search_stages(stores):
-    """Warm-up in the analytical state, the state itself for the rounds' epochs, then the polish:
-    the same result as the three ``train_candidate`` calls made by hand."""
+    """Warm-up in the analytical state, the state itself in pieces of one round's epochs (here
+    2 + 1), then the polish: the same result as the ``train_candidate`` calls made by hand."""
     _, artifacts = stores
-    spec = tiny_spec(polish_epochs=1)
+    spec = tiny_spec(polish_epochs=1, epochs_per_round=2)
     data, _ = prepare_dataset(spec, artifacts)
     config = ModuleConfig(choices=((8, 8),))
     state = "0000001000000"
-    result = train_like_search(spec, data, (1, 2, 1), "ggx_residual", state, config)
+    result = train_like_search(spec, data, (1, 3, 1), "ggx_residual", state, config)
 
     bundle = Bundle.initial("ggx_residual", data.names, config, spec.latent_dim)
     bundle = train_candidate(bundle, "0" * 13, data, spec.train_config(1), spec.train.seed).bundle
     bundle = train_candidate(bundle, state, data, spec.train_config(2), spec.train.seed + 1).bundle
+    bundle = train_candidate(bundle, state, data, spec.train_config(1), spec.train.seed + 2).bundle
     expected = train_candidate(bundle, state, data, dataclasses.replace(spec.polish_config(), epochs=1),
-                               spec.train.seed + 2)
+                               spec.train.seed + 3)
     assert result.bundle.model.state == state and result.val_loss == expected.val_loss
     with pytest.raises(ValueError, match="trains nothing"):
         train_like_search(spec, data, (0, 0, 0), "ggx", "0" * 11, config)
