@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install browser demo test bench clean
+.PHONY: install browser demo test bench report clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -38,6 +38,11 @@ bench: $(STAMP)
 	$(PY) bench/bench_search.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_api.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_cluster.py --write docs/BENCHMARKS.md
+
+# docs/RESULTS.md, docs/results.json and docs/img/results/: every model on the RGL materials
+# (../shared/data/rgl) with the shipped models/enhanced-ggx and models/baselines; about half an hour.
+report: $(STAMP)
+	.venv/bin/neuenh report
 
 clean:
 	rm -rf $(VENV) build *.egg-info
