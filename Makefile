@@ -42,7 +42,7 @@ bench: $(STAMP)
 # docs/RESULTS.md, docs/results.json and docs/img/results/: every model on the RGL materials
 # (../shared/data/rgl) with the shipped models/enhanced-ggx and models/baselines; about half an hour.
 report: $(STAMP)
-	.venv/bin/neuenh report
+	$(VENV)/bin/neuenh report
 
 clean:
 	rm -rf $(VENV) build *.egg-info
