@@ -248,7 +248,7 @@ class LocalCompose:
                     os.killpg(proc.pid, signal.SIGKILL if stand_in else signal.SIGTERM)
                 except ProcessLookupError:
                     pass
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + 5  # then SIGKILL, as `docker compose down` does after its grace
         while time.monotonic() < deadline and any(p.poll() is None for p in self.procs.values()):
             time.sleep(0.2)
         for _ in range(20):  # Ray's daemons outlive their starters: kill until none is left
