@@ -371,7 +371,7 @@ def run_slice(args) -> int:
     if args.model:
         from neuenh.pretrained import load_model
 
-        model, trained = load_model(args.model)
+        model, trained = load_model(args.model, "--model")
     material = load_measured(args.file, name=args.material)
     if isinstance(material, TableMaterial):
         raise DataCommandError(f"{args.file}: a measurement table has no continuous evaluation to slice; slice "
