@@ -51,9 +51,9 @@ SHIPPED = Path(__file__).resolve().parents[2] / "models" / "enhanced-ggx" / "mod
 
 
 @pytest.mark.skipif(not SHIPPED.exists(), reason="no shipped model in this tree")
-def test_fit_with_the_shipped_enhanced_ggx_beats_its_own_analytical_start(table, tmp_path):
+def test_fit_with_the_shipped_enhanced_ggx_out_of_the_box(table):
     """``--model enhanced-ggx`` works out of the box; its fit starts from imitations of the GGX
-    fit, so on a GGX material it ends within a hair of plain GGX's loss or below."""
+    fit, so on a GGX material it ends near plain GGX's loss or below."""
     out = neuenh("fit", "--model", "enhanced-ggx", table, "--epochs", "60", "--json")
     plain = neuenh("fit", "--model", "ggx", table, "--epochs", "60", "--json")
     assert out.returncode == 0 and plain.returncode == 0, out.stderr + plain.stderr
@@ -137,21 +137,6 @@ def test_predictions_are_the_fitted_model_at_the_heldout_directions(held_out, he
     mine = np.mean(np.abs(np.log1p(held.f_r.double().numpy() * cos) - np.log1p(f_r.astype(np.float64) * cos)))
     assert mine == pytest.approx(report["materials"][0]["heldout_log_l1"], rel=1e-4, abs=1e-7)
     assert torch.equal(read_table(pred).f_r, torch.from_numpy(f_r))  # one material: readable as a table
-
-
-SHIPPED = Path(__file__).resolve().parents[2] / "models" / "enhanced-ggx" / "model.json"
-
-
-@pytest.mark.skipif(not SHIPPED.exists(), reason="no shipped model in this tree")
-def test_fit_with_the_shipped_enhanced_ggx_beats_its_own_analytical_start(table, tmp_path):
-    """``--model enhanced-ggx`` works out of the box; its fit starts from imitations of the GGX
-    fit, so on a GGX material it ends within a hair of plain GGX's loss or below."""
-    out = neuenh("fit", "--model", "enhanced-ggx", table, "--epochs", "60", "--json")
-    plain = neuenh("fit", "--model", "ggx", table, "--epochs", "60", "--json")
-    assert out.returncode == 0 and plain.returncode == 0, out.stderr + plain.stderr
-    report, reference = json.loads(out.stdout), json.loads(plain.stdout)
-    assert report["state"] != "0" * 11 and len(report["materials"][0]["params"]["latent"]) == 27
-    assert report["materials"][0]["loss"] < 1.5 * reference["materials"][0]["loss"] + 2e-3
 
 
 @pytest.mark.parametrize(
