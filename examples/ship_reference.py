@@ -51,13 +51,16 @@ def main() -> int:
 
     bundle = Bundle.from_bytes(artifacts.get(rounds[-1].artifact_key))
     budget = search_budget(spec, rounds)
-    train_s = sum(r.finished_at - r.started_at for r in rounds)
+    searched = [r for r in rounds if not r.extra.get("polish")]
+    train_s = sum(r.finished_at - r.started_at for r in rounds) + rounds[0].extra.get("warmup", {}).get("wall_s", 0.0)
     path = " → ".join([rounds[0].parent_state] + [r.winner_state for r in rounds if r.winner_state != r.parent_state])
     bundle.provenance = {
         **bundle.provenance,
         "search": {
             "spec": "examples/reference.yaml", "job": job.id, "status": job.status.value, "budget": list(budget),
-            "summary": (f"{len(rounds)} rounds ({job.status.value.lower()}), path {path}, {sum(budget)} epochs in all "
+            "summary": (f"{len(searched)} rounds ({job.status.value.lower()})"
+                        + (", then the polish" if len(searched) < len(rounds) else "")
+                        + f", path {path}, {sum(budget)} epochs in all "
                         f"(warm-up {budget[0]}, rounds {budget[1]}, polish {budget[2]}), "
                         f"{train_s / 60:.0f} min on 2 cores"),
             "train_s": round(train_s, 1),
