@@ -240,7 +240,7 @@ def _summarise(args, contenders: list[dict], comparisons: list[dict], provenance
         r = {x["contender"]: x for x in m["results"]}
         reductions.append(1.0 - r[ENHANCED]["heldout_log_l1"] / r["ggx"]["heldout_log_l1"])
     return {
-        "command": "neuenh report " + " ".join(_command_flags(args)),
+        "command": " ".join(["neuenh report", *_command_flags(args)]),
         "generated": time.strftime("%Y-%m-%d", time.gmtime()),
         "wall_s": round(wall_s, 1),
         "settings": {"fit_samples": args.fit_samples, "test_samples": args.test_samples, "size": args.size,
@@ -323,8 +323,8 @@ def markdown(summary: dict, comparisons: list[dict], provenance: dict) -> str:
         "",
         f"**Materials:** the {len(comparisons)} EPFL RGL materials of `../shared/data/rgl` (Dupuy & Jakob 2018), "
         "never seen in training. **Protocol:** every model is fitted per material to the same "
-        f"{s['fit_samples']:,} measurements (Rusinkiewicz-uniform directions) and measured on {s['test_samples']:,} "
-        "other, independently drawn ones. Renders: "
+        f"{s['fit_samples']:,} measurements (uniform in all four Rusinkiewicz angles, `neuenh.evaluate`) and "
+        f"measured on {s['test_samples']:,} other, independently drawn ones. Renders: "
         + ("a sphere on a grey ground plane (shadows both ways)" if s.get("scene", "ball") == "ball" else "a sphere")
         + f" under the procedural studio environment, {s['size']}² pixels, {s['light_samples']} MIS light "
         "samples per pixel shared by truth and models; the metrics cover the sphere.",
@@ -337,7 +337,7 @@ def markdown(summary: dict, comparisons: list[dict], provenance: dict) -> str:
         f"The enhanced GGX is ahead of fitted plain GGX on **{summary['enhanced_beats_ggx']} of {len(comparisons)}** "
         f"materials; the median reduction is **{100 * summary['median_reduction_vs_ggx']:.1f} %**.",
         "",
-        "| material | " + " | ".join(labels[n] for n in names) + " | ours vs GGX |",
+        "| material | " + " | ".join(labels[n] for n in names) + " | ours: lower than GGX by |",
         "|---|" + "---:|" * (len(names) + 1),
     ]
     for c in comparisons:

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from .data.samples import Samples
+from .data.sampling import sample_directions
 from .fit import FitConfig, fit_materials, per_material_loss
 from .graph import BRDFModel
 from .materials import MaterialTable
@@ -117,6 +118,12 @@ def _samples(name: str, wi, wo, f_r) -> Samples:
     return Samples(wi, wo, f_r, torch.zeros(len(wi), dtype=torch.long), (name,))
 
 
+def _every_azimuth(material, n: int, seed: int):
+    wi, wo = sample_directions(n, seed=seed, anisotropic=True)
+    with torch.no_grad():
+        return wi, wo, material.evaluate(wi, wo)
+
+
 def draw_fit_test(material, n_fit: int, n_test: int | None, seed: int) -> tuple[Samples, Samples, str]:
     """``(fit, test, split)`` samples of one measured material, see the module doc; ``split`` is
     ``"disjoint rows"`` (tables) or ``"independent draws"`` (continuous sources, where ``n_test``
@@ -126,8 +133,8 @@ def draw_fit_test(material, n_fit: int, n_test: int | None, seed: int) -> tuple[
             raise ValueError(f"{material.name}: a continuous source needs the number of test samples")
         if n_fit < 1 or n_test < 1:
             raise ValueError(f"need at least 1 fit and 1 test sample, got {n_fit} and {n_test}")
-        fit = _samples(material.name, *material.samples(n_fit, seed=2 * seed))
-        test = _samples(material.name, *material.samples(n_test, seed=2 * seed + 1))
+        fit = _samples(material.name, *_every_azimuth(material, n_fit, 2 * seed))
+        test = _samples(material.name, *_every_azimuth(material, n_test, 2 * seed + 1))
         return fit, test, "independent draws"
     table = getattr(material, "table", None)
     if not isinstance(table, Samples):

@@ -140,3 +140,17 @@ def test_fit_and_evaluate_an_rgl_material():
     assert out["split"] == "independent draws" and out["n_test"] == 5000
     assert math.isfinite(out["heldout_log_l1"]) and math.isfinite(out["fit_loss"])
     assert out["heldout_log_l1"] < 1.0  # a fitted GGX, whatever its quality, is far from log-scale nonsense
+
+
+def test_continuous_sources_are_drawn_at_every_azimuth():
+    """Fit and test pairs of a continuous source cover phi_h, even for an isotropic material, so a
+    model with anisotropic parameters cannot fit one azimuth and be tested on the same one."""
+    from neuenh.data.sampling import to_rusinkiewicz
+    from neuenh.data.synthetic import synthetic_zoo
+
+    (material,) = synthetic_zoo(1, seed=3, families=("oren_nayar",))
+    fit, test, split = draw_fit_test(material, 2000, 2000, seed=0)
+    assert split == "independent draws"
+    for samples in (fit, test):
+        phi_h = to_rusinkiewicz(samples.wi.double(), samples.wo.double())[1]
+        assert phi_h.std() > 1.0 and torch.allclose(samples.f_r, material.evaluate(samples.wi, samples.wo).float())
