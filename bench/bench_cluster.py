@@ -33,7 +33,7 @@ from ray.cluster_utils import Cluster
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench.report import write_section  # noqa: E402
+from bench.report import publish  # noqa: E402
 from orchestrator.runner import Orchestrator  # noqa: E402
 from orchestrator.spec import load_spec, parse_spec  # noqa: E402
 from storage import LocalArtifactStore, SQLiteJobStore  # noqa: E402
@@ -164,10 +164,7 @@ def main() -> int:
         f"would take {project(232, 2) / 60:.1f} min a round.",
         "",
     ]
-    text = "\n".join(lines)
-    print(text)
-    if args.write:
-        write_section(Path(args.write), SECTION, text)
+    publish(lines, args.write, SECTION)
     return 0
 
 

@@ -28,7 +28,7 @@ import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench.report import write_section  # noqa: E402
+from bench.report import publish  # noqa: E402
 from neuenh.data.sources import materialise  # noqa: E402
 from orchestrator.runner import Orchestrator, train_plain_baseline  # noqa: E402
 from orchestrator.spec import load_spec  # noqa: E402
@@ -141,10 +141,7 @@ def main() -> int:
         "can drop a module that would have won with the full budget.",
         "",
     ]
-    text = "\n".join(lines)
-    print(text)
-    if args.write:
-        write_section(Path(args.write), SECTION, text)
+    publish(lines, args.write, SECTION)
     return 0
 
 

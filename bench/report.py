@@ -24,3 +24,12 @@ def write_section(path: Path, title: str, text: str) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(new.rstrip("\n") + "\n")
     tmp.replace(path)
+
+
+def publish(lines: list[str], write: str | None, title: str) -> None:
+    """Print a bench's section (``lines``, starting with its ``title`` heading) and, with
+    ``--write FILE``, replace that section of the file."""
+    text = "\n".join(lines)
+    print(text)
+    if write:
+        write_section(Path(write), title, text)
