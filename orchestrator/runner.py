@@ -6,7 +6,9 @@ Round k trains every admissible state within the spec's radius of the current st
 B_c's trained weights, with a seed fixed by (job seed, k, state)), picks the winner with
 ``neuenh.search.select``, writes the winner's checkpoint to the ArtifactStore, and only then
 commits the round (every candidate, the winner, timings) to the JobStore in one transaction: a
-round is visible only once both are durable. "Stay" winning ends the job as CONVERGED.
+round is visible only once both are durable. "Stay" winning ends the job as CONVERGED. With
+``search.polish_epochs`` the final state then trains once more (lr decaying) as one last round,
+``extra.polish`` holding the outcome, before the status is set.
 
 After a crash ``run`` picks a job up from its last committed round; the interrupted round is
 re-run with the same seeds, so the outcome equals an uninterrupted run. Cancellation (the job's
