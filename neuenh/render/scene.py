@@ -78,42 +78,56 @@ class SphereScene:
         return torch.stack([self.tangent[pixels], self.bitangent[pixels], self.normal[pixels]], dim=1)
 
 
-def sphere_scene(width: int, height: int | None = None, *, extent: float = 1.1) -> SphereScene:
-    """The unit sphere seen orthographically through a ``width`` × ``height`` (default square)
-    image covering [-extent, extent] on the shorter axis (a margin around the silhouette by
-    default)."""
+def _pixel_grid(width: int, height: int | None, extent: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """(yy, xx) (H, W): pixel centres in image-plane units, square pixels, the shorter axis spanning
+    [-extent, extent] (x right, y up; row 0 at the top)."""
     height = width if height is None else height
     if width < 1 or height < 1:
         raise ValueError(f"resolution must be positive, got {width}x{height}")
     if extent <= 0:
         raise ValueError(f"extent must be positive, got {extent}")
-    # pixel size: the shorter axis spans 2·extent, pixels are square
     pixel = 2.0 * extent / min(width, height)
-    # pixel centres in world units (x right, y up; row 0 at the top)
     x = (torch.arange(width, dtype=torch.float64) + 0.5 - width / 2) * pixel
     y = (height / 2 - torch.arange(height, dtype=torch.float64) - 0.5) * pixel
-    yy, xx = torch.meshgrid(y, x, indexing="ij")
+    return torch.meshgrid(y, x, indexing="ij")
+
+
+def _longitude_tangent(normal: torch.Tensor) -> torch.Tensor:
+    """Unit tangents along increasing longitude about y at unit-sphere normals (..., 3)."""
+    # ∂p/∂φ for p = (sinθ sinφ, cosθ, sinθ cosφ) is sinθ (cosφ, 0, -sinφ) = (n_z, 0, -n_x)
+    tangent = torch.stack([normal[..., 2], torch.zeros_like(normal[..., 0]), -normal[..., 0]], dim=-1)
+    length2 = (tangent**2).sum(-1, keepdim=True)
+    # at a pole longitude is undefined: fall back on the world x axis (orthogonal to n = ±y)
+    fallback = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64).expand_as(tangent)
+    return torch.where(length2 < _POLE_EPS, fallback, tangent / length2.clamp_min(_POLE_EPS).sqrt())
+
+
+def _shading(mask, covered, position, normal, tangent, view, **extra) -> SphereScene:
+    """The scene from per-pixel ``normal`` and ``tangent``: the bitangent completes the
+    right-handed frame, ``wo`` is ``-view`` everywhere (orthographic), and every field is zero
+    outside ``covered`` (H, W)."""
+    keep = covered[..., None]
+    normal, tangent = normal * keep, tangent * keep
+    bitangent = torch.linalg.cross(normal, tangent, dim=-1)  # b = n × t: x = t, y = b, z = n
+    wo_world = (-view).expand_as(normal) * keep
+    # wo in the shading frame: its projections on t, b, n
+    wo_local = torch.stack([(wo_world * f).sum(-1) for f in (tangent, bitangent, normal)], dim=-1)
+    return SphereScene(mask, position * keep, normal, tangent, bitangent, wo_world.contiguous(), wo_local, **extra)
+
+
+def sphere_scene(width: int, height: int | None = None, *, extent: float = 1.1) -> SphereScene:
+    """The unit sphere seen orthographically through a ``width`` × ``height`` (default square)
+    image covering [-extent, extent] on the shorter axis (a margin around the silhouette by
+    default)."""
+    yy, xx = _pixel_grid(width, height, extent)
     # a ray along -z hits the unit sphere where x² + y² < 1, at z = sqrt(1 - x² - y²) (front side)
     r2 = xx**2 + yy**2
     mask = r2 < 1.0
     zz = torch.sqrt((1.0 - r2).clamp_min(0.0))
     # the hit point of a unit sphere at the origin is its own normal
     position = torch.stack([xx, yy, zz], dim=-1) * mask[..., None]
-    normal = position.clone()
-    # tangent: ∂p/∂φ for p = (sinθ sinφ, cosθ, sinθ cosφ) is sinθ (cosφ, 0, -sinφ) = (n_z, 0, -n_x)
-    tangent = torch.stack([normal[..., 2], torch.zeros_like(xx), -normal[..., 0]], dim=-1)
-    length2 = (tangent**2).sum(-1, keepdim=True)
-    # at a pole longitude is undefined: fall back on the world x axis (orthogonal to n = ±y)
-    pole = length2 < _POLE_EPS
-    fallback = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64).expand_as(tangent)
-    tangent = torch.where(pole, fallback, tangent / length2.clamp_min(_POLE_EPS).sqrt()) * mask[..., None]
-    # bitangent completes the right-handed frame (x = t, y = b, z = n): b = n × t
-    bitangent = torch.linalg.cross(normal, tangent, dim=-1)
-    # the orthographic camera sees every point from the same direction, +z
-    wo_world = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(normal) * mask[..., None]
-    # wo in the shading frame: its projections on t, b, n
-    wo_local = torch.stack([(wo_world * f).sum(-1) for f in (tangent, bitangent, normal)], dim=-1)
-    return SphereScene(mask, position, normal, tangent, bitangent, wo_world.contiguous(), wo_local)
+    view = torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64)  # the camera looks along -z
+    return _shading(mask, mask, position, position, _longitude_tangent(position), view)
 
 
 def ball_scene(width: int, height: int | None = None, *, elevation: float = 20.0, extent: float = 1.6,
@@ -121,19 +135,13 @@ def ball_scene(width: int, height: int | None = None, *, elevation: float = 20.0
     """The unit sphere on the plane y = -1 (module doc), seen orthographically from ``elevation``
     degrees above the horizon through a ``width`` × ``height`` image covering ±``extent`` on the
     shorter axis, centred on the sphere. ``mask`` marks the sphere's pixels, ``ground`` the plane's."""
-    height = width if height is None else height
-    if width < 1 or height < 1:
-        raise ValueError(f"resolution must be positive, got {width}x{height}")
     if not 0 < elevation < 90:
         raise ValueError(f"elevation must be between 0 and 90 degrees, got {elevation}")
+    yy, xx = _pixel_grid(width, height, extent)
     e = torch.deg2rad(torch.tensor(elevation, dtype=torch.float64))
     view = torch.stack([torch.zeros(()), -torch.sin(e), -torch.cos(e)]).double()  # where the camera looks
     right = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
     up = torch.linalg.cross(right, view)  # completes the camera frame: up = right × view
-    pixel = 2.0 * extent / min(width, height)
-    x = (torch.arange(width, dtype=torch.float64) + 0.5 - width / 2) * pixel
-    y = (height / 2 - torch.arange(height, dtype=torch.float64) - 0.5) * pixel
-    yy, xx = torch.meshgrid(y, x, indexing="ij")
     # ray origins on the image plane, far enough back that everything lies ahead (t > 0)
     origin = xx[..., None] * right + yy[..., None] * up - 10.0 * view
     # the sphere: |o + t v|² = 1, nearer root; the plane: o_y + t v_y = -1
@@ -147,20 +155,11 @@ def ball_scene(width: int, height: int | None = None, *, elevation: float = 20.0
     mask = torch.isfinite(t_sphere) & (t_sphere <= t_plane)
     ground = torch.isfinite(t_plane) & ~mask
     t = torch.where(mask, t_sphere, torch.where(ground, t_plane, torch.zeros_like(t_plane)))
-    hit = origin + t[..., None] * view
-    covered = (mask | ground)[..., None]
-    position = torch.where(covered, hit, torch.zeros_like(hit))
-    plane_frame = [torch.tensor(v, dtype=torch.float64).expand_as(hit) for v in ((1, 0, 0), (0, 0, -1), (0, 1, 0))]
-    # sphere pixels: longitude tangents about y, as in sphere_scene
-    normal = torch.where(mask[..., None], position, plane_frame[2])
-    tangent = torch.stack([normal[..., 2], torch.zeros_like(xx), -normal[..., 0]], dim=-1)
-    length2 = (tangent**2).sum(-1, keepdim=True)
-    pole = length2 < _POLE_EPS
-    tangent = torch.where(pole, plane_frame[0], tangent / length2.clamp_min(_POLE_EPS).sqrt())
-    tangent = torch.where(mask[..., None], tangent, plane_frame[0])
-    bitangent = torch.linalg.cross(normal, tangent, dim=-1)
-    normal, tangent, bitangent = (v * covered for v in (normal, tangent, bitangent))
-    wo_world = (-view).expand_as(hit) * covered
-    wo_local = torch.stack([(wo_world * f).sum(-1) for f in (tangent, bitangent, normal)], dim=-1)
-    return SphereScene(mask, position, normal, tangent, bitangent, wo_world.contiguous(), wo_local,
-                       ground=ground, ground_albedo=ground_albedo)
+    position = origin + t[..., None] * view
+    # sphere pixels: longitude tangents as in sphere_scene; ground pixels: t = x, b = -z, n = y
+    plane_normal, plane_tangent = (torch.tensor(v, dtype=torch.float64).expand_as(position)
+                                   for v in ((0.0, 1.0, 0.0), (1.0, 0.0, 0.0)))
+    sphere = mask[..., None]
+    normal = torch.where(sphere, position, plane_normal)
+    tangent = torch.where(sphere, _longitude_tangent(position), plane_tangent)
+    return _shading(mask, mask | ground, position, normal, tangent, view, ground=ground, ground_albedo=ground_albedo)
