@@ -73,7 +73,8 @@ def add_parser(commands) -> None:
                    help="starting points of the models with modules (neuenh.fit): several, or the paper's alone")
     p.add_argument("--eval-pairs", type=int, default=200_000, help="direction pairs timing each BRDF's evaluation")
     p.add_argument("--seed", type=int, default=0)
-    p.set_defaults(run=run)
+    # the defaults, to print the regenerating command with only the flags that differ
+    p.set_defaults(run=run, defaults=vars(p.parse_args([])))
 
 
 def run(args) -> int:
@@ -256,15 +257,12 @@ def _summarise(args, contenders: list[dict], comparisons: list[dict], provenance
     }
 
 
+_NOT_IN_COMMAND = {"run", "defaults", "jobs", "work_dir", "train_baselines", "materials"}  # no effect on the results
+
+
 def _command_flags(args) -> list[str]:
-    flags = []
-    defaults = {"rgl": Path("../shared/data/rgl"), "model": "enhanced-ggx", "out": Path("docs"), "fit_samples": 10_000,
-                "test_samples": 10_000, "size": 96, "samples": 12, "seed": 0, "baselines": Path("models/baselines"),
-                "scene": "ball", "eval_pairs": 200_000, "fit_epochs": None,
-                "fit_starts": "analytical"}
-    for key, default in defaults.items():
-        if getattr(args, key) != default:
-            flags.append(f"--{key.replace('_', '-')} {getattr(args, key)}")
+    flags = [f"--{key.replace('_', '-')} {getattr(args, key)}" for key, default in args.defaults.items()
+             if key not in _NOT_IN_COMMAND and getattr(args, key) != default]
     if args.materials:
         flags.append("--materials " + " ".join(args.materials))
     return flags
