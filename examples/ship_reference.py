@@ -13,7 +13,6 @@ baselines. ``neuenh report`` draws the search from there.
 from __future__ import annotations
 
 import argparse
-import functools
 import sys
 from pathlib import Path
 
@@ -21,8 +20,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from neuenh.checkpoint import Bundle  # noqa: E402
-from neuenh.models import get_model  # noqa: E402
 from orchestrator.baselines import search_budget  # noqa: E402
+from orchestrator.runner import neural_weights  # noqa: E402
 from orchestrator.spec import parse_spec  # noqa: E402
 from storage import JobStatus, LocalArtifactStore, SQLiteJobStore  # noqa: E402
 
@@ -43,12 +42,6 @@ def main() -> int:
     job = done[0]  # newest first
     spec = parse_spec(job.spec)
     rounds = jobs.rounds(job.id)
-    config = spec.module.config()
-
-    @functools.lru_cache(maxsize=None)
-    def weights(state: str) -> int:
-        return get_model(spec.model, state=state, module_config=config, latent_dim=spec.latent_dim).n_weights()
-
     bundle = Bundle.from_bytes(artifacts.get(rounds[-1].artifact_key))
     budget = search_budget(spec, rounds)
     searched = [r for r in rounds if not r.extra.get("polish")]
@@ -67,7 +60,7 @@ def main() -> int:
             "rounds": [{"index": r.index, "parent_state": r.parent_state, "winner_state": r.winner_state,
                         "polish": bool(r.extra.get("polish")), "warmup": r.extra.get("warmup"),
                         "candidates": [{"state": c.state, "val_loss": c.val_loss, "epochs": c.epochs,
-                                        "weights": weights(c.state), "wall_s": round(c.wall_s, 1)}
+                                        "weights": neural_weights(spec, c.state), "wall_s": round(c.wall_s, 1)}
                                        for c in r.candidates]}
                        for r in rounds],
         },

@@ -266,7 +266,7 @@ class Orchestrator:
         outcomes = []
         for r in reports:
             digits = graph.parse_state(r.task.state, m)
-            cost = weight_cost(_n_weights(spec.model, r.task.state, spec.module.config(), spec.latent_dim)) \
+            cost = weight_cost(neural_weights(spec, r.task.state)) \
                 if spec.search.complexity_weight else 0.0
             outcomes.append(Outcome(digits, r.val_loss, cost, failed=not r.ok))
         return outcomes
@@ -297,6 +297,11 @@ def train_plain_baseline(spec: JobSpec, data: TrainingData, epochs: int) -> Cand
     parent = spec.initial_bundle(data.names)
     return train_candidate(parent, "0" * len(parent.model.positions), data, spec.train_config(epochs),
                            spec.train.seed)
+
+
+def neural_weights(spec: JobSpec, state: str) -> int:
+    """Neural weights of ``state`` of the spec's model (its modules and latent size)."""
+    return _n_weights(spec.model, state, spec.module.config(), spec.latent_dim)
 
 
 @functools.lru_cache(maxsize=4096)
