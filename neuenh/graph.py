@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
-from typing import Callable, Literal, Mapping, Sequence
+from typing import TYPE_CHECKING, Callable, Literal, Mapping, Sequence
 
 import torch
 from torch import nn
@@ -24,6 +24,9 @@ from torch import nn
 from .modules import ModuleConfig, NeuralModule, module_seed, run_modules
 from .params import ParamSpecs
 from .shading import Shading, make_shading
+
+if TYPE_CHECKING:
+    from .specialize import SpecializedBRDF
 
 # Digits of a state string: 0-9 then a-z, so m-ary states up to m = 36 stay one character each.
 _DIGITS = "0123456789abcdefghijklmnopqrstuvwxyz"
@@ -285,7 +288,7 @@ class BRDFModel(nn.Module):
             left, right = run(expr.left), run(expr.right)
             if digit:
                 return self.neural[expr.name](
-                    torch.cat([left.expand(-1, expr.left.width), right], dim=-1)
+                    torch.cat([left.expand(-1, expr.left.width), right.expand(-1, expr.right.width)], dim=-1)
                 )
             return left + right if expr.op == "+" else left * right
 
@@ -307,14 +310,22 @@ class BRDFModel(nn.Module):
                 groups.setdefault(expr.reads_directions, []).append(expr.name)
         if not groups:
             return {}
-        base = [self.specs.unit_vector(values).to(shading.wi.dtype)]
+        wi, wo = shading.wi.array, shading.wo.array
+        base = [self.specs.unit_vector(values).to(wi.dtype)]
         if self.latent_dim:
-            base.append(latent.to(shading.wi.dtype))
+            base.append(latent.to(wi.dtype))
         out: dict[str, torch.Tensor] = {}
         for reads_directions, names in groups.items():
-            x = torch.cat(base + ([shading.wi, shading.wo] if reads_directions else []), dim=-1)
+            x = torch.cat(base + ([wi, wo] if reads_directions else []), dim=-1)
             out.update(zip(names, run_modules([self.neural[n] for n in names], x)))
         return out
+
+    def specialize(self, params: Mapping[str, torch.Tensor]) -> "SpecializedBRDF":
+        """One material's ``(wi, wo) -> f_r`` with its parameters (the dict ``evaluate`` takes,
+        without the batch dimension) folded in: see ``neuenh.specialize``."""
+        from .specialize import SpecializedBRDF
+
+        return SpecializedBRDF(self, params)
 
     def _held_digits(self, state: str) -> tuple[int, ...]:
         digits = self.graph.parse_state(state, self.module_config.digits)

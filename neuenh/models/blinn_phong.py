@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import math
 
-import torch
-
 from ..graph import Graph, Term, add, mul
 from ..params import ParamSpec, ParamSpecs
 from ..shading import Shading
@@ -25,10 +23,10 @@ from .common import NORMAL, RHO_D, RHO_S, lambertian, specular_albedo
 SHININESS = ParamSpec("shininess", 1, 1.0, 1e4, scale="log", doc="Blinn-Phong exponent e")
 
 
-def blinn_lobe(s: Shading) -> torch.Tensor:
+def blinn_lobe(s: Shading):
     """D = (e + 8)/(8 pi) (n.h)^e, as exp(e log(n.h)) so large exponents keep finite gradients."""
     e = s.params["shininess"]
-    return (e + 8.0) / (8.0 * math.pi) * torch.exp(e * torch.log(s.cos_h))
+    return (e + 8.0) / (8.0 * math.pi) * s.xp.exp(e * s.xp.log(s.cos_h))
 
 
 def build() -> tuple[Graph, ParamSpecs]:

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import math
 
-import torch
-
 from ..params import ParamSpec
 from ..shading import Shading
 
@@ -30,28 +28,28 @@ F0 = ParamSpec("f0", 1, 0.0, 1.0, doc="Fresnel reflectance at normal incidence")
 MICROFACET_PARAMS = (NORMAL, T_THETA, RHO_D, RHO_S, ALPHA_X, ALPHA_Y, F0)
 
 
-def lambertian(s: Shading) -> torch.Tensor:
+def lambertian(s: Shading):
     """M = rho_d / pi (Lambert 1760)."""
     return s.params["rho_d"] / math.pi
 
 
-def specular_albedo(s: Shading) -> torch.Tensor:
+def specular_albedo(s: Shading):
     """S = rho_s."""
     return s.params["rho_s"]
 
 
-def schlick_fresnel(s: Shading) -> torch.Tensor:
+def schlick_fresnel(s: Shading):
     """F = f0 + (1 - f0) (1 - wi.h)^5 (Schlick 1994, eq. 15)."""
     f0 = s.params["f0"]
     return f0 + (1.0 - f0) * (1.0 - s.cos_d) ** 5
 
 
-def inverse_microfacet_normalisation(s: Shading) -> torch.Tensor:
+def inverse_microfacet_normalisation(s: Shading):
     """1/E = 1 / (4 cos_i cos_o), the microfacet Jacobian (Walter et al. 2007, eq. 20)."""
     return 1.0 / (4.0 * s.cos_i * s.cos_o)
 
 
-def anisotropic_slope_sq(s: Shading, w: torch.Tensor) -> torch.Tensor:
+def anisotropic_slope_sq(s: Shading, w):
     """(w_x / alpha_x)^2 + (w_y / alpha_y)^2 for a shading-frame vector w: the anisotropic
     stretch shared by GGX, Beckmann and Ward lobes."""
-    return (w[:, 0:1] / s.params["alpha_x"]) ** 2 + (w[:, 1:2] / s.params["alpha_y"]) ** 2
+    return (w.x / s.params["alpha_x"]) ** 2 + (w.y / s.params["alpha_y"]) ** 2

@@ -20,8 +20,6 @@ from __future__ import annotations
 
 import math
 
-import torch
-
 from ..graph import Graph, Term, add, mul
 from ..params import ParamSpecs
 from ..shading import Shading
@@ -35,20 +33,20 @@ from .common import (
 )
 
 
-def beckmann_distribution(s: Shading) -> torch.Tensor:
+def beckmann_distribution(s: Shading):
     """D(h), evaluated in log space so that tiny roughness at grazing h gives 0 with a finite
     gradient instead of 0 * inf."""
     ax, ay = s.params["alpha_x"], s.params["alpha_y"]
     exponent = -anisotropic_slope_sq(s, s.h) / s.cos_h**2
-    log_norm = torch.log(math.pi * ax * ay) + 4.0 * torch.log(s.cos_h)
-    return torch.exp(exponent - log_norm)
+    log_norm = s.xp.log(math.pi * ax * ay) + 4.0 * s.xp.log(s.cos_h)
+    return s.xp.exp(exponent - log_norm)
 
 
-def v_groove_shadowing(s: Shading) -> torch.Tensor:
+def v_groove_shadowing(s: Shading):
     """G: Cook & Torrance 1982 eq. (after Torrance & Sparrow 1967); wo.h = wi.h = cos_d."""
     masking = 2.0 * s.cos_h * s.cos_o / s.cos_d
     shadowing = 2.0 * s.cos_h * s.cos_i / s.cos_d
-    return torch.clamp(torch.minimum(masking, shadowing), max=1.0)
+    return s.xp.clamp(s.xp.minimum(masking, shadowing), hi=1.0)
 
 
 def build() -> tuple[Graph, ParamSpecs]:

@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import math
 
-import torch
-
 from ..graph import Graph, Term, add, mul
 from ..params import ParamSpecs
 from ..shading import Shading
@@ -36,7 +34,7 @@ from .common import (
 )
 
 
-def ggx_distribution(s: Shading) -> torch.Tensor:
+def ggx_distribution(s: Shading):
     """D(h): Walter et al. 2007 eq. 33, anisotropic (Heitz 2014 eq. 85). chi+(h.n) = 1 because
     h of two directions above the shading horizon always has h_z > 0."""
     ax, ay = s.params["alpha_x"], s.params["alpha_y"]
@@ -44,14 +42,14 @@ def ggx_distribution(s: Shading) -> torch.Tensor:
     return 1.0 / (math.pi * ax * ay * stretch**2)
 
 
-def ggx_smith_g1(s: Shading, w: torch.Tensor, cos_w: torch.Tensor) -> torch.Tensor:
+def ggx_smith_g1(s: Shading, w, cos_w):
     """G1(w) = 1 / (1 + Lambda(w)), written without tan so it is exact and finite at grazing."""
     ax, ay = s.params["alpha_x"], s.params["alpha_y"]
-    projected = (ax * w[:, 0:1]) ** 2 + (ay * w[:, 1:2]) ** 2
-    return 2.0 * cos_w / (cos_w + torch.sqrt(cos_w**2 + projected))
+    projected = (ax * w.x) ** 2 + (ay * w.y) ** 2
+    return 2.0 * cos_w / (cos_w + s.xp.sqrt(cos_w**2 + projected))
 
 
-def ggx_shadowing(s: Shading) -> torch.Tensor:
+def ggx_shadowing(s: Shading):
     """G = G1(wi) G1(wo): the separable Smith masking-shadowing (Walter et al. 2007 eq. 23)."""
     return ggx_smith_g1(s, s.wi, s.cos_i) * ggx_smith_g1(s, s.wo, s.cos_o)
 

@@ -16,8 +16,6 @@ bundles and rendering unchanged. 13 positions, 12 parameters.
 
 from __future__ import annotations
 
-import torch
-
 from ..graph import Graph, Term, add
 from ..params import ParamSpecs
 from ..shading import Shading
@@ -27,9 +25,9 @@ from .common import MICROFACET_PARAMS
 RESIDUAL_STATE = "0000001000000"  # only R neural
 
 
-def zero_residual(s: Shading) -> torch.Tensor:
+def zero_residual(s: Shading):
     """R = 0: the analytical model has no residual."""
-    return torch.zeros_like(s.cos_i).expand(-1, 3)
+    return 0.0 * s.cos_i
 
 
 def build() -> tuple[Graph, ParamSpecs]:

@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import math
 
-import torch
-
 from ..graph import Graph, Term, add, mul
 from ..params import ParamSpecs
 from ..shading import Shading
@@ -25,15 +23,15 @@ from .common import ALPHA_X, ALPHA_Y, NORMAL, RHO_D, RHO_S, T_THETA, anisotropic
 from .common import lambertian, specular_albedo
 
 
-def ward_lobe(s: Shading) -> torch.Tensor:
+def ward_lobe(s: Shading):
     """D: the elliptical Gaussian in the half-vector slopes, normalised by pi a_x a_y."""
     ax, ay = s.params["alpha_x"], s.params["alpha_y"]
-    return torch.exp(-anisotropic_slope_sq(s, s.h) / s.cos_h**2) / (math.pi * ax * ay)
+    return s.xp.exp(-anisotropic_slope_sq(s, s.h) / s.cos_h**2) / (math.pi * ax * ay)
 
 
-def ward_normalisation(s: Shading) -> torch.Tensor:
+def ward_normalisation(s: Shading):
     """1/E = 1 / (4 sqrt(cos_i cos_o))."""
-    return 1.0 / (4.0 * torch.sqrt(s.cos_i * s.cos_o))
+    return 1.0 / (4.0 * s.xp.sqrt(s.cos_i * s.cos_o))
 
 
 def build() -> tuple[Graph, ParamSpecs]:

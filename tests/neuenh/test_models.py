@@ -25,8 +25,10 @@ import numpy as np
 import pytest
 import torch
 
+from neuenh.graph import Term
 from neuenh.materials import MaterialTable
 from neuenh.models import available_models, get_model
+from neuenh.ops import NUMPY, TORCH
 from neuenh.shading import make_shading
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -83,12 +85,16 @@ def reference(model, wi, wo, params) -> np.ndarray:
     return ref.f_r(model.name, wi, wo, params)
 
 
-def term(model, name: str, wi, wo, params) -> np.ndarray:
-    """One term of the model's graph (e.g. D, F, G) at float64 inputs, (n, width)."""
+def term(model, name: str, wi, wo, params, xp=TORCH) -> np.ndarray:
+    """One term of the model's graph (e.g. D, F, G) at float64 inputs, (n, width), computed by
+    the backend ``xp`` (torch by default)."""
     wi_t, wo_t = torch.as_tensor(wi, dtype=torch.float64), torch.as_tensor(wo, dtype=torch.float64)
     values = model.specs.validate(torch_params(params), len(wi))
+    if xp is NUMPY:
+        wi_t, wo_t, values = wi_t.numpy(), wo_t.numpy(), {k: v.numpy() for k, v in values.items()}
     expr = model.graph.positions[model.graph.index[name]]
-    return expr.formula(make_shading(wi_t, wo_t, values)).numpy()
+    value = np.asarray(expr.formula(make_shading(wi_t, wo_t, values, xp)))
+    return np.broadcast_to(value, (len(wi), expr.width))
 
 
 def above_mask(model, wi, wo, params) -> np.ndarray:
@@ -188,6 +194,23 @@ def test_all_zero_state_of_an_enhanced_model_is_the_analytical_model(name, state
     assert torch.equal(got, want)
     # ... while the enhanced state itself is a different function.
     assert not torch.equal(enhanced.evaluate(torch.as_tensor(wi), torch.as_tensor(wo), torch_params(params)), want)
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_every_term_is_backend_neutral(name):
+    """Each term computed by the numpy backend of ``neuenh.ops`` equals the torch one: formulas use
+    only the shared vocabulary, so exporters can run them on their own backends."""
+    model, rng = get_model(name), np.random.default_rng(99)
+    params = random_params(model, 2000, rng)
+    wi, wo = random_directions(params, 2000, rng)
+    wi[:100, 2] *= -1  # some rows below the horizon
+    for expr in model.graph.positions:
+        if not isinstance(expr, Term):
+            continue
+        # Same float64 arithmetic; exp() may amplify a last-bit difference of its argument.
+        np.testing.assert_allclose(term(model, expr.name, wi, wo, params, NUMPY),
+                                   term(model, expr.name, wi, wo, params), rtol=1e-10, atol=0,
+                                   err_msg=f"{name}.{expr.name}")
 
 
 # ============================================================================================

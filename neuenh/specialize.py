@@ -1,0 +1,258 @@
+"""One material's BRDF, specialized: its parameters folded in, ``(wi, wo) -> f_r`` in few ops.
+
+``BRDFModel.evaluate`` serves any batch of materials: every call validates and broadcasts the
+parameters, builds the shading frame per sample, and feeds every neural module the 12 analytical
++ latent parameters of each sample. For one material all of that is constant. ``specialize``
+computes it once:
+
+* the shading frame (``normal``, ``t_theta``) becomes one 3x3 rotation;
+* each module that reads the per-material inputs gets them folded into its first-layer bias
+  (``b1 + W1[:, :P] @ [unit params, latent]``, computed in float64), so its first layer reads only
+  the directions (6 inputs) — or nothing, and then its output is a constant;
+* terms that read no direction (``M``, ``S``, ...) and operators over constants are computed once;
+* the remaining expression runs the backend-neutral term formulas (``neuenh.ops``) with the
+  parameters as Python constants, so Python folds their arithmetic too.
+
+``SpecializedBRDF`` is what the renderer, the report, the service's fit predictions and the
+exporters (``neuenh.export``) use; ``folded`` exposes the pieces an exporter needs. Its result
+equals ``evaluate`` (tested on the stability grid) and reports its cost: FLOPs per evaluation and
+measured evaluations per second.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import torch
+
+from .graph import Operator, Term  # graph imports this module only inside BRDFModel.specialize
+from .ops import TORCH, BatchVec3
+from .shading import Shading, shade, shading_frame
+
+LATENT = "latent"
+
+
+@dataclass(frozen=True)
+class FoldedModule:
+    """A neural module with one material's constant inputs folded in.
+
+    ``layers[0]`` reads only the per-sample inputs: ``[wi_s, wo_s]`` (6, shading frame) for a term
+    that reads directions, the operands ``[left, right]`` for an operator; its bias includes the
+    folded per-material inputs. Weights are ``(out, in)`` float32 tensors, as in ``nn.Linear``.
+    """
+
+    position: str
+    layers: tuple[tuple[torch.Tensor, torch.Tensor], ...]
+    negative_slope: float
+
+    @property
+    def flops(self) -> int:
+        """Multiply-adds as two FLOPs, plus the bias add and one op per activation."""
+        total = 0
+        for i, (weight, _) in enumerate(self.layers):
+            out, inp = weight.shape
+            total += 2 * out * inp + out + (out if i < len(self.layers) - 1 else 0)
+        return total
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        last = len(self.layers) - 1
+        for i, (weight, bias) in enumerate(self.layers):
+            x = torch.addmm(bias, x, weight.t())
+            if i < last:
+                torch.nn.functional.leaky_relu_(x, self.negative_slope)
+        return x
+
+    def to(self, dtype: torch.dtype) -> "FoldedModule":
+        layers = tuple((w.to(dtype).contiguous(), b.to(dtype)) for w, b in self.layers)
+        return FoldedModule(self.position, layers, self.negative_slope)
+
+
+@dataclass(frozen=True)
+class Folded:
+    """Everything ``specialize`` computed once, in one dtype: what an exporter reads.
+
+    ``params``: each parameter as the formulas' constant (a float for width 1, else a (1, width)
+    row); ``rotation``: rows (tangent, bitangent, normal) of the shading frame, or None for the
+    geometric frame; ``constants``: positions computed once, (1, width); ``modules``: the folded
+    modules by position."""
+
+    params: dict[str, Any]
+    rotation: torch.Tensor | None
+    constants: dict[str, torch.Tensor]
+    modules: dict[str, FoldedModule]
+
+    def to(self, dtype: torch.dtype) -> "Folded":
+        return Folded({k: v if isinstance(v, float) else v.to(dtype) for k, v in self.params.items()},
+                      None if self.rotation is None else self.rotation.to(dtype),
+                      {k: v.to(dtype) for k, v in self.constants.items()},
+                      {k: m.to(dtype) for k, m in self.modules.items()})
+
+
+class SpecializedBRDF:
+    """``f_r = brdf(wi, wo)`` for one material: (n, 3) unit vectors in the local frame -> (n, 3),
+    without the cosine factor, zero below either horizon, clipped at zero (as ``evaluate``).
+
+    Computed in the inputs' dtype: float64 inputs get float64 throughout (the fold is done in
+    float64 and kept as ``folded``), anything else float32 (the model's own precision)."""
+
+    def __init__(self, model, params: Mapping[str, Any]):
+        self.model_name = model.name
+        self.state = model.state
+        self.formula = model.describe()
+        self._graph, self._digits = model.graph, model.digits
+        values = model.specs.validate(params, 1, extra=(LATENT,))
+        latent = values.pop(LATENT, None)
+        if model.latent_dim and model.uses_latent:
+            latent = model._check_latent(latent, 1)
+        values = {k: v.detach().double() for k, v in values.items()}
+        # Per-material inputs of term modules, as every module reads them (float64 for the fold).
+        per_material = [model.specs.unit_vector(values)]
+        if model.latent_dim and latent is not None:
+            per_material.append(latent.detach().double())
+        material_input = torch.cat(per_material, dim=-1)[0]
+        params = {k: _constant(v[0]) for k, v in values.items()}
+        modules: dict[str, FoldedModule] = {}
+        constants: dict[str, torch.Tensor] = {}
+        param_shading = Shading(None, None, None, None, None, None, None, params, None, TORCH)
+        for expr, digit in zip(model.graph.positions, model.digits):
+            if isinstance(expr, Term):
+                if digit:
+                    module = _fold(expr.name, model.neural[expr.name], material_input, expr.reads_directions)
+                    if expr.reads_directions:
+                        modules[expr.name] = module
+                    else:  # a module of the parameters alone: its output is a constant
+                        constants[expr.name] = module(torch.zeros(1, 0, dtype=torch.float64))
+                elif not expr.reads_directions:
+                    constants[expr.name] = _rows(expr.formula(param_shading), expr.width)
+            else:
+                if digit:
+                    modules[expr.name] = _fold(expr.name, model.neural[expr.name], None, True)
+                elif expr.left.name in constants and expr.right.name in constants:
+                    left, right = constants[expr.left.name], constants[expr.right.name]
+                    constants[expr.name] = left + right if expr.op == "+" else left * right
+        self.folded = Folded(params, self._frame(values), constants, modules)
+        self._kernels = {torch.float64: self.folded, torch.float32: self.folded.to(torch.float32)}
+
+    @property
+    def modules(self) -> dict[str, FoldedModule]:
+        return self.folded.modules
+
+    @property
+    def constants(self) -> dict[str, torch.Tensor]:
+        return self.folded.constants
+
+    @staticmethod
+    def _frame(values: Mapping[str, torch.Tensor]) -> torch.Tensor | None:
+        """The rotation whose rows are the shading frame's (tangent, bitangent, normal)."""
+        if "normal" not in values:
+            return None
+        t, b, n = shading_frame(TORCH, values["normal"], values.get("t_theta"))
+        return torch.cat([t.array, b.array, n.array])
+
+    # -- evaluation ------------------------------------------------------------------------------
+    @torch.no_grad()
+    def __call__(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        wi, wo = torch.as_tensor(wi), torch.as_tensor(wo)
+        if wi.ndim != 2 or wi.shape[1] != 3 or wi.shape != wo.shape:
+            raise ValueError(f"wi and wo must both have shape (n, 3), got {tuple(wi.shape)} and {tuple(wo.shape)}")
+        dtype = torch.float64 if wi.dtype == torch.float64 else torch.float32
+        wi, wo, k = wi.to(dtype), wo.to(dtype), self._kernels[dtype]
+        rotate = (lambda w: w) if k.rotation is None else (lambda w: w @ k.rotation.t())
+        s = shade(TORCH, BatchVec3(wi), BatchVec3(wo), BatchVec3(rotate(wi)), BatchVec3(rotate(wo)), k.params)
+        directions = torch.cat([s.wi.array, s.wo.array], dim=-1) if k.modules else None
+        out = self._run(k, self._graph.root, s, directions)
+        out = out.expand(wi.shape[0], 3)
+        return torch.where(s.above, out, 0.0).clamp_min(0.0)
+
+    def _run(self, k: Folded, expr, s: Shading, directions: torch.Tensor | None) -> torch.Tensor:
+        if expr.name in k.constants:
+            return k.constants[expr.name]
+        if isinstance(expr, Term):
+            if expr.name in k.modules:
+                return k.modules[expr.name](directions)
+            return _rows(expr.formula(s), expr.width).to(s.cos_i.dtype)
+        left, right = self._run(k, expr.left, s, directions), self._run(k, expr.right, s, directions)
+        if expr.name in k.modules:
+            n = s.cos_i.shape[0]
+            operands = [left.expand(n, expr.left.width), right.expand(n, expr.right.width)]
+            return k.modules[expr.name](torch.cat(operands, dim=-1))
+        return left + right if expr.op == "+" else left * right
+
+    # -- cost --------------------------------------------------------------------------------------
+    @property
+    def n_neural_weights(self) -> int:
+        return sum(w.numel() + b.numel() for m in self.modules.values() for w, b in m.layers)
+
+    @property
+    def flops_per_evaluation(self) -> int:
+        """FLOPs of one evaluation: the folded modules exactly (``FoldedModule.flops``) plus the
+        analytical part counted by running it once on the counting backend (``neuenh.ops.COUNT``)."""
+        from .ops import count_flops
+
+        analytic = count_flops(lambda xp, wi, wo: self._count(xp, wi, wo))
+        return analytic + sum(m.flops for m in self.modules.values())
+
+    def _count(self, xp, wi, wo):
+        rotate = (lambda w: w) if self.folded.rotation is None else (lambda w: xp.rotate(self.folded.rotation, w))
+        params = {k: v if isinstance(v, float) else xp.constant(v.shape[-1]) for k, v in self.folded.params.items()}
+        s = shade(xp, wi, wo, rotate(wi), rotate(wo), params)
+
+        def run(expr):
+            if expr.name in self.constants:
+                return xp.constant(self.constants[expr.name].shape[-1])
+            if expr.name in self.modules:
+                if isinstance(expr, Operator):
+                    run(expr.left), run(expr.right)
+                return xp.value(expr.width)
+            if isinstance(expr, Term):
+                return expr.formula(s)
+            left, right = run(expr.left), run(expr.right)
+            return left + right if expr.op == "+" else left * right
+
+        return xp.where(s.above, run(self._graph.root), 0.0)
+
+    def throughput(self, n: int = 100_000, seconds: float = 0.5, threads: int | None = 1) -> float:
+        """Measured evaluations per second at batches of ``n`` random directions (on ``threads``
+        torch threads; ``None`` keeps the current setting)."""
+        generator = torch.Generator().manual_seed(0)
+        wi, wo = (torch.nn.functional.normalize(torch.randn(n, 3, generator=generator).abs(), dim=1)
+                  for _ in range(2))
+        saved = torch.get_num_threads()
+        if threads is not None:
+            torch.set_num_threads(threads)
+        try:
+            self(wi, wo)  # warm up
+            calls, start = 0, time.perf_counter()
+            while (elapsed := time.perf_counter() - start) < seconds or calls < 3:
+                self(wi, wo)
+                calls += 1
+        finally:
+            torch.set_num_threads(saved)
+        return calls * n / elapsed
+
+
+def _constant(value: torch.Tensor):
+    """A parameter as the formulas' constant: a Python float for width 1, else a (1, width) row."""
+    return float(value[0]) if value.numel() == 1 else value.reshape(1, -1)
+
+
+def _rows(value, width: int) -> torch.Tensor:
+    """A term's value as a tensor broadcastable to (n, width) (a constant becomes (1, width))."""
+    if isinstance(value, torch.Tensor):
+        return value
+    return torch.full((1, width), float(value), dtype=torch.float64)
+
+
+def _fold(position: str, module, material_input: torch.Tensor | None, reads_per_sample: bool) -> FoldedModule:
+    """``module`` with ``material_input`` (the leading inputs of its first layer) folded into the
+    first-layer bias; its first layer then reads the remaining inputs (none if not per-sample)."""
+    layers = [(layer.weight.detach().double(), layer.bias.detach().double()) for layer in module.layers]
+    weight, bias = layers[0]
+    if material_input is not None:
+        k = material_input.shape[0]
+        bias = bias + weight[:, :k] @ material_input
+        weight = weight[:, k:] if reads_per_sample else weight[:, :0]
+    layers[0] = (weight, bias)
+    return FoldedModule(position, tuple((w.contiguous(), b) for w, b in layers), module.negative_slope)
