@@ -6,16 +6,18 @@
   ``executor_factory`` returning an ``InlineExecutor``),
 * the store's ``OwnerLock`` (one process runs a store's jobs at a time; ``serve`` takes it before
   uvicorn starts, so a second server fails with one line instead of a startup traceback),
-* the ``JobWorker`` (one thread running jobs one at a time through the ``Orchestrator``; it
+* the ``JobQueue`` (one thread running jobs one at a time through the ``Orchestrator``; it
   resumes unfinished jobs at start),
+* the lock that lets one ``/fit`` run at a time,
 
-puts them on ``app.state`` for ``deps.py``, and on shutdown stops the worker at a safe point (the
+puts them on ``app.state`` for ``deps.py``, and on shutdown stops the job queue at a safe point (the
 running job is not cancelled: it resumes on the next start) and closes the executor and stores.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 from contextlib import asynccontextmanager
 from typing import Callable
 
@@ -30,7 +32,7 @@ from storage import ArtifactStore, LocalArtifactStore, OwnerLock, SQLiteJobStore
 from . import deps, errors
 from .routes import cluster, dashboard, fit, health, jobs
 from .settings import Settings
-from .worker import JobWorker
+from .job_queue import JobQueue
 
 log = logging.getLogger("neuenh.api")
 
@@ -66,7 +68,7 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
                lock: OwnerLock | None = None) -> FastAPI:
     """The service. ``settings`` default to the environment (``NEUENH_*``), read at startup;
     ``lock``, when given, is the store's owner lock already held by the caller; either way the
-    lock is released once the worker has stopped."""
+    lock is released once the job queue has stopped."""
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -76,15 +78,18 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
         owned = lock if lock is not None and lock.held else owner_lock(s).acquire()
         store = SQLiteJobStore(s.data_dir / "jobs.sqlite")
         executor = (executor_factory or ray_executor)(s)
-        worker = JobWorker(store, artifacts, executor)
-        app.state.settings, app.state.jobs, app.state.artifacts, app.state.worker = s, store, artifacts, worker
-        worker.start()
+        job_queue = JobQueue(store, artifacts, executor)
+        app.state.settings, app.state.jobs, app.state.artifacts = s, store, artifacts
+        app.state.job_queue = job_queue
+        # Fits share the CPUs with the candidates being trained: two at once would only slow each other.
+        app.state.fit_lock = threading.Lock()
+        job_queue.start()
         log.info("neuenh service: data in %s, artifacts in %r, auth %s", s.data_dir, artifacts,
                  "on" if s.api_token else "off")
         try:
             yield
         finally:
-            stopped = worker.stop(s.shutdown_grace_s)
+            stopped = job_queue.stop(s.shutdown_grace_s)
             if stopped:  # never pull the store or executor from under a job still running
                 executor.close()
                 store.close()

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import hmac
+import threading
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request, status
@@ -13,7 +14,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from storage import ArtifactStore, JobStore
 
 from .settings import Settings
-from .worker import JobWorker
+from .job_queue import JobQueue
 
 
 def get_settings(request: Request) -> Settings:
@@ -28,14 +29,19 @@ def get_artifacts(request: Request) -> ArtifactStore:
     return request.app.state.artifacts
 
 
-def get_worker(request: Request) -> JobWorker:
-    return request.app.state.worker
+def get_job_queue(request: Request) -> JobQueue:
+    return request.app.state.job_queue
+
+
+def get_fit_lock(request: Request) -> threading.Lock:
+    return request.app.state.fit_lock
 
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 JobStoreDep = Annotated[JobStore, Depends(get_jobs)]
 ArtifactStoreDep = Annotated[ArtifactStore, Depends(get_artifacts)]
-WorkerDep = Annotated[JobWorker, Depends(get_worker)]
+JobQueueDep = Annotated[JobQueue, Depends(get_job_queue)]
+FitLockDep = Annotated[threading.Lock, Depends(get_fit_lock)]
 
 _bearer = HTTPBearer(auto_error=False, description="the service's NEUENH_API_TOKEN")
 

@@ -13,8 +13,7 @@ the machine used meanwhile (``/proc/stat`` minus this process); a repeat disturb
 1. Evaluation throughput (samples/s) at a batch of 1e5 of plain GGX, the paper's final enhanced
    GGX (state 00011100100: F, G, invE and the x of F x G neural), and an NBRDF-sized MLP
    (Sztrajman et al. 2021: 6-21-21-3, ReLU, exp(x) - 1, on the half and difference vectors),
-   forward and forward+backward, as absolute numbers and as ratios to plain GGX; plus fused against
-   per-module neural modules (``neuenh.modules.run_modules``) for batch sizes 1e4..1e5.
+   forward and forward+backward, as absolute numbers and as ratios to plain GGX.
 2. Fraction of fp32 peak of the enhanced forward pass, against the theoretical peak of this CPU
    and against a large matmul measured with torch on all threads.
 3. Fit time against fit loss on 1e5 measurements of new materials: the paper's protocol (RMSProp,
@@ -25,17 +24,10 @@ the machine used meanwhile (``/proc/stat`` minus this process); a repeat disturb
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import math
 import os
-import platform
-import re
-import resource
-import statistics
-import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -45,6 +37,7 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 import torch  # noqa: E402
 from torch import nn  # noqa: E402
 
+from bench.harness import Background, Timer, cpu_info, fmt_rate, machine, machine_line, wait_quiet  # noqa: E402
 from bench.report import write_section  # noqa: E402
 from neuenh.checkpoint import Bundle  # noqa: E402
 from neuenh.data.samples import sample_materials  # noqa: E402
@@ -52,117 +45,14 @@ from neuenh.data.sampling import sample_directions, to_rusinkiewicz  # noqa: E40
 from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo  # noqa: E402
 from neuenh.fit import FitConfig, FitResult, fit_materials  # noqa: E402
 from neuenh.models import get_model  # noqa: E402
-from neuenh.modules import FUSION_MODES, fusion, run_modules  # noqa: E402
 from neuenh.train import TrainConfig, TrainingData, train_candidate  # noqa: E402
 
 SECTION = "## Core evaluation and fitting (issue 2)"
-ENHANCED = "enhanced GGX"  # run_modules as shipped (per-module loop)
-ENHANCED_FUSED = "enhanced GGX, fused"  # run_modules in fusion("batched")
+ENHANCED = "enhanced GGX"
 PAPER_STATE = "00011100100"
 # Rough FLOPs per sample of the analytic part of GGX's graph (shading frame, unit mapping of the
 # parameters, remaining terms and operators), transcendental functions counted as one FLOP each.
 ANALYTIC_FLOPS = 200
-
-
-# -- timing ----------------------------------------------------------------------------------
-class Background:
-    """CPU (in cores) the rest of the machine used between ``start`` and ``stop``."""
-
-    _tick = os.sysconf("SC_CLK_TCK")
-
-    @staticmethod
-    def _busy() -> float:
-        try:
-            with open("/proc/stat") as f:
-                fields = [int(v) for v in f.readline().split()[1:]]
-        except OSError:
-            return math.nan
-        idle = fields[3] + (fields[4] if len(fields) > 4 else 0)
-        return (sum(fields[:8]) - idle) / Background._tick
-
-    @staticmethod
-    def _own() -> float:
-        usage = resource.getrusage(resource.RUSAGE_SELF)
-        return usage.ru_utime + usage.ru_stime
-
-    def start(self) -> None:
-        self.t, self.busy, self.own = time.perf_counter(), self._busy(), self._own()
-
-    def stop(self) -> float:
-        wall = max(time.perf_counter() - self.t, 1e-9)
-        return max(0.0, (self._busy() - self.busy) - (self._own() - self.own)) / wall
-
-
-def wait_quiet(max_wait: float, threshold: float, seconds: int = 3) -> float:
-    """Wait (at most ``max_wait`` s) until the rest of the machine used less than ``threshold``
-    cores for ``seconds`` consecutive seconds; returns the waiting time."""
-    start, quiet = time.perf_counter(), 0
-    while quiet < seconds and time.perf_counter() - start < max_wait:
-        probe = Background()
-        probe.start()
-        time.sleep(1.0)
-        quiet = quiet + 1 if probe.stop() < threshold else 0
-    return time.perf_counter() - start
-
-
-@dataclass
-class Timing:
-    seconds: float  # median per call
-    repeats: int
-    rejected: int
-    background: float  # median background load (cores) over the kept repeats
-
-
-@dataclass
-class Timer:
-    repeats: int
-    min_time: float
-    max_background: float
-    rejected: int = 0
-    backgrounds: list[float] = field(default_factory=list)
-
-    def measure(self, cases: dict[str, Callable[[], object]], warmup: int = 2) -> dict[str, Timing]:
-        """Median seconds per call of every case, measured interleaved (rotating order)."""
-        for fn in cases.values():
-            for _ in range(warmup):
-                fn()
-        inner = {}
-        for name, fn in cases.items():
-            t = time.perf_counter()
-            fn()
-            inner[name] = max(1, math.ceil(self.min_time / max(time.perf_counter() - t, 1e-6)))
-        times: dict[str, list[float]] = {name: [] for name in cases}
-        loads: dict[str, list[float]] = {name: [] for name in cases}
-        rejected = dict.fromkeys(cases, 0)
-        names = list(cases)
-        attempts = 0
-        while min(len(v) for v in times.values()) < self.repeats:
-            attempts += 1
-            order = names[attempts % len(names):] + names[: attempts % len(names)]
-            for name in order:
-                if len(times[name]) >= self.repeats:
-                    continue
-                probe = Background()
-                probe.start()
-                t = time.perf_counter()
-                for _ in range(inner[name]):
-                    cases[name]()
-                elapsed = (time.perf_counter() - t) / inner[name]
-                load = probe.stop()
-                # Give up rejecting after many attempts: a busy machine gets numbers, flagged.
-                if load > self.max_background and attempts < 6 * self.repeats:
-                    rejected[name] += 1
-                    time.sleep(1.0)
-                    continue
-                times[name].append(elapsed)
-                loads[name].append(load)
-        out = {}
-        for name in cases:
-            self.rejected += rejected[name]
-            self.backgrounds.extend(loads[name])
-            out[name] = Timing(statistics.median(times[name]), len(times[name]), rejected[name],
-                               statistics.median(loads[name]))
-        return out
 
 
 # -- the models under test -------------------------------------------------------------------
@@ -237,42 +127,13 @@ def nbrdf_cases(n: int, seed: int = 0) -> dict[str, Callable[[], object]]:
     return {"forward": forward, "evaluate": forward, "forward+backward": forward_backward}
 
 
-def in_mode(mode: str, fn: Callable[[], object]) -> Callable[[], object]:
-    """``fn`` with ``run_modules`` in fusion mode ``mode`` ("off" is the library default)."""
-    def run():
-        with fusion(mode):
-            return fn()
-    return run
-
-
-def mlp_cases(n: int, seed: int = 0) -> dict[str, Callable[[], object]]:
-    """The paper state's F, G, invE modules alone on their shared 45-wide input."""
-    model = get_model("ggx", state=PAPER_STATE, seed=seed)
-    modules = [model.neural[p] for p in ("F", "G", "invE")]
-    x = torch.rand(n, 45, generator=torch.Generator().manual_seed(seed))
-    xg = x.clone().requires_grad_(True)
-    params = [xg, *(p for m in modules for p in m.parameters())]
-
-    @torch.no_grad()
-    def forward():
-        return run_modules(modules, x)
-
-    def forward_backward():
-        for p in params:
-            p.grad = None
-        sum(o.sum() for o in run_modules(modules, xg)).backward()
-
-    return {"forward": forward, "forward+backward": forward_backward}
-
-
 # -- 1. throughput ---------------------------------------------------------------------------
 def throughput(timer: Timer, n: int) -> dict:
     plain = get_model("ggx")
     enhanced = get_model("ggx", state=PAPER_STATE)
     subjects = {
         "plain GGX": brdf_cases(plain, n),
-        ENHANCED: {k: in_mode("off", f) for k, f in brdf_cases(enhanced, n).items()},
-        ENHANCED_FUSED: {k: in_mode("batched", f) for k, f in brdf_cases(enhanced, n).items()},
+        ENHANCED: brdf_cases(enhanced, n),
         "NBRDF MLP": nbrdf_cases(n),
     }
     rows = {}
@@ -283,68 +144,12 @@ def throughput(timer: Timer, n: int) -> dict:
     return {
         "n": n,
         "rows": rows,
-        "weights": {"plain GGX": 0, ENHANCED: enhanced.n_weights(), ENHANCED_FUSED: enhanced.n_weights(),
+        "weights": {"plain GGX": 0, ENHANCED: enhanced.n_weights(),
                     "NBRDF MLP": sum(p.numel() for p in NBRDF().parameters())},
     }
 
 
-def fusion_sweep(timer: Timer, sizes: list[int]) -> list[dict]:
-    out = []
-    enhanced = get_model("ggx", state=PAPER_STATE)
-    for n in sizes:
-        model = brdf_cases(enhanced, n)
-        mlp = mlp_cases(n)
-        for mode in ("forward", "forward+backward"):
-            cases = {(label, fusion_mode): in_mode(fusion_mode, group[mode])
-                     for label, group in (("model", model), ("modules", mlp)) for fusion_mode in FUSION_MODES}
-            timings = timer.measure(cases)
-            for label in ("model", "modules"):
-                row = {"n": n, "what": label, "mode": mode}
-                row.update({m: timings[(label, m)].seconds for m in FUSION_MODES})
-                out.append(row)
-    return out
-
-
-def fusion_verdict(sweep: list[dict]) -> str:
-    """Which fused mode beats the per-module loop everywhere (forward and forward+backward)."""
-    model_rows = [r for r in sweep if r["what"] == "model"]
-    parts = []
-    for m, label in (("batched", "batched"), ("first_layer", "first-layer")):
-        speedups = [r["off"] / r[m] for r in model_rows]
-        fwd = [r["off"] / r[m] for r in model_rows if r["mode"] == "forward"]
-        bwd = [r["off"] / r[m] for r in model_rows if r["mode"] == "forward+backward"]
-        parts.append(f"{label} fusion {min(speedups):.2f}-{max(speedups):.2f}× "
-                     f"(forward {min(fwd):.2f}-{max(fwd):.2f}×, forward+backward {min(bwd):.2f}-{max(bwd):.2f}×)")
-    winners = [m for m in ("batched", "first_layer") if all(r["off"] / r[m] > 1.0 for r in model_rows)]
-    verdict = (f"`{winners[0]}` is faster at every batch size and pass: worth switching on."
-               if winners else "No fused mode is faster at every batch size and pass, so `run_modules` "
-               "keeps the per-module loop by default.")
-    return f"Whole model against per-module: {'; '.join(parts)}. {verdict}"
-
-
 # -- 2. fraction of peak ---------------------------------------------------------------------
-def cpu_info() -> dict:
-    info = {"model": platform.processor() or "unknown", "cores": os.cpu_count() or 1}
-    try:
-        text = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
-        fields = dict(line.split(":", 1) for line in text.splitlines() if ":" in line)
-        fields = {k.strip(): v.strip() for k, v in fields.items()}
-        info["model"] = fields.get("Model name", info["model"])
-        info["family"] = int(fields.get("CPU family", "0") or 0)
-        info["model_number"] = int(fields.get("Model", "0") or 0)
-        info["vendor"] = fields.get("Vendor ID", "")
-        info["threads_per_core"] = int(fields.get("Thread(s) per core", "1") or 1)
-    except (OSError, subprocess.CalledProcessError, ValueError):
-        pass
-    try:
-        cpuinfo = Path("/proc/cpuinfo").read_text()
-        info["flags"] = set(re.search(r"^flags\s*:(.*)$", cpuinfo, re.M).group(1).split())
-        info["mhz"] = float(re.search(r"^cpu MHz\s*:\s*([\d.]+)", cpuinfo, re.M).group(1))
-    except (OSError, AttributeError):
-        info["flags"], info["mhz"] = set(), math.nan
-    return info
-
-
 def theoretical_peak(info: dict) -> dict:
     """cores x fp32 lanes x FMA units x 2 x clock, with the assumptions spelled out."""
     flags = info["flags"]
@@ -363,6 +168,18 @@ def theoretical_peak(info: dict) -> dict:
     cores = info["cores"]
     return {"gflops": cores * lanes * units * 2 * ghz, "lanes": lanes, "units": units, "ghz": ghz,
             "cores": cores, "why": why}
+
+
+def modules_rate(timer: Timer, model, n: int) -> float:
+    """Samples/s of the paper state's F, G and invE modules alone on their shared 45-wide input."""
+    modules = [model.neural[p] for p in ("F", "G", "invE")]
+    x = torch.rand(n, 45, generator=torch.Generator().manual_seed(0))
+
+    @torch.no_grad()
+    def forward():
+        return [m(x) for m in modules]
+
+    return n / timer.measure({"modules": forward})["modules"].seconds
 
 
 def measured_peak(timer: Timer, size: int) -> float:
@@ -474,22 +291,14 @@ def plot_fits(rows: list[dict], path: Path) -> str | None:
 
 
 # -- report ----------------------------------------------------------------------------------
-def fmt_rate(x: float) -> str:
-    return f"{x / 1e6:.2f} M/s" if x >= 1e6 else f"{x / 1e3:.0f} K/s"
-
-
-def render(env: dict, tp: dict, sweep: list[dict], peak: dict, fits: dict, command: str) -> str:
+def markdown_section(env: dict, tp: dict, peak: dict, fits: dict, command: str) -> str:
     n = tp["n"]
     lines = [SECTION, ""]
     lines += [
         f"Command: `{command}`  ",
         f"Date: {env['date']}  ",
-        f"Machine: {env['cpu']}, {env['cores']} cores ({env['threads_per_core']} thread(s) per core), "
-        f"{env['ram_gib']:.0f} GiB; torch {env['torch']}, {env['threads']} threads; git {env['git']}"
-        f"{' (quick run)' if env['quick'] else ''}  ",
-        f"Method: medians of {env['repeats']} interleaved repeats after a warm-up; repeats during which "
-        f"the rest of the machine used more than {env['max_background']} cores were redone "
-        f"({env['rejected']} redone; median background load of the kept ones {env['background']:.2f} cores). "
+        machine_line(env) + f"{' (quick run)' if env['quick'] else ''}  ",
+        f"Method: {env['method']}. "
         "Absolute numbers moved by up to ~30 % between full runs on this machine (clock, and the "
         "allocator: eager torch page-faults many of its fresh (n, width) buffers, depending on the "
         "heap's history); ratios measured side by side in one run moved far less, so compare those.",
@@ -518,27 +327,7 @@ def render(env: dict, tp: dict, sweep: list[dict], peak: dict, fits: dict, comma
         "The paper's ratio of enhanced to plain GGX is 0.63 (Mitsuba, RTX 3090, rendering, where "
         "tracing rays costs as much as the BRDF); this is the BRDF alone on a CPU.",
         "",
-        "### Fused against per-module neural modules",
-        "",
-        "`neuenh.modules.run_modules` runs the modules that read the same input: F, G and invE of the "
-        "paper state (45-wide input). *per-module*: the loop `[m(x) for m in modules]` (mode `off`, "
-        "the shipped default); *batched*: the first layers as one wide matmul "
-        "`(n, 45) @ (45, 48)`, the later layers as one `torch.baddbmm` each over stacked weights "
-        "(`fusion(\"batched\")`); *first layer*: the wide first-layer matmul, then module by module "
-        "(`fusion(\"first_layer\")`). *model*: the whole enhanced GGX as above; *modules*: the three "
-        "modules alone. Times per call; in brackets the speed-up over per-module (> 1 = faster).",
-        "",
-        "| batch | what | pass | per-module | batched | first layer |",
-        "|---:|---|---|---:|---:|---:|",
     ]
-    for r in sweep:
-        base_t = r["off"]
-        lines.append(
-            f"| {r['n']:,} | {r['what']} | {r['mode']} | {base_t * 1e3:.2f} ms | "
-            + " | ".join(f"{r[m] * 1e3:.2f} ms ({base_t / r[m]:.2f}×)" for m in ("batched", "first_layer"))
-            + " |"
-        )
-    lines += ["", fusion_verdict(sweep)]
     p = peak
     lines += [
         "",
@@ -548,8 +337,8 @@ def render(env: dict, tp: dict, sweep: list[dict], peak: dict, fits: dict, comma
         f"`NeuralModule.flops_per_sample`) + about {ANALYTIC_FLOPS} for the analytic part (shading "
         f"frame, parameter mapping, D, M, S and the remaining operators; transcendentals as 1 FLOP) "
         f"= {p['flops']:,}. The forward pass at {fmt_rate(p['rate'])} (batch {n:,}, as shipped) gives "
-        f"**{p['achieved']:.1f} GFLOP/s**; the three 45-input modules alone (batch {p['mlp_n']:,}, "
-        f"per-module) reach {p['mlp_achieved']:.1f} GFLOP/s.",
+        f"**{p['achieved']:.1f} GFLOP/s**; the three 45-input modules alone (batch {p['mlp_n']:,}) "
+        f"reach {p['mlp_achieved']:.1f} GFLOP/s.",
         "",
         "| peak | GFLOP/s | enhanced GGX forward | its modules alone |",
         "|---|---:|---:|---:|",
@@ -614,27 +403,6 @@ def render(env: dict, tp: dict, sweep: list[dict], peak: dict, fits: dict, comma
     return "\n".join(lines)
 
 
-def environment(args, timer: Timer) -> dict:
-    info = cpu_info()
-    try:
-        git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                             text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        git = "unknown"
-    try:
-        ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
-    except (ValueError, OSError):
-        ram = math.nan
-    return {
-        "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-        "cpu": info["model"], "cores": info["cores"], "threads_per_core": info.get("threads_per_core", 1),
-        "ram_gib": ram, "torch": torch.__version__, "threads": torch.get_num_threads(), "git": git,
-        "quick": args.quick, "repeats": timer.repeats, "max_background": timer.max_background,
-        "rejected": timer.rejected,
-        "background": statistics.median(timer.backgrounds) if timer.backgrounds else math.nan,
-    }
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--write", metavar="PATH", help="write/replace this section of PATH (docs/BENCHMARKS.md)")
@@ -657,13 +425,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {name:28s}" + "".join(
             f"  {mode} {fmt_rate(n / t.seconds):>10s} ({base[mode].seconds / t.seconds:.3f}x)"
             for mode, t in row.items()), flush=True)
-    sizes = [10_000, 30_000] if quick else [10_000, 30_000, 100_000]
-    sweep = fusion_sweep(timer, sizes)
-    for r in sweep:
-        print(f"  n={r['n']:>7,} {r['what']:8s} {r['mode']:17s} per-module {r['off'] * 1e3:8.2f} ms, "
-              + ", ".join(f"{m} {r[m] * 1e3:8.2f} ms ({r['off'] / r[m]:.2f}x)"
-                          for m in ("batched", "first_layer")), flush=True)
-    print("  " + fusion_verdict(sweep), flush=True)
 
     print("2. fraction of peak ...", flush=True)
     enhanced = get_model("ggx", state=PAPER_STATE)
@@ -671,10 +432,10 @@ def main(argv: list[str] | None = None) -> int:
     flops = mlp_flops + ANALYTIC_FLOPS
     rate = n / tp["rows"][ENHANCED]["forward"].seconds
     size = 2048 if quick else 4096
-    mlp = next(r for r in reversed(sweep) if r["what"] == "modules" and r["mode"] == "forward")
     three = sum(enhanced.neural[p].flops_per_sample() for p in ("F", "G", "invE"))
+    modules_alone = modules_rate(timer, enhanced, n)
     peak = {"mlp_flops": mlp_flops, "flops": flops, "rate": rate, "achieved": flops * rate / 1e9,
-            "mlp_n": mlp["n"], "mlp_achieved": three * mlp["n"] / mlp["off"] / 1e9,
+            "mlp_n": n, "mlp_achieved": three * modules_alone / 1e9,
             "theory": theoretical_peak(cpu_info()), "measured": measured_peak(timer, size), "matmul_size": size}
     print(f"  {peak['achieved']:.1f} GFLOP/s = {100 * peak['achieved'] / peak['theory']['gflops']:.1f}% of "
           f"theoretical {peak['theory']['gflops']:.0f}, {100 * peak['achieved'] / peak['measured']:.1f}% of "
@@ -707,8 +468,8 @@ def main(argv: list[str] | None = None) -> int:
         doc = Path(args.write)
         fits["doc_dir"] = str(doc.parent)
         fits["plot"] = plot_fits(rows, doc.parent / "img" / "fit_time_vs_loss.png")
-    env = environment(args, timer)
-    text = render(env, tp, sweep, peak, fits, command)
+    env = {**machine(), "quick": args.quick, "method": timer.method()}
+    text = markdown_section(env, tp, peak, fits, command)
     print()
     print(text)
     if args.write:

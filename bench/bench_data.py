@@ -13,18 +13,15 @@
    arrays (``TrainingData.nbytes``), the process's peak RSS (``VmHWM``) against its
    RSS after the imports, and the wall time.
 
-Before measuring, the script waits (up to ``--max-wait`` seconds, default 900) while the
-1-minute load average is above ``--max-load`` (1.5: others run benchmarks on this machine), then
-runs anyway; the load averages at the start and the end are written with the numbers.
+Before measuring, the script waits (up to ``--max-wait`` seconds, default 900) until the rest of
+the machine uses less than ``--max-background`` cores (``bench.harness.wait_quiet``), then runs
+anyway; the background load during the run is written with the numbers.
 """
 
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import json
-import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -36,48 +33,12 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
 import torch  # noqa: E402
 
+from bench.harness import Background, machine, machine_line, wait_quiet  # noqa: E402
 from bench.report import write_section  # noqa: E402
 
 SECTION = "## Measured data (issue 3)"
 RGL_DIR = ROOT.parent / "shared" / "data" / "rgl"
 MATERIAL = "chm_orange_rgb"
-
-
-# -- the machine -----------------------------------------------------------------------------
-def wait_for_quiet(max_load: float, max_wait: float) -> dict:
-    start = time.monotonic()
-    load = os.getloadavg()[0]
-    while load > max_load and time.monotonic() - start < max_wait:
-        print(f"  load average {load:.2f} > {max_load}: waiting ...", flush=True)
-        time.sleep(min(30.0, max(1.0, max_wait - (time.monotonic() - start))))
-        load = os.getloadavg()[0]
-    return {"waited_s": round(time.monotonic() - start), "load_at_start": os.getloadavg(),
-            "quiet": load <= max_load}
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
-
-
-def machine() -> dict:
-    try:
-        ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
-    except (ValueError, OSError):
-        ram = float("nan")
-    try:
-        git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
-                             check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        git = "unknown"
-    return {"cpu": cpu_model(), "cores": os.cpu_count(), "ram_gib": ram, "torch": torch.__version__,
-            "threads": torch.get_num_threads(), "python": platform.python_version(), "git": git,
-            "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
 
 
 def _status_kib(field: str) -> int:
@@ -161,20 +122,15 @@ def _gib(n: float) -> str:
     return f"{n / 2**30:.2f} GiB" if n >= 2**30 else f"{n / 2**20:.0f} MiB"
 
 
-def render(env: dict, quiet: dict, load_end, rgl: dict, agreement: dict, mem: dict, command: str,
-           quick: bool) -> str:
-    start = ", ".join(f"{v:.2f}" for v in quiet["load_at_start"])
-    end = ", ".join(f"{v:.2f}" for v in load_end)
-    waited = (f"after waiting {quiet['waited_s']} s for the 1-minute load average to drop to 1.5"
-              if quiet["quiet"] else f"the 1-minute load average stayed above 1.5 for {quiet['waited_s']} s, "
-                                     "so this ran on a busy machine")
+def markdown_section(env: dict, waited: float, background: float, rgl: dict, agreement: dict, mem: dict,
+                     command: str, quick: bool) -> str:
     lines = [
         SECTION, "",
         f"Command: `{command}`  ",
         f"Date: {env['date']}  ",
-        f"Machine: {env['cpu']}, {env['cores']} logical CPUs, {env['ram_gib']:.0f} GiB; Python {env['python']}, "
-        f"torch {env['torch']} ({env['threads']} threads); git {env['git']}{' (quick run)' if quick else ''}  ",
-        f"Load average (1, 5, 15 min): {start} at the start ({waited}); {end} at the end.",
+        machine_line(env) + f"{' (quick run)' if quick else ''}  ",
+        f"Background: after waiting {waited:.0f} s for a quiet machine, the rest of the machine used "
+        f"{background:.2f} cores on average during the run.",
         "",
         "### RGL evaluator throughput",
         "",
@@ -239,15 +195,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--write", metavar="PATH", help="write/replace this section of PATH (docs/BENCHMARKS.md)")
     parser.add_argument("--quick", action="store_true", help="a smoke run: 1e5 evaluations, 1e5 samples")
     parser.add_argument("--repeats", type=int, default=7, help="timed repeats of the RGL evaluation (7)")
-    parser.add_argument("--max-load", type=float, default=1.5, help="wait while the 1-minute load is above this")
+    parser.add_argument("--max-background", type=float, default=0.3,
+                        help="wait while the rest of the machine uses more cores than this")
     parser.add_argument("--max-wait", type=float, default=900.0, help="wait at most this many seconds (900)")
     args = parser.parse_args(argv)
     command = "python bench/bench_data.py" + (" --quick" if args.quick else "") + (
         f" --write {args.write}" if args.write else "")
 
-    quiet = wait_for_quiet(args.max_load, 0.0 if args.quick else args.max_wait)
+    waited = wait_quiet(0.0 if args.quick else args.max_wait, args.max_background)
     env = machine()
-    print(f"load average at the start: {quiet['load_at_start']}", flush=True)
+    probe = Background().start()
     n = 100_000 if args.quick else 1_000_000
     print(f"1. RGL evaluator, {n:,} evaluations ...", flush=True)
     rgl = rgl_throughput(n, 3 if args.quick else args.repeats)
@@ -260,8 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     mem = materialise_memory(materials, samples)
     print(f"  arrays {mem['array_bytes']:,} B, RSS after imports {_gib(mem['baseline_rss_bytes'])}, peak "
           f"{_gib(mem['peak_rss_bytes'])}, {mem['seconds']:.1f} s", flush=True)
-    load_end = os.getloadavg()
-    text = render(env, quiet, load_end, rgl, agreement, mem, command, args.quick)
+    text = markdown_section(env, waited, probe.stop(), rgl, agreement, mem, command, args.quick)
     print("\n" + text)
     if args.write:
         write_section(Path(args.write), SECTION, text)

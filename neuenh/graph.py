@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Callable, Literal, Mapping, Sequence
 import torch
 from torch import nn
 
-from .modules import ModuleConfig, NeuralModule, module_seed, run_modules
+from .modules import ModuleConfig, NeuralModule, module_seed
 from .params import ParamSpecs
 from .shading import Shading, make_shading
 
@@ -302,8 +302,8 @@ class BRDFModel(nn.Module):
         values: Mapping[str, torch.Tensor],
         latent: torch.Tensor | None,
     ) -> dict[str, torch.Tensor]:
-        """Outputs of the modules replacing terms. Modules that read the same input (with or
-        without directions) run together through ``run_modules``, which may fuse them."""
+        """Outputs of the modules replacing terms; modules that read the same input (with or
+        without directions) share one concatenated input."""
         groups: dict[bool, list[str]] = {}
         for expr, digit in zip(self.graph.positions, digits):
             if digit and isinstance(expr, Term):
@@ -317,7 +317,7 @@ class BRDFModel(nn.Module):
         out: dict[str, torch.Tensor] = {}
         for reads_directions, names in groups.items():
             x = torch.cat(base + ([wi, wo] if reads_directions else []), dim=-1)
-            out.update(zip(names, run_modules([self.neural[n] for n in names], x)))
+            out.update((name, self.neural[name](x)) for name in names)
         return out
 
     def specialize(self, params: Mapping[str, torch.Tensor]) -> "SpecializedBRDF":

@@ -6,7 +6,7 @@ import dataclasses
 
 from fastapi import APIRouter
 
-from ..deps import Authorized, WorkerDep
+from ..deps import Authorized, JobQueueDep
 from ..errors import COMMON
 from ..schemas import ClusterPublic
 
@@ -14,6 +14,6 @@ router = APIRouter(tags=["cluster"], dependencies=[Authorized], responses=COMMON
 
 
 @router.get("/cluster", response_model=ClusterPublic)
-def cluster(worker: WorkerDep) -> ClusterPublic:
-    info = worker.orchestrator.executor.cluster()
-    return ClusterPublic.model_validate({**dataclasses.asdict(info), "running_job": worker.current})
+def cluster(job_queue: JobQueueDep) -> ClusterPublic:
+    info = job_queue.orchestrator.executor.cluster()
+    return ClusterPublic.model_validate({**dataclasses.asdict(info), "running_job": job_queue.current})

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import re
 import tempfile
-import threading
 from pathlib import Path, PurePath
 from typing import Annotated, Literal
 
@@ -23,15 +22,11 @@ from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
 from neuenh.fit import FitConfig, fit_materials
 
-from ..deps import ArtifactStoreDep, Authorized, JobStoreDep, SettingsDep
+from ..deps import ArtifactStoreDep, Authorized, FitLockDep, JobStoreDep, SettingsDep
 from ..errors import COMMON, documented
 from ..schemas import FitPublic
 
 router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized], responses=COMMON)
-
-# Process-wide, like the CPUs it guards: two fits at once would only slow each other down.
-_one_fit_at_a_time = threading.Lock()
-
 
 @router.post("/{job_id}/fit", response_model=FitPublic, responses=documented({
     400: "a body that is not multipart/form-data",
@@ -39,7 +34,7 @@ _one_fit_at_a_time = threading.Lock()
     413: "upload over NEUENH_MAX_UPLOAD_BYTES",
     422: "a table that cannot be read, or a request over the service's limits"}))
 def fit_job(
-    job_id: str, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep,
+    job_id: str, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep, fit_lock: FitLockDep,
     files: Annotated[list[UploadFile], File(description="one measurement table per material (.npz or CSV)")],
     method: Annotated[Literal["fast", "paper"], Form()] = "fast",
     epochs: Annotated[int, Form(ge=0, description="0: the method's default, 300 (fast) or 1000 (paper)")] = 0,
@@ -55,7 +50,7 @@ def fit_job(
     samples = _read_uploads(files, settings.max_samples)
     bundle = Bundle.from_bytes(artifacts.get(last.artifact_key))
     model = bundle.model
-    with _one_fit_at_a_time:
+    with fit_lock:
         result = fit_materials(model, samples, FitConfig(method=method, epochs=epochs or None),
                                trained=bundle.materials)
     return FitPublic(job_id=job_id, round=last.index, **result.report(model, method, samples))

@@ -6,13 +6,13 @@ from fastapi import APIRouter
 
 import neuenh
 
-from ..deps import SettingsDep, WorkerDep
+from ..deps import SettingsDep, JobQueueDep
 from ..schemas import Health
 
 router = APIRouter(tags=["health"])
 
 
 @router.get("/health", response_model=Health)
-def health(settings: SettingsDep, worker: WorkerDep) -> Health:
-    return Health(status="ok" if worker.alive else "degraded", version=neuenh.__version__,
-                  worker_alive=worker.alive, auth=settings.api_token is not None)
+def health(settings: SettingsDep, job_queue: JobQueueDep) -> Health:
+    return Health(status="ok" if job_queue.alive else "degraded", version=neuenh.__version__,
+                  worker_alive=job_queue.alive, auth=settings.api_token is not None)

@@ -14,7 +14,7 @@ from fastapi import APIRouter, Header, HTTPException, Query, Response, status
 from neuenh.checkpoint import Bundle
 from storage import JobStatus
 
-from ..deps import ArtifactStoreDep, Authorized, JobStoreDep, SettingsDep, WorkerDep
+from ..deps import ArtifactStoreDep, Authorized, JobStoreDep, SettingsDep, JobQueueDep
 from ..errors import COMMON, documented
 from ..limits import check_limits
 from ..schemas import HistoryPublic, JobCreate, JobList, JobPublic, RoundPublic
@@ -30,7 +30,7 @@ _ERRORS = documented({404: "no such job"})
                                       409: "Idempotency-Key reused for a different spec",
                                       413: "request body over NEUENH_MAX_REQUEST_BYTES",
                                       422: "invalid job spec, or over the service's limits"})})
-def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, worker: WorkerDep,
+def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, job_queue: JobQueueDep,
                idempotency_key: Annotated[str | None, Header(max_length=200)] = None) -> JobPublic:
     """Validate and queue a job (202). A repeated ``Idempotency-Key`` with the same spec returns
     the job it created (200)."""
@@ -38,30 +38,30 @@ def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, worke
         # stored explicitly, so the job runs the same wherever and whenever it resumes
         spec.resources.gpus_per_candidate = settings.default_gpus_per_candidate
     check_limits(spec, settings)
-    job, created = worker.orchestrator.submit(spec, idempotency_key=idempotency_key)
+    job, created = job_queue.orchestrator.submit(spec, idempotency_key=idempotency_key)
     if created:
-        worker.enqueue(job.id)
+        job_queue.enqueue(job.id)
     else:
         response.status_code = status.HTTP_200_OK
-    public = JobPublic.from_record(job, progress=worker.progress(job.id))
+    public = JobPublic.from_record(job, progress=job_queue.progress(job.id))
     response.headers["Location"] = public.links.self
     return public
 
 
 @router.get("", response_model=JobList)
-def list_jobs(jobs: JobStoreDep, worker: WorkerDep,
+def list_jobs(jobs: JobStoreDep, job_queue: JobQueueDep,
               status_: Annotated[list[JobStatus] | None, Query(alias="status", description="repeat for several")] = None,
               limit: Annotated[int, Query(ge=1, le=500)] = 50,
               cursor: Annotated[str | None, Query(pattern=r"^[0-9]{1,19}$", description="next_cursor of the previous page")] = None) -> JobList:
     """Jobs, newest first, in pages."""
     page = jobs.list_jobs(status=status_ or None, limit=limit, cursor=cursor)
-    return JobList(jobs=[JobPublic.from_record(j, progress=worker.progress(j.id)) for j in page.jobs],
+    return JobList(jobs=[JobPublic.from_record(j, progress=job_queue.progress(j.id)) for j in page.jobs],
                    next_cursor=page.next_cursor)
 
 
 @router.get("/{job_id}", response_model=JobPublic, responses=_ERRORS)
-def get_job(job_id: str, jobs: JobStoreDep, worker: WorkerDep) -> JobPublic:
-    return JobPublic.from_record(jobs.get_job(job_id), progress=worker.progress(job_id))
+def get_job(job_id: str, jobs: JobStoreDep, job_queue: JobQueueDep) -> JobPublic:
+    return JobPublic.from_record(jobs.get_job(job_id), progress=job_queue.progress(job_id))
 
 
 @router.get("/{job_id}/history", response_model=HistoryPublic, responses=_ERRORS)

@@ -1,4 +1,7 @@
-"""The background job worker: one thread that runs queued jobs one at a time.
+"""The service's job queue: queued job ids and the one thread that runs them, one at a time.
+
+(Not to be confused with the ``workers`` room: Ray workers train candidates; this thread drives
+whole jobs through the orchestrator, which hands their candidates to the executor.)
 
 At start it queues every unfinished job (what ``Orchestrator.resume_all`` would run, oldest
 first), then runs jobs as they are submitted. ``stop()`` asks the running job to halt at its next
@@ -17,12 +20,12 @@ from orchestrator.executor import Executor
 from orchestrator.runner import Orchestrator, Progress
 from storage import ArtifactStore, JobStore
 
-log = logging.getLogger("neuenh.api.worker")
+log = logging.getLogger("neuenh.api.job_queue")
 
 _STOP = object()
 
 
-class JobWorker:
+class JobQueue:
     def __init__(self, jobs: JobStore, artifacts: ArtifactStore, executor: Executor,
                  on_progress: Callable[[Progress], None] | None = None):
         self._stopping = threading.Event()
@@ -33,7 +36,7 @@ class JobWorker:
         self.orchestrator = Orchestrator(jobs, artifacts, executor, on_progress=self._record,
                                          should_stop=self._stopping.is_set)
         self.current: str | None = None
-        self._thread = threading.Thread(target=self._loop, name="neuenh-job-worker", daemon=True)
+        self._thread = threading.Thread(target=self._loop, name="neuenh-job-queue", daemon=True)
 
     # -- lifecycle -------------------------------------------------------------------------------
     def start(self) -> list[str]:
@@ -46,7 +49,7 @@ class JobWorker:
         return resumed
 
     def stop(self, timeout: float) -> bool:
-        """Ask the worker to stop and wait up to ``timeout`` s; True when it has stopped."""
+        """Ask the thread to stop and wait up to ``timeout`` s; True when it has stopped."""
         self._stopping.set()
         self._queue.put(_STOP)
         self._thread.join(timeout)
@@ -81,7 +84,7 @@ class JobWorker:
             try:
                 job = self.orchestrator.run(job_id)
                 log.info("job %s: %s", job_id, job.status.value)
-            except Exception:  # the orchestrator records job failures itself; keep the worker alive
-                log.exception("job %s: the worker could not run it", job_id)
+            except Exception:  # the orchestrator records job failures itself; keep the thread alive
+                log.exception("job %s: the job queue could not run it", job_id)
             finally:
                 self.current = None

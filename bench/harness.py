@@ -1,0 +1,192 @@
+"""The benchmarks' timing harness: one way to wait for a quiet machine, time cases side by side,
+and describe the machine a number was measured on.
+
+* ``Background`` measures how much CPU the rest of the machine used over an interval (``/proc/stat``
+  minus this process), so a repeat disturbed by someone else's work can be thrown away and redone;
+* ``wait_quiet`` waits (bounded) until the rest of the machine is idle;
+* ``Timer.measure`` times several cases interleaved, repeat by repeat in rotating order, and
+  reports the median of the undisturbed repeats: ratios measured this way hold on a shared machine;
+* ``machine()`` is the machine, torch and git revision a section records.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+import os
+import platform
+import re
+import resource
+import statistics
+import subprocess
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class Background:
+    """CPU (in cores) the rest of the machine used between ``start`` and ``stop``."""
+
+    _tick = os.sysconf("SC_CLK_TCK")
+
+    @staticmethod
+    def _busy() -> float:
+        try:
+            with open("/proc/stat") as f:
+                fields = [int(v) for v in f.readline().split()[1:]]
+        except OSError:
+            return math.nan
+        idle = fields[3] + (fields[4] if len(fields) > 4 else 0)
+        return (sum(fields[:8]) - idle) / Background._tick
+
+    @staticmethod
+    def _own() -> float:
+        usage = resource.getrusage(resource.RUSAGE_SELF)
+        children = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return usage.ru_utime + usage.ru_stime + children.ru_utime + children.ru_stime
+
+    def start(self) -> "Background":
+        self.t, self.busy, self.own = time.perf_counter(), self._busy(), self._own()
+        return self
+
+    def stop(self) -> float:
+        wall = max(time.perf_counter() - self.t, 1e-9)
+        return max(0.0, (self._busy() - self.busy) - (self._own() - self.own)) / wall
+
+
+def wait_quiet(max_wait: float, threshold: float, seconds: int = 3) -> float:
+    """Wait (at most ``max_wait`` s) until the rest of the machine used less than ``threshold``
+    cores for ``seconds`` consecutive seconds; returns the waiting time."""
+    start, quiet = time.perf_counter(), 0
+    while quiet < seconds and time.perf_counter() - start < max_wait:
+        probe = Background().start()
+        time.sleep(1.0)
+        quiet = quiet + 1 if probe.stop() < threshold else 0
+    return time.perf_counter() - start
+
+
+@dataclass
+class Timing:
+    seconds: float  # median per call
+    repeats: int
+    rejected: int
+    background: float  # median background load (cores) over the kept repeats
+
+
+@dataclass
+class Timer:
+    """Interleaved medians. A repeat during which the rest of the machine used more than
+    ``max_background`` cores is redone (after a pause), up to ``6 × repeats`` attempts; after that
+    a busy machine still gets numbers, with their background load recorded."""
+
+    repeats: int
+    min_time: float
+    max_background: float
+    rejected: int = 0
+    backgrounds: list[float] = field(default_factory=list)
+
+    def measure(self, cases: dict[str, Callable[[], object]], warmup: int = 2) -> dict[str, Timing]:
+        """Median seconds per call of every case, measured interleaved (rotating order)."""
+        for fn in cases.values():
+            for _ in range(warmup):
+                fn()
+        inner = {}
+        for name, fn in cases.items():
+            t = time.perf_counter()
+            fn()
+            inner[name] = max(1, math.ceil(self.min_time / max(time.perf_counter() - t, 1e-6)))
+        times: dict[str, list[float]] = {name: [] for name in cases}
+        loads: dict[str, list[float]] = {name: [] for name in cases}
+        rejected = dict.fromkeys(cases, 0)
+        names = list(cases)
+        attempts = 0
+        while min(len(v) for v in times.values()) < self.repeats:
+            attempts += 1
+            order = names[attempts % len(names):] + names[: attempts % len(names)]
+            for name in order:
+                if len(times[name]) >= self.repeats:
+                    continue
+                probe = Background().start()
+                t = time.perf_counter()
+                for _ in range(inner[name]):
+                    cases[name]()
+                elapsed = (time.perf_counter() - t) / inner[name]
+                load = probe.stop()
+                if load > self.max_background and attempts < 6 * self.repeats:
+                    rejected[name] += 1
+                    time.sleep(1.0)
+                    continue
+                times[name].append(elapsed)
+                loads[name].append(load)
+        out = {}
+        for name in cases:
+            self.rejected += rejected[name]
+            self.backgrounds.extend(loads[name])
+            out[name] = Timing(statistics.median(times[name]), len(times[name]), rejected[name],
+                               statistics.median(loads[name]))
+        return out
+
+    def method(self) -> str:
+        """One sentence for a section: how the numbers were taken and how disturbed they were."""
+        background = statistics.median(self.backgrounds) if self.backgrounds else math.nan
+        return (f"medians of {self.repeats} interleaved repeats after a warm-up; repeats during which the "
+                f"rest of the machine used more than {self.max_background} cores were redone "
+                f"({self.rejected} redone; median background load of the kept ones {background:.2f} cores)")
+
+
+def cpu_info() -> dict:
+    """Model, cores, vendor/family, flags and clock of this CPU (lscpu and /proc/cpuinfo)."""
+    info = {"model": platform.processor() or "unknown", "cores": os.cpu_count() or 1}
+    try:
+        text = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
+        fields = dict(line.split(":", 1) for line in text.splitlines() if ":" in line)
+        fields = {k.strip(): v.strip() for k, v in fields.items()}
+        info["model"] = fields.get("Model name", info["model"])
+        info["family"] = int(fields.get("CPU family", "0") or 0)
+        info["model_number"] = int(fields.get("Model", "0") or 0)
+        info["vendor"] = fields.get("Vendor ID", "")
+        info["threads_per_core"] = int(fields.get("Thread(s) per core", "1") or 1)
+    except (OSError, subprocess.CalledProcessError, ValueError):
+        pass
+    try:
+        cpuinfo = Path("/proc/cpuinfo").read_text()
+        info["flags"] = set(re.search(r"^flags\s*:(.*)$", cpuinfo, re.M).group(1).split())
+        info["mhz"] = float(re.search(r"^cpu MHz\s*:\s*([\d.]+)", cpuinfo, re.M).group(1))
+    except (OSError, AttributeError):
+        info["flags"], info["mhz"] = set(), math.nan
+    return info
+
+
+def machine() -> dict:
+    """The machine, software and revision a section records."""
+    import torch
+
+    info = cpu_info()
+    try:
+        git = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                             text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        git = "unknown"
+    try:
+        ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    except (ValueError, OSError):
+        ram = math.nan
+    return {
+        "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "cpu": info["model"], "cores": info["cores"], "threads_per_core": info.get("threads_per_core", 1),
+        "ram_gib": ram, "python": platform.python_version(), "torch": torch.__version__,
+        "threads": torch.get_num_threads(), "git": git,
+    }
+
+
+def machine_line(env: dict) -> str:
+    """``Machine: ...`` for a section."""
+    return (f"Machine: {env['cpu']}, {env['cores']} logical CPUs, {env['ram_gib']:.0f} GiB; Python "
+            f"{env['python']}, torch {env['torch']} ({env['threads']} threads); git {env['git']}")
+
+
+def fmt_rate(x: float) -> str:
+    return f"{x / 1e6:.2f} M/s" if x >= 1e6 else f"{x / 1e3:.0f} K/s"
