@@ -28,8 +28,12 @@ browser:
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium >/dev/null; } || \
 	  echo "note: chromium is not installed and this is not root; the dashboard browser test will skip"
 
+# The dashboard's pure modules under Node's own test runner, then every Python test with the 25
+# slowest listed (make them cheaper before adding more).
 test: $(STAMP) browser
-	$(PY) -m pytest -q
+	@if command -v node >/dev/null; then node --test tests/dashboard/; \
+	  else echo "note: node is not installed; the dashboard's unit tests (tests/dashboard) skip"; fi
+	$(PY) -m pytest -q --durations=25
 
 # Slow, measured side by side; each script rewrites its own section of docs/BENCHMARKS.md.
 bench: $(STAMP)

@@ -30,7 +30,7 @@ from orchestrator.executor import Executor
 from storage import ArtifactStore, LocalArtifactStore, OwnerLock, SQLiteJobStore
 
 from . import deps, errors
-from .routes import cluster, dashboard, fit, health, jobs
+from .routes import cluster, dashboard, docs, fit, health, jobs
 from .settings import Settings
 from .job_queue import JobQueue
 
@@ -101,6 +101,8 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
         version=neuenh.__version__,
         summary="Neural enhancement of analytical BRDF models: a distributed search service.",
         lifespan=lifespan,
+        docs_url=None,   # served by routes/docs from packaged assets: the CDN default fails offline
+        redoc_url=None,
     )
     errors.install(app)
     v1 = APIRouter(prefix="/v1", dependencies=[Depends(deps.known_query_only)])
@@ -109,6 +111,8 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
     app.include_router(v1)
     app.include_router(dashboard.router)
     app.mount("/dashboard", dashboard.static_files(), name="dashboard")
+    app.include_router(docs.router)
+    app.mount(docs.ASSETS_URL, docs.static_files(), name="docs-assets")
     app.add_middleware(BodyLimit, limit=lambda path: body_limit(app.state.settings, path))
     return app
 

@@ -10,13 +10,20 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from orchestrator.runner import Progress
+from neuenh.search import describe_change
+from orchestrator.progress import Progress
 from orchestrator.spec import JobSpec
-from storage import CandidateRecord, JobRecord, JobStatus, RoundRecord
+from storage import (CandidateRecord, JobRecord, JobStatus, RoundKind, RoundRecord, WarmupRecord,
+                     start_val_loss)
 
 
 def _time(t: float | None) -> datetime | None:
     return None if t is None else datetime.fromtimestamp(t, tz=timezone.utc)
+
+
+def _gain(val_loss: float, start: float | None) -> float | None:
+    """The share of the starting state's validation loss removed (negative when it grew)."""
+    return None if start is None else 1.0 - val_loss / start
 
 
 class JobCreate(JobSpec):
@@ -87,8 +94,11 @@ class JobList(BaseModel):
 
 class CandidatePublic(BaseModel):
     state: str
+    change: str = Field(description="what it changed from the round's parent, e.g. '+G' (G made neural), "
+                                    "'-G' (analytical again), 'G[1->2]' (another choice), 'stay'")
     ok: bool
     winner: bool
+    pruned: bool = Field(description="stopped early by successive halving; its losses are from the cut")
     train_loss: float | None
     val_loss: float | None
     epochs: int
@@ -98,19 +108,38 @@ class CandidatePublic(BaseModel):
     seed: int | None
 
     @classmethod
-    def from_record(cls, c: CandidateRecord, winner_state: str) -> "CandidatePublic":
-        return cls(state=c.state, ok=c.ok, winner=c.state == winner_state, train_loss=c.train_loss,
+    def from_record(cls, c: CandidateRecord, r: RoundRecord, positions: list[str]) -> "CandidatePublic":
+        return cls(state=c.state, change=describe_change(r.parent_state, c.state, positions), ok=c.ok,
+                   winner=c.state == r.winner_state, pruned=c.pruned, train_loss=c.train_loss,
                    val_loss=c.val_loss, epochs=c.epochs, wall_s=c.wall_s, node=c.node, error=c.error,
                    seed=c.seed)
 
 
+class WarmupPublic(BaseModel):
+    epochs: int
+    train_loss: float | None
+    val_loss: float | None
+    wall_s: float
+    node: str | None
+
+    @classmethod
+    def from_record(cls, w: WarmupRecord) -> "WarmupPublic":
+        return cls.model_validate(dataclasses.asdict(w))
+
+
 class RoundPublic(BaseModel):
     round: int
+    kind: RoundKind = Field(description="'search': every candidate around the parent; 'polish': the final "
+                                        "state trained on with a decaying learning rate")
     parent_state: str
     winner_state: str
+    change: str = Field(description="what the winner changed from the parent (as a candidate's change)")
     winner_val_loss: float
-    converged: bool = Field(description="the stay candidate won: the search stopped here (false for the "
-                                        "polish round, extra.polish, that may follow)")
+    gain_over_start: float | None = Field(description="1 - winner_val_loss / the history's start_val_loss: "
+                                                      "the share of the starting state's loss removed so far")
+    converged: bool = Field(description="the stay candidate won a search round: the search stopped here")
+    outcome: JobStatus | None = Field(description="a polish round: how the search had ended")
+    warmup: WarmupPublic | None = Field(description="round 0 of a search that trained its start state first")
     started_at: datetime
     finished_at: datetime
     wall_s: float
@@ -118,12 +147,15 @@ class RoundPublic(BaseModel):
     extra: dict[str, Any]
 
     @classmethod
-    def from_record(cls, r: RoundRecord) -> "RoundPublic":
-        return cls(round=r.index, parent_state=r.parent_state, winner_state=r.winner_state,
-                   winner_val_loss=r.winner_val_loss, converged=r.winner_state == r.parent_state and not r.extra.get("polish"),
+    def from_record(cls, r: RoundRecord, positions: list[str], start: float | None) -> "RoundPublic":
+        return cls(round=r.index, kind=r.kind, parent_state=r.parent_state, winner_state=r.winner_state,
+                   change=describe_change(r.parent_state, r.winner_state, positions),
+                   winner_val_loss=r.winner_val_loss, gain_over_start=_gain(r.winner_val_loss, start),
+                   converged=r.converged, outcome=r.outcome,
+                   warmup=WarmupPublic.from_record(r.warmup) if r.warmup else None,
                    started_at=_time(r.started_at), finished_at=_time(r.finished_at),
                    wall_s=r.finished_at - r.started_at,
-                   candidates=[CandidatePublic.from_record(c, r.winner_state) for c in r.candidates],
+                   candidates=[CandidatePublic.from_record(c, r, positions) for c in r.candidates],
                    extra=r.extra)
 
 
@@ -134,8 +166,24 @@ class HistoryPublic(BaseModel):
     status: JobStatus
     terminal: bool
     current_state: str | None
+    start_val_loss: float | None = Field(description="round 0's stay candidate: the starting state (plain "
+                                                     "analytical by default) trained like every candidate")
+    gain_over_start: float | None = Field(description="1 - the last winner's val loss / start_val_loss")
     rounds: list[RoundPublic]
     next_since_round: int = Field(description="poll again with ?since_round= this value")
+
+    @classmethod
+    def from_records(cls, job: JobRecord, rounds: list[RoundRecord], since_round: int = 0) -> "HistoryPublic":
+        """``rounds`` are all the job's committed rounds; those from ``since_round`` on are listed."""
+        from neuenh.models import get_model
+
+        positions = list(get_model(job.spec.get("model", "ggx")).positions)
+        start = start_val_loss(rounds)
+        shown = [r for r in rounds if r.index >= since_round]
+        return cls(job_id=job.id, status=job.status, terminal=job.terminal, current_state=job.current_state,
+                   start_val_loss=start, gain_over_start=_gain(rounds[-1].winner_val_loss, start) if rounds else None,
+                   rounds=[RoundPublic.from_record(r, positions, start) for r in shown],
+                   next_since_round=shown[-1].index + 1 if shown else since_round)
 
 
 class NodePublic(BaseModel):

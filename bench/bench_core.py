@@ -41,11 +41,12 @@ from bench.harness import Background, Timer, cpu_info, fmt_rate, machine, machin
 from bench.report import write_section  # noqa: E402
 from neuenh.checkpoint import Bundle  # noqa: E402
 from neuenh.data.samples import sample_materials  # noqa: E402
-from neuenh.data.sampling import sample_directions, to_rusinkiewicz  # noqa: E402
+from neuenh.data.directions import sample_directions, to_rusinkiewicz  # noqa: E402
 from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo  # noqa: E402
 from neuenh.fit import FitConfig, FitResult, fit_materials  # noqa: E402
 from neuenh.models import get_model  # noqa: E402
-from neuenh.train import TrainConfig, TrainingData, train_candidate  # noqa: E402
+from neuenh.train import TrainConfig, train_candidate  # noqa: E402
+from neuenh.data.samples import TrainingData  # noqa: E402
 
 SECTION = "## Core evaluation and fitting (issue 2)"
 ENHANCED = "enhanced GGX"

@@ -51,7 +51,7 @@ def _status_kib(field: str) -> int:
 # -- 1. RGL throughput -----------------------------------------------------------------------
 def rgl_throughput(n: int, repeats: int) -> dict:
     from neuenh.data import load_measured
-    from neuenh.data.sampling import sample_directions
+    from neuenh.data.directions import sample_directions
 
     path = RGL_DIR / f"{MATERIAL}.bsdf"
     if not path.exists():

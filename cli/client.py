@@ -193,7 +193,7 @@ def history(args, api: Api) -> int:
         _note(f"job {args.job} has no committed round{' from ' + str(args.since) if args.since else ''} yet "
               f"({data['status'].lower()})")
         return 0
-    print(_history_table(data["rounds"], _positions(api.job(args.job))))
+    print(_history_table(data["rounds"]))
     return 0
 
 
@@ -275,37 +275,17 @@ def _follow(api: Api, job_id: str, args) -> int:
     return code
 
 
-def _positions(job: dict) -> tuple[str, ...] | None:
-    if job.get("positions"):
-        return tuple(job["positions"])
-    try:
-        from neuenh.models import get_model
-
-        return get_model(job["model"]).positions
-    except (ImportError, KeyError, ValueError):  # a model this client does not know
-        return None
-
-
-def _changes(parent: str, winner: str, positions) -> str:
-    """``+G`` position G became neural, ``-G`` analytical again, ``G[1->2]`` another module choice."""
-    out = []
-    for i, (a, b) in enumerate(zip(parent, winner)):
-        if a == b:
-            continue
-        name = positions[i] if positions and i < len(positions) else f"#{i}"
-        out.append(f"+{name}" if a == "0" and b == "1" else f"-{name}" if b == "0"
-                   else f"{name}[{a}->{b}]")
-    return " ".join(out) or "(stay)"
-
-
-def _history_table(rounds: list[dict], positions) -> str:
-    rows = [("round", "parent -> winner", "changed", "val loss", "ok/total", "wall")]
+def _history_table(rounds: list[dict]) -> str:
+    """One row per round with the change and the gain the service describes (as the dashboard)."""
+    rows = [("round", "parent -> winner", "changed", "val loss", "vs start", "ok/total", "wall")]
     for r in rounds:
         ok = sum(c["ok"] for c in r["candidates"])
-        rows.append((str(r["round"]), f"{r['parent_state']} -> {r['winner_state']}",
-                     _changes(r["parent_state"], r["winner_state"], positions) + (" converged" if r["converged"] else ""),
-                     f"{r['winner_val_loss']:.5f}", f"{ok}/{len(r['candidates'])}", f"{r['wall_s']:.1f}s"))
-    return _table(rows, right=(0, 3, 4, 5))
+        gain = "-" if r["gain_over_start"] is None else f"{-100 * r['gain_over_start']:+.1f}%"
+        rows.append((str(r["round"]) + (" polish" if r["kind"] == "polish" else ""),
+                     f"{r['parent_state']} -> {r['winner_state']}",
+                     r["change"] + (" converged" if r["converged"] else ""),
+                     f"{r['winner_val_loss']:.5f}", gain, f"{ok}/{len(r['candidates'])}", f"{r['wall_s']:.1f}s"))
+    return _table(rows, right=(0, 3, 4, 5, 6))
 
 
 def _jobs_table(found: list[dict]) -> str:

@@ -112,14 +112,18 @@ def _describe_material(material, probe: int, directions=None) -> dict:
 
 
 def inspect_file(path: Path, probe: int) -> dict:
-    from neuenh.data.exr import is_capture, read_capture, read_exr_channels, read_parameter_exr
-    from neuenh.data.measured import detect_format, load_measured
+    from neuenh.data.capture import read_capture
+    from neuenh.data.directions import sample_directions
+    from neuenh.data.exr import read_exr_channels
+    from neuenh.data.formats import detect_format
+    from neuenh.data.measured import load_measured
     from neuenh.data.nbrdf import load_nbrdf, network_input
-    from neuenh.data.sampling import sample_directions
+    from neuenh.data.param_images import HEADER_KEY, read_parameter_exr
 
     if probe is not None and probe < 1:
         raise DataCommandError(f"--probe must be >= 1, got {probe}")
-    if is_capture(path):
+    kind = detect_format(path)
+    if kind == "capture":
         capture = read_capture(path)
         f = torch.from_numpy(capture.values.reshape(-1, 3))
         h, w = capture.shape
@@ -129,27 +133,19 @@ def inspect_file(path: Path, probe: int) -> dict:
                 "materials": [{"name": f"{capture.name}[row,col]", "count": h * w, "isotropic": False,
                                "samples": capture.images, "continuous": False, "f_r": _ranges(f),
                                **_angles(capture.wi, capture.wo)}]}
-    if not path.exists():
-        raise DataCommandError(f"{path}: no such file")
-    if path.is_file():
-        with open(path, "rb") as fh:
-            magic = fh.read(4)
-        if magic == b"\x76\x2f\x31\x01":
-            channels, header = read_exr_channels(path)
-            h, w = next(iter(channels.values())).shape
-            out = {"file": str(path), "format": "exr", "width": w, "height": h,
-                   "channels": {k: str(v.dtype) for k, v in sorted(channels.items())}}
-            if "neuenh" in header:
-                image = read_parameter_exr(path)
-                out["format"] = "parameter_exr"
-                out["parameters"] = {k: v.shape[2] for k, v in image.params.items()}
-                out["metadata"] = image.metadata
-            return out
-        if magic == b"PK\x03\x04":
-            dataset = _materialised_dataset(path)
-            if dataset is not None:
-                return dataset
-    kind = detect_format(path)
+    if kind == "exr":
+        channels, header = read_exr_channels(path)
+        h, w = next(iter(channels.values())).shape
+        out = {"file": str(path), "format": "exr", "width": w, "height": h,
+               "channels": {k: str(v.dtype) for k, v in sorted(channels.items())}}
+        if HEADER_KEY in header:
+            image = read_parameter_exr(path)
+            out["format"] = "parameter_exr"
+            out["parameters"] = {k: v.shape[2] for k, v in image.params.items()}
+            out["metadata"] = image.metadata
+        return out
+    if kind == "dataset":
+        return _materialised_dataset(path)
     materials = list(load_nbrdf(path).values()) if kind == "nbrdf" else [load_measured(path)]
     directions = None
     probe = probe or (20_000 if len(materials) == 1 else 2_000)
@@ -166,17 +162,15 @@ def inspect_file(path: Path, probe: int) -> dict:
     return out
 
 
-def _materialised_dataset(path: Path) -> dict | None:
-    """The summary of an .npz written by ``neuenh data sample``, or None for any other .npz."""
+def _materialised_dataset(path: Path) -> dict:
+    """The summary of an .npz written by ``neuenh data sample``."""
     try:
         with np.load(path, allow_pickle=False) as npz:
-            if not {"names", "recipe", "train_wi", "val_wi", "train_material"} <= set(npz.files):
-                return None
             names = [str(n) for n in npz["names"]]
             train, val = npz["train_material"], npz["val_material"]
             recipe = json.loads(str(npz["recipe"]))
-    except Exception:  # noqa: BLE001 - not readable as a dataset: let detect_format say what it is
-        return None
+    except Exception as exc:  # noqa: BLE001 - numpy/zipfile/json raise many types for a corrupt file
+        raise DataCommandError(f"{path}: a dataset .npz that cannot be read ({type(exc).__name__}: {exc})") from None
     return {"file": str(path), "format": "dataset", "materials": len(names), "train": int(len(train)),
             "val": int(len(val)), "names": names, "recipe": recipe}
 
@@ -323,7 +317,7 @@ _LUMA = torch.tensor([0.2126, 0.7152, 0.0722], dtype=torch.float64)
 def slice_directions(view: str, resolution: int, phi_d_deg: float, theta_i_deg: float):
     """(wi, wo) (resolution², 3) float64 over the slice grid (row-major, row 0 at the bottom of
     the picture), and the axis extent and labels."""
-    from neuenh.data.sampling import from_rusinkiewicz
+    from neuenh.data.directions import from_rusinkiewicz
 
     n = resolution
     if view == "rusinkiewicz":
@@ -351,7 +345,7 @@ def _luminance(f: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor, n: int) -> n
 
 
 def run_slice(args) -> int:
-    from neuenh.data.exr import is_capture
+    from neuenh.data.formats import detect_format
     from neuenh.data.measured import TableMaterial, load_measured
 
     if args.resolution < 8 or args.resolution > 2048:
@@ -364,7 +358,7 @@ def run_slice(args) -> int:
         raise DataCommandError(f"-o {args.output}: the picture is a PNG (name it *.png)")
     if not args.output.parent.is_dir():
         raise DataCommandError(f"-o {args.output}: folder {args.output.parent} does not exist")
-    if is_capture(args.file):
+    if detect_format(args.file) == "capture":
         raise DataCommandError(f"{args.file}: a capture holds measured texels, not a continuous BRDF; slice "
                                "draws RGL, MERL or NBRDF files")
     model = None

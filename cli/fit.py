@@ -11,7 +11,7 @@ writes a bundle of the model with the fitted materials.
 measured with the parameters fitted to the i-th table, whatever its file name (the material keeps
 the fitted table's name). The counts must match and no held-out table may be a fitted one. Each
 material then gets its held-out log-L1 (``heldout_log_l1``, the training loss on samples not
-fitted; see neuenh.evaluate). Put ``--test`` after the measurements (it takes every table that
+fitted; see neuenh.study.heldout). Put ``--test`` after the measurements (it takes every table that
 follows it). ``--predictions OUT.npz`` (needs ``--test``) writes, atomically, the fitted model's
 f_r at the held-out directions: arrays ``wi``, ``wo``, ``f_r`` (n, 3), ``material`` (n,) indices
 into ``material_names``; with a single material ``neuenh.data.table.read_table`` reads it as a
@@ -30,7 +30,7 @@ import torch
 from neuenh.checkpoint import Bundle
 from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
-from neuenh.evaluate import heldout_log_l1, predict_f_r, write_predictions
+from neuenh.study.heldout import heldout_log_l1, predict_f_r, write_predictions
 from neuenh.fit import FitConfig, fit_materials
 from neuenh.models import available_models
 from neuenh.pretrained import load_model, shipped_models

@@ -21,9 +21,9 @@ from pathlib import Path
 
 from neuenh.checkpoint import Bundle
 from orchestrator.dataset import prepare_dataset
-from orchestrator.runner import Orchestrator, Progress, train_plain_baseline, trained_epochs
+from orchestrator.runner import Orchestrator, Progress, train_plain_baseline
 from orchestrator.spec import load_spec
-from storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore
+from storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore, trained_epochs
 
 SUCCESS = {JobStatus.CONVERGED, JobStatus.STOPPED}
 
@@ -87,8 +87,10 @@ def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
     bundle = Bundle.from_bytes(artifacts.get(rounds[-1].artifact_key))
     bundle.provenance.update({"job": job.id, "spec": spec.model_dump(mode="json")})
     bundle.save(out / "model")
-    history = {"job": job.id, "status": job.status.value, "spec": spec.model_dump(mode="json"),
-               "rounds": [_round_json(r) for r in rounds]}
+    from api.schemas import HistoryPublic  # the file holds what GET /v1/jobs/{id}/history serves
+
+    history = {"spec": spec.model_dump(mode="json"),
+               **HistoryPublic.from_records(job, rounds).model_dump(mode="json")}
     tmp = out / ".history.json.tmp"
     tmp.write_text(json.dumps(history, indent=2) + "\n")
     tmp.replace(out / "history.json")
@@ -111,15 +113,6 @@ def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
         summary["plain_epochs"] = epochs
         summary["improvement"] = 1.0 - final.val_loss / plain.val_loss
     return summary
-
-
-def _round_json(r) -> dict:
-    return {"round": r.index, "parent_state": r.parent_state, "winner_state": r.winner_state,
-            "winner_val_loss": r.winner_val_loss, "started_at": r.started_at, "finished_at": r.finished_at,
-            "extra": r.extra,
-            "candidates": [{"state": c.state, "train_loss": c.train_loss, "val_loss": c.val_loss,
-                            "epochs": c.epochs, "wall_s": c.wall_s, "node": c.node, "error": c.error,
-                            "seed": c.seed} for c in r.candidates]}
 
 
 def format_summary(s: dict) -> str:

@@ -22,7 +22,8 @@ from neuenh.checkpoint import Bundle
 from neuenh.data.samples import sample_materials
 from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
 from neuenh.fit import fit_materials, per_material_loss
-from neuenh.train import TrainConfig, TrainingData, train_candidate
+from neuenh.train import TrainConfig, train_candidate
+from neuenh.data.samples import TrainingData
 
 PLAIN, PAPER = "00000000000", "00011100100"
 

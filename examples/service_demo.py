@@ -96,9 +96,9 @@ def summarise(history: dict, results: Path, spec_path: Path, data_dir: Path) -> 
     same data (trained here, after the service stopped, so the comparison is fair)."""
     from neuenh.checkpoint import Bundle
     from orchestrator.dataset import prepare_dataset
-    from orchestrator.runner import train_plain_baseline, trained_epochs
+    from orchestrator.runner import train_plain_baseline
     from orchestrator.spec import load_spec
-    from storage import LocalArtifactStore, SQLiteJobStore
+    from storage import LocalArtifactStore, SQLiteJobStore, trained_epochs
 
     rounds = history["rounds"]
     if not rounds:

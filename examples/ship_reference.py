@@ -13,6 +13,7 @@ baselines. ``neuenh report`` draws the search from there.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -21,9 +22,8 @@ sys.path.insert(0, str(ROOT))
 
 from neuenh.checkpoint import Bundle  # noqa: E402
 from orchestrator.baselines import search_budget  # noqa: E402
-from orchestrator.runner import neural_weights  # noqa: E402
-from orchestrator.spec import parse_spec  # noqa: E402
-from storage import JobStatus, LocalArtifactStore, SQLiteJobStore  # noqa: E402
+from orchestrator.spec import neural_weights, parse_spec  # noqa: E402
+from storage import JobStatus, LocalArtifactStore, RoundKind, SQLiteJobStore  # noqa: E402
 
 SPEC_NAME = "reference-enhanced-ggx"
 
@@ -44,8 +44,9 @@ def main() -> int:
     rounds = jobs.rounds(job.id)
     bundle = Bundle.from_bytes(artifacts.get(rounds[-1].artifact_key))
     budget = search_budget(spec, rounds)
-    searched = [r for r in rounds if not r.extra.get("polish")]
-    train_s = sum(r.finished_at - r.started_at for r in rounds) + rounds[0].extra.get("warmup", {}).get("wall_s", 0.0)
+    searched = [r for r in rounds if r.kind is RoundKind.SEARCH]
+    warmup = rounds[0].warmup
+    train_s = sum(r.finished_at - r.started_at for r in rounds) + (warmup.wall_s if warmup else 0.0)
     path = " → ".join([rounds[0].parent_state] + [r.winner_state for r in rounds if r.winner_state != r.parent_state])
     bundle.provenance = {
         **bundle.provenance,
@@ -58,7 +59,8 @@ def main() -> int:
                         f"{train_s / 60:.0f} min on 2 cores"),
             "train_s": round(train_s, 1),
             "rounds": [{"index": r.index, "parent_state": r.parent_state, "winner_state": r.winner_state,
-                        "polish": bool(r.extra.get("polish")), "warmup": r.extra.get("warmup"),
+                        "kind": r.kind.value,
+                        "warmup": dataclasses.asdict(r.warmup) if r.warmup else None,
                         "candidates": [{"state": c.state, "val_loss": c.val_loss, "epochs": c.epochs,
                                         "weights": neural_weights(spec, c.state), "wall_s": round(c.wall_s, 1)}
                                        for c in r.candidates]}

@@ -168,3 +168,26 @@ def candidate_seed(job_seed: int, round_index: int, state: Digits) -> int:
     """A stable seed per (job, round, candidate): a re-run round trains exactly as before."""
     text = f"{job_seed}:{round_index}:{','.join(map(str, state))}"
     return zlib.crc32(text.encode()) & 0x7FFFFFFF
+
+
+def describe_change(parent: str, state: str, positions: Sequence[str],
+                    choice_names: Mapping[tuple[str, int], str] | None = None) -> str:
+    """What ``state`` changed from ``parent``, for people (the API serves it; the dashboard and the
+    CLI show it as is): ``+G`` position G became its module (digit 1), ``-G`` analytical again,
+    ``+G[2]`` G became choice 2, ``G[1->2]`` another choice; several changes separated by spaces,
+    ``stay`` for none. ``choice_names`` (position, digit) -> name replaces a digit by its name
+    (``+D[beckmann]``)."""
+    names = choice_names or {}
+    out = []
+    for i, (a, b) in enumerate(zip(parent, state)):
+        if a == b:
+            continue
+        position = positions[i] if i < len(positions) else f"#{i}"
+        label = lambda ch: names.get((position, int(ch, 36)), str(int(ch, 36)))  # noqa: E731
+        if a == "0":
+            out.append(f"+{position}" if b == "1" and (position, 1) not in names else f"+{position}[{label(b)}]")
+        elif b == "0":
+            out.append(f"-{position}")
+        else:
+            out.append(f"{position}[{label(a)}->{label(b)}]")
+    return " ".join(out) or "stay"

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import torch
 
 from .checkpoint import Bundle
-from .data.samples import Samples
+from .data.samples import Samples, TrainingData
 from .graph import BRDFModel
 from .materials import MaterialTable
 
@@ -48,30 +48,6 @@ class TrainConfig:
         out = {"epochs": self.epochs, "lr": self.lr, "rmsprop_alpha": self.rmsprop_alpha,
                "batch_size": self.batch_size}
         return out if self.lr_final is None else {**out, "lr_final": self.lr_final}
-
-
-@dataclass
-class TrainingData:
-    """Training and validation samples of the same materials (same ``names``, same order)."""
-
-    train: Samples
-    val: Samples
-
-    def __post_init__(self) -> None:
-        if self.train.names != self.val.names:
-            raise ValueError("training and validation samples must list the same materials")
-        if len(self.train) == 0:
-            raise ValueError("no training samples")
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return self.train.names
-
-    @property
-    def nbytes(self) -> int:
-        """Bytes of the materialised arrays (wi, wo, f_r and material ids of both parts)."""
-        return sum(t.nbytes for part in (self.train, self.val)
-                   for t in (part.wi, part.wo, part.f_r, part.material))
 
 
 @dataclass

@@ -12,16 +12,20 @@ differs only in the state.
 from __future__ import annotations
 
 import dataclasses
+import sys
+import time
+from pathlib import Path
 
 from neuenh.checkpoint import Bundle
 from neuenh.modules import ModuleConfig
-from neuenh.train import CandidateResult, TrainConfig, TrainingData, train_candidate
-from storage import RoundRecord
+from neuenh.train import CandidateResult, TrainConfig, train_candidate
+from neuenh.data.samples import TrainingData
+from neuenh.study.registry import BASELINES
+from storage import LocalArtifactStore, RoundKind, RoundRecord, trained_epochs
 
-from .runner import trained_epochs
 from .spec import JobSpec
 
-__all__ = ["search_budget", "train_like_search", "training_stages"]
+__all__ = ["search_budget", "train_like_search", "train_missing_baselines", "training_stages"]
 
 
 def search_budget(spec: JobSpec, rounds: list[RoundRecord]) -> tuple[int, int, int]:
@@ -29,8 +33,8 @@ def search_budget(spec: JobSpec, rounds: list[RoundRecord]) -> tuple[int, int, i
     ``trained_epochs(rounds)``."""
     if not rounds:
         raise ValueError("the search has no committed round")
-    warmup = rounds[0].extra.get("warmup", {}).get("epochs", 0)
-    polish = rounds[-1].winner.epochs if rounds[-1].extra.get("polish") else 0
+    warmup = rounds[0].warmup.epochs if rounds[0].warmup else 0
+    polish = rounds[-1].winner.epochs if rounds[-1].kind is RoundKind.POLISH else 0
     total = trained_epochs(rounds)
     return warmup, total - warmup - polish, polish
 
@@ -64,3 +68,28 @@ def train_like_search(spec: JobSpec, data: TrainingData, budget: tuple[int, int,
             raise RuntimeError(f"training {model} {stage_state} failed: {result.error}")
         bundle = result.bundle
     return result
+
+
+def train_missing_baselines(spec_path: Path, budget: tuple[int, int, int] | None, baselines: Path,
+                            work_dir: Path) -> None:
+    """Every baseline of the study (``neuenh.study.registry.BASELINES``) not yet under ``baselines``
+    trained like the search on the data of the job spec at ``spec_path`` (cached under ``work_dir``),
+    with ``budget`` (the enhanced model's recorded search budget), and saved with its provenance."""
+    from .dataset import prepare_dataset
+    from .spec import load_spec
+
+    missing = [b for b in BASELINES.values() if not (b.bundle_dir(baselines) / "model.json").is_file()]
+    if not missing:
+        return
+    if not budget:
+        raise ValueError("the enhanced model's provenance records no search budget to train baselines with")
+    spec = load_spec(spec_path)
+    data, _ = prepare_dataset(spec, LocalArtifactStore(work_dir / "artifacts"))
+    for b in missing:
+        print(f"training {b.name} ({b.label}) for {sum(budget)} epochs ...", file=sys.stderr)
+        start = time.perf_counter()
+        result = train_like_search(spec, data, tuple(budget), b.model, b.state, b.module_config(spec.module.config()))
+        result.bundle.provenance = {"baseline": b.name, "label": b.label, "spec": str(spec_path),
+                                    "budget": list(budget), "train_s": round(time.perf_counter() - start, 1)}
+        result.bundle.save(b.bundle_dir(baselines))
+        print(f"  {b.name}: val log-L1 {result.val_loss:.5f}", file=sys.stderr)

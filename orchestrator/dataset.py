@@ -12,7 +12,7 @@ from safetensors.torch import load, save
 from neuenh.checkpoint import blob_metadata
 from neuenh.data.samples import Samples
 from neuenh.data.sources import materialise
-from neuenh.train import TrainingData
+from neuenh.data.samples import TrainingData
 
 from .spec import JobSpec
 

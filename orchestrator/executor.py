@@ -17,7 +17,9 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Callable, Iterator, Sequence
 
-from neuenh.train import TrainConfig, TrainingData
+from neuenh.train import TrainConfig
+
+from neuenh.data.samples import TrainingData
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -135,6 +136,16 @@ class JobSpec(_Strict):
         """The final state's last training: ``polish_epochs``, lr decayed to ``lr_final`` (lr/100)."""
         return dataclasses.replace(self.train_config(self.search.polish_epochs),
                                    lr_final=self.train.lr_final or self.train.lr / 100)
+
+
+def neural_weights(spec: JobSpec, state: str) -> int:
+    """Neural weights of ``state`` of the spec's model (its modules and latent size)."""
+    return _n_weights(spec.model, state, spec.module.config(), spec.latent_dim)
+
+
+@functools.lru_cache(maxsize=4096)
+def _n_weights(model: str, state: str, module_config, latent_dim: int) -> int:
+    return get_model(model, state=state, module_config=module_config, latent_dim=latent_dim).n_weights()
 
 
 class SpecError(ValueError):

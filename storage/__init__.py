@@ -11,7 +11,8 @@ from .artifacts import ArtifactStore, checkpoint_key, content_digest, content_ke
 from .errors import (ConflictError, CorruptArtifactError, IllegalTransitionError, InvalidKeyError,
                      InvalidRecordError, NotFoundError, SchemaVersionError, StorageError)
 from .jobs import (EVENT_ROUND, EVENT_STATUS, TRANSITIONS, UNFINISHED, CandidateRecord, EventRecord,
-                   JobPage, JobRecord, JobStatus, JobStore, RoundRecord)
+                   HalvingRecord, JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord,
+                   WarmupRecord, start_val_loss, trained_epochs)
 from .local import LocalArtifactStore
 from .lock import OwnerLock, StoreLockedError
 from .sqlite import SQLiteJobStore
@@ -20,7 +21,8 @@ __all__ = [
     "ArtifactStore", "LocalArtifactStore", "S3ArtifactStore", "checkpoint_key", "content_digest", "content_key",
     "validate_key",
     "JobStore", "SQLiteJobStore", "JobStatus", "TRANSITIONS", "UNFINISHED", "EVENT_STATUS",
-    "EVENT_ROUND", "JobRecord", "JobPage", "RoundRecord", "CandidateRecord", "EventRecord",
+    "EVENT_ROUND", "JobRecord", "JobPage", "RoundRecord", "RoundKind", "WarmupRecord", "HalvingRecord",
+    "CandidateRecord", "EventRecord", "start_val_loss", "trained_epochs",
     "StorageError", "NotFoundError", "ConflictError", "IllegalTransitionError", "InvalidRecordError",
     "SchemaVersionError", "InvalidKeyError", "CorruptArtifactError",
     "OwnerLock", "StoreLockedError",

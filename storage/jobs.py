@@ -121,6 +121,42 @@ class JobPage:
     next_cursor: str | None  # pass to ``list_jobs(cursor=...)``; None on the last page
 
 
+class RoundKind(enum.StrEnum):
+    SEARCH = "search"  # a round of the hypercube search: every candidate around the parent
+    POLISH = "polish"  # the final state trained on (``search.polish_epochs``): one candidate
+
+
+@dataclass(frozen=True)
+class WarmupRecord:
+    """The starting state's training before round 0 (``search.warmup_epochs``), recorded on round 0."""
+
+    epochs: int
+    train_loss: float | None
+    val_loss: float | None
+    wall_s: float
+    node: str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "epochs", int(self.epochs))
+        object.__setattr__(self, "train_loss", _finite_or_none(self.train_loss))
+        object.__setattr__(self, "val_loss", _finite_or_none(self.val_loss))
+        object.__setattr__(self, "wall_s", float(self.wall_s))
+
+
+@dataclass(frozen=True)
+class HalvingRecord:
+    """Successive halving within a round (``search.prune: halving``): every candidate trained
+    ``first_epochs``, the better half went on; ``early_val_loss`` is each one's loss at the cut."""
+
+    first_epochs: int
+    early_val_loss: dict[str, float | None]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "first_epochs", int(self.first_epochs))
+        object.__setattr__(self, "early_val_loss",
+                           {str(k): _finite_or_none(v) for k, v in dict(self.early_val_loss).items()})
+
+
 @dataclass(frozen=True)
 class CandidateRecord:
     """One trained candidate of a round. Input of ``commit_round`` and part of its read model."""
@@ -133,7 +169,8 @@ class CandidateRecord:
     node: str | None = None     # where it trained (Ray node id / hostname)
     error: str | None = None    # set when the candidate failed (non-finite loss, exception, pruned)
     seed: int | None = None     # seed of its fresh modules: an interrupted round re-runs with it
-    extra: dict[str, Any] = field(default_factory=dict)  # e.g. epoch_losses, cost, pruned_at
+    pruned: bool = False        # stopped early by successive halving (its losses are from the cut)
+    extra: dict[str, Any] = field(default_factory=dict)  # free-form, e.g. epoch_losses
 
     def __post_init__(self) -> None:
         if not isinstance(self.state, str) or not self.state:
@@ -142,6 +179,7 @@ class CandidateRecord:
         object.__setattr__(self, "val_loss", _finite_or_none(self.val_loss))
         object.__setattr__(self, "epochs", int(self.epochs))
         object.__setattr__(self, "wall_s", float(self.wall_s))
+        object.__setattr__(self, "pruned", bool(self.pruned))
         object.__setattr__(self, "extra", _json_roundtrip(dict(self.extra), f"candidate {self.state} extra"))
 
     @property
@@ -162,16 +200,26 @@ class RoundRecord:
     started_at: float
     finished_at: float
     artifact_key: str | None = None
-    extra: dict[str, Any] = field(default_factory=dict)  # e.g. pruning info, selection rule
+    kind: RoundKind = RoundKind.SEARCH
+    outcome: JobStatus | None = None      # a polish round: how the search ended (CONVERGED or STOPPED)
+    warmup: WarmupRecord | None = None    # round 0 of a search that warmed up first
+    halving: HalvingRecord | None = None  # a round pruned by successive halving
+    extra: dict[str, Any] = field(default_factory=dict)  # free-form
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "index", int(self.index))
         object.__setattr__(self, "candidates", tuple(self.candidates))
         object.__setattr__(self, "started_at", float(self.started_at))
         object.__setattr__(self, "finished_at", float(self.finished_at))
+        object.__setattr__(self, "kind", RoundKind(self.kind))
+        if self.outcome is not None:
+            object.__setattr__(self, "outcome", JobStatus(self.outcome))
         object.__setattr__(self, "extra", _json_roundtrip(dict(self.extra), f"round {self.index} extra"))
         if self.index < 0:
             raise InvalidRecordError(f"round index must be >= 0, got {self.index}")
+        if (self.kind is RoundKind.POLISH) != (self.outcome is not None):
+            raise InvalidRecordError(f"round {self.index}: a polish round, and only a polish round, records "
+                                     f"the search's outcome")
         if not self.candidates:
             raise InvalidRecordError(f"round {self.index} has no candidates")
         winner = self.winner  # raises if absent
@@ -190,6 +238,27 @@ class RoundRecord:
     @property
     def winner_val_loss(self) -> float:
         return self.winner.val_loss  # type: ignore[return-value]  # checked finite on creation
+
+    @property
+    def converged(self) -> bool:
+        """The stay candidate won a search round: the search stopped here."""
+        return self.kind is RoundKind.SEARCH and self.winner_state == self.parent_state
+
+
+def start_val_loss(rounds: list[RoundRecord]) -> float | None:
+    """Round 0's stay candidate's validation loss: the starting state (plain analytical unless the
+    spec says otherwise) trained like every candidate, what a search's gain is measured against.
+    None before round 0 or when that candidate failed."""
+    if not rounds:
+        return None
+    stay = next((c for c in rounds[0].candidates if c.state == rounds[0].parent_state and c.ok), None)
+    return stay.val_loss if stay is not None and stay.val_loss > 0 else None
+
+
+def trained_epochs(rounds: list[RoundRecord]) -> int:
+    """Epochs the last committed winner has trained in all: the warm-up, then every round's winner."""
+    warmup = rounds[0].warmup.epochs if rounds and rounds[0].warmup else 0
+    return warmup + sum(r.winner.epochs for r in rounds)
 
 
 @dataclass(frozen=True)
@@ -307,5 +376,6 @@ def round_payload(record: RoundRecord) -> dict[str, Any]:
 
 __all__ = [
     "JobStatus", "TRANSITIONS", "UNFINISHED", "EVENT_STATUS", "EVENT_ROUND", "JobRecord", "JobPage",
-    "CandidateRecord", "RoundRecord", "EventRecord", "JobStore", "check_transition",
+    "CandidateRecord", "RoundRecord", "RoundKind", "WarmupRecord", "HalvingRecord", "EventRecord", "JobStore",
+    "check_transition", "trained_epochs",
 ]

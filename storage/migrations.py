@@ -79,6 +79,27 @@ MIGRATIONS: tuple[Migration, ...] = (
     Migration(2, "index for listing jobs by status", (
         "CREATE INDEX jobs_by_status ON jobs(status, seq)",
     )),
+    Migration(3, "round kinds, warm-up, halving and pruned candidates as columns, out of extra", (
+        "ALTER TABLE rounds ADD COLUMN kind TEXT NOT NULL DEFAULT 'search'",
+        "ALTER TABLE rounds ADD COLUMN outcome TEXT",  # a polish round: the search's outcome
+        "ALTER TABLE rounds ADD COLUMN warmup TEXT",  # JSON WarmupRecord, round 0
+        "ALTER TABLE rounds ADD COLUMN halving TEXT",  # JSON HalvingRecord
+        "ALTER TABLE candidates ADD COLUMN pruned INTEGER NOT NULL DEFAULT 0",
+        # Stores written before this version kept these as keys of the rounds' extra JSON.
+        """UPDATE rounds SET kind = 'polish', outcome = json_extract(extra, '$.polish')
+           WHERE json_extract(extra, '$.polish') IS NOT NULL""",
+        """UPDATE rounds SET warmup = json(json_extract(extra, '$.warmup'))
+           WHERE json_type(extra, '$.warmup') = 'object'""",
+        """UPDATE rounds SET halving = json_object('first_epochs', json_extract(extra, '$.first_epochs'),
+                                                 'early_val_loss', json(json_extract(extra, '$.early_val_loss')))
+           WHERE json_extract(extra, '$.prune') = 'halving'""",
+        """UPDATE candidates SET pruned = 1 WHERE EXISTS (
+               SELECT 1 FROM rounds r, json_each(r.extra, '$.pruned') p
+               WHERE r.job_id = candidates.job_id AND r.round_index = candidates.round_index
+                 AND p.value = candidates.state)""",
+        """UPDATE rounds SET extra = json_remove(extra, '$.polish', '$.warmup', '$.prune', '$.first_epochs',
+                                                 '$.pruned', '$.early_val_loss')""",
+    )),
 )
 
 SCHEMA_VERSION = MIGRATIONS[-1].version

@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import sqlite3
@@ -26,9 +27,9 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ConflictError, InvalidRecordError, NotFoundError, StorageError
-from .jobs import (EVENT_ROUND, EVENT_STATUS, UNFINISHED, CandidateRecord, EventRecord, JobPage,
-                   JobRecord, JobStatus, JobStore, RoundRecord, canonical_json, check_transition,
-                   round_payload, status_filter, validate_error)
+from .jobs import (EVENT_ROUND, EVENT_STATUS, UNFINISHED, CandidateRecord, EventRecord, HalvingRecord,
+                   JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord, WarmupRecord,
+                   canonical_json, check_transition, round_payload, status_filter, validate_error)
 from .migrations import migrate
 
 
@@ -225,17 +226,19 @@ class SQLiteJobStore(JobStore):
                 raise ConflictError(f"job {job_id}: round {i} starts from {record.parent_state}, but the "
                                     f"current state is {job.current_state}")
             c.execute("INSERT INTO rounds (job_id, round_index, parent_state, winner_state, "
-                      "winner_val_loss, started_at, finished_at, artifact_key, extra) "
-                      "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                      "winner_val_loss, started_at, finished_at, artifact_key, kind, outcome, warmup, "
+                      "halving, extra) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                       (job_id, i, record.parent_state, record.winner_state, record.winner_val_loss,
-                       record.started_at, record.finished_at, record.artifact_key,
+                       record.started_at, record.finished_at, record.artifact_key, record.kind.value,
+                       record.outcome.value if record.outcome else None,
+                       _json_or_null(record.warmup, "round warmup"), _json_or_null(record.halving, "round halving"),
                        canonical_json(record.extra, "round extra")))
             for position, cand in enumerate(record.candidates):
                 c.execute("INSERT INTO candidates (job_id, round_index, position, state, train_loss, "
-                          "val_loss, epochs, wall_s, node, error, seed, extra) "
-                          "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                          "val_loss, epochs, wall_s, node, error, seed, pruned, extra) "
+                          "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                           (job_id, i, position, cand.state, cand.train_loss, cand.val_loss,
-                           cand.epochs, cand.wall_s, cand.node, cand.error, cand.seed,
+                           cand.epochs, cand.wall_s, cand.node, cand.error, cand.seed, int(cand.pruned),
                            canonical_json(cand.extra, "candidate extra")))
             c.execute("UPDATE jobs SET last_round = ?, current_state = ?, updated_at = ? WHERE id = ?",
                       (i, record.winner_state, now, job_id))
@@ -315,10 +318,19 @@ def _load_rounds(c: sqlite3.Connection, job_id: str, since: int,
                        " ORDER BY round_index, position", args):
         by_round[r["round_index"]].append(CandidateRecord(
             state=r["state"], train_loss=r["train_loss"], val_loss=r["val_loss"], epochs=r["epochs"],
-            wall_s=r["wall_s"], node=r["node"], error=r["error"], seed=r["seed"],
+            wall_s=r["wall_s"], node=r["node"], error=r["error"], seed=r["seed"], pruned=bool(r["pruned"]),
             extra=json.loads(r["extra"])))
     return [RoundRecord(index=r["round_index"], parent_state=r["parent_state"],
                         winner_state=r["winner_state"], candidates=tuple(by_round[r["round_index"]]),
                         started_at=r["started_at"], finished_at=r["finished_at"],
-                        artifact_key=r["artifact_key"], extra=json.loads(r["extra"]))
+                        artifact_key=r["artifact_key"], kind=RoundKind(r["kind"]),
+                        outcome=JobStatus(r["outcome"]) if r["outcome"] else None,
+                        warmup=WarmupRecord(**json.loads(r["warmup"])) if r["warmup"] else None,
+                        halving=HalvingRecord(**json.loads(r["halving"])) if r["halving"] else None,
+                        extra=json.loads(r["extra"]))
             for r in rounds]
+
+
+def _json_or_null(record: Any, what: str) -> str | None:
+    """A typed sub-record as canonical JSON (a dataclass's fields), or NULL."""
+    return None if record is None else canonical_json(dataclasses.asdict(record), what)

@@ -8,7 +8,8 @@ import socket
 import time
 
 from neuenh.checkpoint import Bundle
-from neuenh.train import TrainConfig, TrainingData, train_candidate
+from neuenh.train import TrainConfig, train_candidate
+from neuenh.data.samples import TrainingData
 from orchestrator.executor import CandidateReport, CandidateTask
 
 

@@ -9,7 +9,9 @@ import os
 import socket
 from typing import Callable, Iterator, Sequence
 
-from neuenh.train import TrainConfig, TrainingData
+from neuenh.train import TrainConfig
+
+from neuenh.data.samples import TrainingData
 from orchestrator.executor import CandidateReport, CandidateTask, ClusterInfo, Executor, NodeInfo, Resources
 
 from .candidate import run_candidate

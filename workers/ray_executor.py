@@ -24,7 +24,9 @@ import ray
 from ray.autoscaler.sdk import request_resources
 from ray.exceptions import RayError
 
-from neuenh.train import TrainConfig, TrainingData
+from neuenh.train import TrainConfig
+
+from neuenh.data.samples import TrainingData
 from orchestrator.executor import CandidateReport, CandidateTask, ClusterInfo, Executor, NodeInfo, Resources
 
 from .candidate import run_candidate

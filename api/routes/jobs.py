@@ -17,7 +17,7 @@ from storage import JobStatus
 from ..deps import ArtifactStoreDep, Authorized, JobStoreDep, SettingsDep, JobQueueDep
 from ..errors import COMMON, documented
 from ..limits import check_limits
-from ..schemas import HistoryPublic, JobCreate, JobList, JobPublic, RoundPublic
+from ..schemas import HistoryPublic, JobCreate, JobList, JobPublic
 
 router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized], responses=COMMON)
 
@@ -68,12 +68,7 @@ def get_job(job_id: str, jobs: JobStoreDep, job_queue: JobQueueDep) -> JobPublic
 def job_history(job_id: str, jobs: JobStoreDep,
                 since_round: Annotated[int, Query(ge=0)] = 0) -> HistoryPublic:
     """Committed rounds with index >= ``since_round``, each with every candidate and the winner."""
-    job = jobs.get_job(job_id)
-    rounds = jobs.rounds(job_id, since_round=since_round)
-    return HistoryPublic(job_id=job.id, status=job.status, terminal=job.terminal,
-                         current_state=job.current_state,
-                         rounds=[RoundPublic.from_record(r) for r in rounds],
-                         next_since_round=rounds[-1].index + 1 if rounds else since_round)
+    return HistoryPublic.from_records(jobs.get_job(job_id), jobs.rounds(job_id), since_round)
 
 
 @router.post("/{job_id}/cancel", response_model=JobPublic,

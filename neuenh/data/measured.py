@@ -13,7 +13,7 @@ measurement table (CSV)    UTF-8 text whose header names         ``TableMaterial
 =========================  ====================================  ==================================
 
 The file name and extension play no part. (Image-based captures — a folder of EXR images — hold
-one material per texel and have their own reader, ``neuenh.data.exr.read_capture``.) Every material has ``.name``, ``.isotropic``,
+one material per texel and have their own reader, ``neuenh.data.capture.read_capture``.) Every material has ``.name``, ``.isotropic``,
 ``.metadata`` and ``.samples(n, seed)``; continuous ones also ``.evaluate(wi, wo)`` -> f_r (n, 3)
 without the cosine, and their samples are Rusinkiewicz-uniform. ``name`` renames an RGL, MERL or
 table material (default: the file's stem) and *selects* the network of an NBRDF file, where it is
@@ -30,15 +30,14 @@ import numpy as np
 import torch
 
 from .errors import DataError
-from .merl import MERLMaterial, looks_like_merl, merl_from_table, parse_merl
-from .nbrdf import NBRDFMaterial, is_nbrdf_keys, nbrdf_material, nbrdf_names
-from .rgl import RGLMaterial, is_tensor_file, parse_tensor_file, rgl_from_fields
+from .formats import MEASURED, MEASURED_NOT, TABLE_KEYS, ZIP_MAGIC, detect_format, read_head
+from .merl import MERLMaterial, merl_from_table, parse_merl
+from .nbrdf import NBRDFMaterial, nbrdf_material, nbrdf_names
+from .rgl import RGLMaterial, parse_tensor_file, rgl_from_fields
 from .samples import Samples
-from .table import TableError, load_table, looks_like_csv_table
+from .table import TableError, load_table
 
-_ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
-_TABLE_KEYS = {"wi", "wo", "f_r"}
-_HEAD_BYTES = 4096  # enough for the binary magics and a CSV header after a few comment lines
+__all__ = ["MeasuredMaterial", "TableMaterial", "detect_format", "load_measured"]
 
 
 @dataclass
@@ -74,50 +73,11 @@ class TableMaterial:
 MeasuredMaterial = RGLMaterial | MERLMaterial | NBRDFMaterial | TableMaterial
 
 
-def detect_format(path: str | os.PathLike) -> str:
-    """``"rgl"``, ``"merl"``, ``"nbrdf"`` or ``"table"`` (npz or CSV) from the content of ``path``."""
-    return _detect(Path(path))[0]
-
-
-def _detect(path: Path) -> tuple[str, bytes | None]:
-    if not path.exists():
-        raise DataError(f"{path}: no such file")
-    if not path.is_file():
-        raise DataError(f"{path}: not a regular file")
-    try:
-        size = path.stat().st_size
-        with open(path, "rb") as f:
-            head = f.read(_HEAD_BYTES)
-    except OSError as exc:
-        raise DataError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    if is_tensor_file(head):
-        return "rgl", head
-    if looks_like_merl(head, size):
-        return "merl", head
-    if head[:4] in _ZIP_MAGIC:
-        try:
-            with np.load(path, allow_pickle=False) as npz:
-                keys = list(npz.files)
-        except Exception as exc:  # noqa: BLE001 - numpy/zipfile raise many types for a corrupt archive
-            raise DataError(f"{path}: a zip archive but not a readable .npz ({type(exc).__name__}: {exc})") from None
-        if is_nbrdf_keys(keys):
-            return "nbrdf", head
-        if _TABLE_KEYS <= set(keys):
-            return "table", head
-        shown = ", ".join(keys[:10]) + (", ..." if len(keys) > 10 else "")
-        raise DataError(f"{path}: an .npz that is neither NBRDF weights (names, <name>/W1, ...) nor a "
-                        f"measurement table (wi, wo, f_r); it holds [{shown}]")
-    if looks_like_csv_table(head):
-        return "table", head
-    raise DataError(f"{path}: unrecognised content (not an RGL tensor_file, a MERL .binary, "
-                    f"NBRDF weights or a measurement table, .npz or CSV); first bytes {head[:16]!r}")
-
-
 def _check_table_members(path: Path) -> None:
     """``read_table`` expects real numeric arrays; reject anything else here, first."""
     try:
         with np.load(path, allow_pickle=False) as npz:
-            members = {key: npz[key] for key in sorted(_TABLE_KEYS)}
+            members = {key: npz[key] for key in sorted(TABLE_KEYS)}
     except Exception as exc:  # noqa: BLE001 - numpy/zipfile/zlib raise many types for a corrupt archive
         raise DataError(f"{path}: not a readable .npz table ({type(exc).__name__}: {exc})") from None
     for key, a in members.items():
@@ -130,7 +90,10 @@ def _check_table_members(path: Path) -> None:
 def load_measured(path: str | os.PathLike, name: str | None = None) -> MeasuredMaterial:
     """The measured material in the file at ``path``, whatever its format (see the module doc)."""
     path = Path(path)
-    kind, head = _detect(path)
+    kind = detect_format(path)
+    if kind not in MEASURED:
+        raise DataError(f"{path}: {MEASURED_NOT[kind]}, not a measured material file (RGL, MERL, NBRDF "
+                        "or a measurement table)")
     if kind in ("rgl", "merl"):
         try:
             content = path.read_bytes()
@@ -148,7 +111,7 @@ def load_measured(path: str | os.PathLike, name: str | None = None) -> MeasuredM
                                 f"name=... ({shown})")
             name = names[0]
         return nbrdf_material(path, name)
-    if head[:4] in _ZIP_MAGIC:
+    if read_head(path)[:4] in ZIP_MAGIC:
         _check_table_members(path)
     try:
         table = load_table(path, name)

@@ -39,7 +39,7 @@ import numpy as np
 import torch
 
 from .errors import DataError, read_bytes
-from .sampling import from_rusinkiewicz, sample_directions, to_rusinkiewicz
+from .directions import from_rusinkiewicz, sample_directions, to_rusinkiewicz
 
 N_THETA_H, N_THETA_D, N_PHI_D = 90, 90, 180
 DIMS = (N_THETA_H, N_THETA_D, N_PHI_D)

@@ -32,7 +32,7 @@ import torch
 
 from .errors import DataError
 from .merl import as_directions as _as_directions
-from .sampling import sample_directions, to_rusinkiewicz
+from .directions import sample_directions, to_rusinkiewicz
 
 LAYERS = ("W1", "b1", "W2", "b2", "W3", "b3")
 

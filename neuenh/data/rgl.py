@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from .errors import DataError, read_bytes
-from .sampling import sample_directions
+from .directions import sample_directions
 
 MAGIC = b"tensor_file\x00"
 VERSION = (1, 0)

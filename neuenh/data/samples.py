@@ -11,7 +11,7 @@ from typing import Protocol, Sequence
 
 import torch
 
-from .sampling import sample_directions
+from .directions import sample_directions
 
 
 class Material(Protocol):
@@ -104,3 +104,27 @@ def rusinkiewicz_samples(evaluate, n: int, seed: int, isotropic: bool):
     """Helper for continuous materials: Rusinkiewicz-uniform directions and their values."""
     wi, wo = sample_directions(n, seed=seed, anisotropic=not isotropic)
     return wi, wo, evaluate(wi, wo)
+
+
+@dataclass
+class TrainingData:
+    """Training and validation samples of the same materials (same ``names``, same order)."""
+
+    train: Samples
+    val: Samples
+
+    def __post_init__(self) -> None:
+        if self.train.names != self.val.names:
+            raise ValueError("training and validation samples must list the same materials")
+        if len(self.train) == 0:
+            raise ValueError("no training samples")
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.train.names
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the materialised arrays (wi, wo, f_r and material ids of both parts)."""
+        return sum(t.nbytes for part in (self.train, self.val)
+                   for t in (part.wi, part.wo, part.f_r, part.material))

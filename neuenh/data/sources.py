@@ -39,16 +39,17 @@ from typing import Annotated, Literal, Sequence, Union
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from ..train import TrainingData
+from .samples import TrainingData
 from .errors import DataError
-from .exr import read_capture
+from .capture import read_capture
 from .measured import detect_format, load_measured
 from .nbrdf import load_nbrdf, nbrdf_material
 from .samples import Samples, sample_materials
 from .synthetic import ZOO_FAMILIES, synthetic_ggx, synthetic_zoo
 
 _KIND_LABEL = {"rgl": "an RGL .bsdf (tensor_file)", "merl": "a MERL .binary", "nbrdf": "NBRDF weights",
-               "table": "a measurement table"}
+               "table": "a measurement table", "capture": "an image-based capture", "exr": "an OpenEXR image",
+               "dataset": "a materialised training dataset"}
 
 
 class _Source(BaseModel):
@@ -189,7 +190,7 @@ class TableSource(_PathsSource):
 
 
 class EXRCaptureSource(_Files):
-    """An image-based capture (neuenh.data.exr): one material per texel."""
+    """An image-based capture (neuenh.data.capture): one material per texel."""
 
     source: Literal["exr_capture"]
     path: str = Field(min_length=1, description="the capture folder or its JSON")

@@ -19,7 +19,7 @@ import torch
 
 from ..models.ggx import ggx_distribution, ggx_shadowing
 from ..shading import COS_EPS, Shading, make_shading
-from .sampling import sample_directions
+from .directions import sample_directions
 
 Evaluate = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 

@@ -30,7 +30,7 @@ from typing import Callable, Literal, Mapping, Sequence
 import torch
 
 from .lights import DirectionalLight, EnvironmentMap, Light, gather
-from .sampling import DEFAULT_ALPHAS, mixture_density, mixture_directions, mixture_samples
+from .mis import DEFAULT_ALPHAS, mixture_density, mixture_directions, mixture_samples
 from .scene import SphereScene
 
 BRDF = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]

@@ -189,6 +189,16 @@ def test_job_carries_its_position_names(finished):
     assert finished[0]["positions"] == list(get_model("ggx").positions)
 
 
+def test_api_docs_render_with_the_network_cut(page, server):
+    """Swagger UI at /docs from the package's assets: every /v1 operation listed, nothing fetched
+    from outside (the page fixture blocks and reports any such request)."""
+    page.goto(f"{server.url}/docs")
+    page.wait_for_selector(".opblock-summary-path")
+    paths = set(page.eval_on_selector_all(".opblock-summary-path", "els => els.map(e => e.dataset.path)"))
+    assert {"/v1/jobs", "/v1/jobs/{job_id}/history", "/v1/health"} <= paths
+    assert page.title() == "neuenh API"
+
+
 def test_jobs_table_lists_the_job_and_links_to_it(page, server, finished):
     job, _ = finished
     page.goto(server.url + "/")
@@ -218,11 +228,7 @@ def test_trail_has_one_row_per_round_and_the_positions_as_headers(page, server, 
         flipped = digits.evaluate_all("tds => tds.flatMap((td, i) => td.classList.contains('flipped') ? [i] : [])")
         assert flipped == diff(r["parent_state"], r["winner_state"])
         change = row.locator("td.change").inner_text()
-        if flipped:
-            assert all(f"{job['positions'][i]} {r['parent_state'][i]}→{r['winner_state'][i]}" in change
-                       for i in flipped)
-        else:
-            assert change.startswith("stay")
+        assert change == r["change"] if flipped else change.startswith("stay")  # as the API describes it
         assert f"{r['winner_val_loss']:.4g}"[:5] in row.inner_text()
     # The winner's state, digit by digit with the position names, as the final model.
     final = page.locator("#final-state")
@@ -231,6 +237,8 @@ def test_trail_has_one_row_per_round_and_the_positions_as_headers(page, server, 
     assert page.locator("#final-heading").text_content() == "Final model"
     assert page.locator("#progress").is_hidden()
     assert page.locator("#card-rounds").inner_text() == str(len(rounds))
+    gain = 100 * (1 - rounds[-1]["winner_val_loss"] / history["start_val_loss"])
+    assert page.locator("#card-gain").inner_text() == f"{'−' if gain >= 0 else '+'}{abs(gain):.1f}% loss"
 
 
 def test_chart_has_a_point_per_candidate_and_marks_the_winners(page, server, finished):
@@ -267,7 +275,10 @@ def fake_job(positions: list[str], rounds: int, per_round: int = 12) -> tuple[di
                                "error": None if ok else "RuntimeError: loss is NaN", "seed": i})
         winner = min((c for c in candidates if c["ok"]), key=lambda c: c["val_loss"])
         winner["winner"] = True
-        history.append({"round": k, "parent_state": state, "winner_state": winner["state"],
+        for c in candidates:
+            c["change"] = " ".join(f"{positions[i]}[{state[i]}->{c['state'][i]}]" for i in diff(state, c["state"])) or "stay"
+        history.append({"round": k, "kind": "search", "parent_state": state, "winner_state": winner["state"],
+                        "change": winner["change"], "gain_over_start": None,
                         "winner_val_loss": winner["val_loss"], "converged": winner["state"] == state,
                         "started_at": "2026-01-01T00:00:00Z", "finished_at": "2026-01-01T00:01:00Z",
                         "wall_s": 60.0, "candidates": candidates, "extra": {}})
@@ -278,6 +289,7 @@ def fake_job(positions: list[str], rounds: int, per_round: int = 12) -> tuple[di
            "last_round": rounds - 1, "current_state": state, "spec": {}, "progress": None, "positions": positions,
            "links": {"self": url, "history": url + "/history", "model": url + "/model", "cancel": url + "/cancel"}}
     return job, {"job_id": "fake", "status": "STOPPED", "terminal": True, "current_state": state,
+                 "start_val_loss": None, "gain_over_start": None,
                  "rounds": history, "next_since_round": rounds}
 
 

@@ -14,7 +14,7 @@ import torch
 
 from jobspecs import tiny_spec
 from live_api import running_server, wait_for
-from neuenh.data.sampling import sample_directions
+from neuenh.data.directions import sample_directions
 from neuenh.data.table import write_table
 from neuenh.models import get_model
 

@@ -72,8 +72,14 @@ def test_history_has_every_candidate_and_the_winner(client, finished):
         assert all(c["val_loss"] is not None and c["train_loss"] is not None for c in r["candidates"] if c["ok"])
         assert r["finished_at"] >= r["started_at"]
     assert h["rounds"][-1]["winner_state"] == job["current_state"]
+    stay0 = next(c for c in h["rounds"][0]["candidates"] if c["state"] == h["rounds"][0]["parent_state"])
+    assert stay0["change"] == "stay" and h["start_val_loss"] == stay0["val_loss"]
+    for r in h["rounds"]:
+        assert r["kind"] == "search" and r["gain_over_start"] == pytest.approx(1 - r["winner_val_loss"] / stay0["val_loss"])
+    assert h["gain_over_start"] == h["rounds"][-1]["gain_over_start"]
     later = client.get(f"/jobs/{job['id']}/history", params={"since_round": 1}).json()
     assert [r["round"] for r in later["rounds"]] == [r["round"] for r in h["rounds"][1:]]
+    assert (later["start_val_loss"], later["gain_over_start"]) == (h["start_val_loss"], h["gain_over_start"])
 
 
 def test_model_downloads_as_a_loadable_bundle(client, finished, tmp_path):

@@ -21,7 +21,7 @@ from jobspecs import tiny_spec
 
 from live_api import live_server, running_server, wait_for  # noqa: F401  (live_server: fixture)
 from neuenh.checkpoint import Bundle
-from neuenh.data.sampling import sample_directions
+from neuenh.data.directions import sample_directions
 from neuenh.data.table import write_table
 from neuenh.models import get_model
 
@@ -206,8 +206,11 @@ def test_history_table_and_json_agree_with_the_service(server, api, submitted):
         changed = [("+" if b == "1" else "-") + positions[i]
                    for i, (a, b) in enumerate(zip(r["parent_state"], r["winner_state"])) if a != b]
         ok = sum(c["ok"] for c in r["candidates"])
-        expected = [str(r["round"]), r["parent_state"], "->", r["winner_state"], *(changed or ["(stay)"]),
+        start = served["start_val_loss"]
+        assert r["change"] == (" ".join(changed) or "stay")  # the served change, derived independently
+        expected = [str(r["round"]), r["parent_state"], "->", r["winner_state"], *(changed or ["stay"]),
                     *(["converged"] if r["converged"] else []), f"{r['winner_val_loss']:.5f}",
+                    f"{100 * (r['winner_val_loss'] / start - 1):+.1f}%",
                     f"{ok}/{len(r['candidates'])}", f"{r['wall_s']:.1f}s"]
         assert row.split() == expected
 

@@ -7,17 +7,16 @@ subprocess to check exit codes and that no traceback leaks.
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from cli.main import main
-from neuenh.data.exr import capture_directions, render_capture, write_parameter_exr
+from captures import capture_directions, render_capture
+from neuenh.data.param_images import write_parameter_exr
 from neuenh.data.table import write_table
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "neuenh" / "data"))
-from data_files import RGL_DIR, hemisphere, nbrdf_weights, shared  # noqa: E402
+from data_files import RGL_DIR, hemisphere, nbrdf_weights, shared
 
 
 def run(capsys, *args):

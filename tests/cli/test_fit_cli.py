@@ -12,6 +12,7 @@ import torch
 from neuenh.checkpoint import Bundle
 from neuenh.data.synthetic import synthetic_ggx
 from neuenh.data.table import write_table
+from ggx_states import PAPER_STATE
 
 
 def neuenh(*args, timeout=120):
@@ -40,11 +41,11 @@ def test_fit_prints_json_and_writes_a_bundle(table, tmp_path):
 def test_fit_with_a_bundle_directory(table, tmp_path):
     from neuenh.models import get_model
 
-    Bundle(get_model("ggx", state="00011100100", seed=0)).save(tmp_path / "enh")
+    Bundle(get_model("ggx", state=PAPER_STATE, seed=0)).save(tmp_path / "enh")
     out = neuenh("fit", "--model", tmp_path / "enh", table, "--epochs", "3", "--json")
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
-    assert report["state"] == "00011100100" and len(report["materials"][0]["params"]["latent"]) == 27
+    assert report["state"] == PAPER_STATE and len(report["materials"][0]["params"]["latent"]) == 27
 
 
 SHIPPED = Path(__file__).resolve().parents[2] / "models" / "enhanced-ggx" / "model.json"

@@ -11,8 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cli.report import BASELINES, markdown
-from cli.report_plots import pareto_front
+from neuenh.study.comparison import ContenderResult
+from neuenh.study.plots import pareto_front
+from neuenh.study.registry import BASELINES, ContenderInfo
+from neuenh.study.summary import MaterialResult, StudySummary
 from neuenh.checkpoint import Bundle
 from neuenh.modules import ModuleConfig
 
@@ -30,11 +32,10 @@ def neuenh(*args, timeout=300):
 @pytest.fixture(scope="module")
 def bundles(tmp_path_factory):
     root = tmp_path_factory.mktemp("bundles")
-    for name, (_, _, model, state, hidden) in BASELINES.items():
-        config = ModuleConfig(choices=(tuple(hidden),)) if hidden else ModuleConfig()
-        bundle = Bundle.initial(model, ["train"], config)
-        bundle.model = bundle.model.enhance(state, seed=0)
-        bundle.save(root / "baselines" / name)
+    for b in BASELINES.values():
+        bundle = Bundle.initial(b.model, ["train"], b.module_config(ModuleConfig()))
+        bundle.model = bundle.model.enhance(b.state, seed=0)
+        bundle.save(b.bundle_dir(root / "baselines"))
     enhanced = Bundle.initial("ggx", ["a", "b"])
     enhanced.model = enhanced.model.enhance("00010000000", seed=0)
     candidates = [{"state": s, "val_loss": v, "weights": w, "epochs": 2} for s, v, w in
@@ -97,19 +98,22 @@ def test_the_pareto_front_keeps_only_undominated_points():
 
 
 def test_markdown_counts_wins_and_bolds_the_best():
-    results = lambda e, g: [{"contender": "enhanced", "heldout_log_l1": e, "ssim": 0.9, "delta_e_itp": 1.0},  # noqa: E731
-                            {"contender": "ggx", "heldout_log_l1": g, "ssim": 0.8, "delta_e_itp": 2.0}]
-    comparisons = [{"material": "a_rgb", "results": results(0.01, 0.02)}, {"material": "b_rgb", "results": results(0.03, 0.02)}]
-    models = [{"name": "enhanced", "label": "ours", "family": "enhanced", "evals_per_s": 1e6, "rays_per_s": 1e5,
-               "fit_s": 1.0, "params_per_material": 39, "shared_weights": 1825, "log_l1": 0.02, "ssim": 0.9, "delta_e": 1.0},
-              {"name": "ggx", "label": "GGX", "family": "analytical", "evals_per_s": 2e6, "rays_per_s": 2e5,
-               "fit_s": 0.5, "params_per_material": 12, "shared_weights": 0, "log_l1": 0.02, "ssim": 0.8, "delta_e": 2.0}]
-    summary = {"command": "neuenh report", "generated": "today", "wall_s": 60, "models": models,
-               "settings": {"fit_samples": 10, "test_samples": 10, "size": 8, "light_samples": 4, "jobs": 1,
-                            "eval_pairs": 100},
-               "enhanced": {"model": "enhanced-ggx", "formula": "f", "state": "1", "weights": 1825},
-               "enhanced_beats_ggx": 1, "median_reduction_vs_ggx": 0.0, "render_ratio_enhanced_to_ggx": 0.5,
-               "eval_ratio_enhanced_to_ggx": 0.5}
-    text = markdown(summary, comparisons, {})
+    def result(name, log_l1, ssim, delta_e, evals, rays):
+        return ContenderResult(name, fit_loss=log_l1, heldout_log_l1=log_l1, fit_s=1.0, params_per_material=12,
+                               shared_weights=0, ssim=ssim, delta_e_itp=delta_e, render_s=1.0, rays=rays,
+                               evals_per_s=evals)
+
+    materials = [MaterialResult(name, 10, 10, "uniform", [result("enhanced", e, 0.9, 1.0, 1e6, 10**5),
+                                                           result("ggx", g, 0.8, 2.0, 2e6, 2 * 10**5)])
+                 for name, e, g in (("a_rgb", 0.01, 0.02), ("b_rgb", 0.03, 0.02))]
+    summary = StudySummary.of(
+        materials, [ContenderInfo("enhanced", "ours", "enhanced"), ContenderInfo("ggx", "GGX", "analytical")],
+        command="neuenh report", generated="today", wall_s=60,
+        settings={"fit_samples": 10, "test_samples": 10, "size": 8, "light_samples": 4, "jobs": 1, "eval_pairs": 100},
+        enhanced={"model": "enhanced-ggx", "formula": "f", "state": "1", "weights": 1825})
+    assert (summary.enhanced_beats_ggx, summary.median_reduction_vs_ggx) == (1, 0.0)
+    assert (summary.eval_ratio_enhanced_to_ggx, summary.render_ratio_enhanced_to_ggx) == (0.5, 0.5)
+    assert summary.models[0].log_l1 == 0.02 and summary.models[1].ssim == 0.8  # medians over the materials
+    text = summary.markdown(materials, {})
     assert "| a | **0.0100** | 0.0200 | +50.0 % |" in text and "| b | 0.0300 | **0.0200** | -50.0 % |" in text
     assert "**1 of 2**" in text and "## The search" not in text

@@ -2,7 +2,7 @@ import pytest
 
 from neuenh.data.samples import sample_materials
 from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
-from neuenh.train import TrainingData
+from neuenh.data.samples import TrainingData
 
 
 @pytest.fixture(scope="session")

@@ -5,14 +5,15 @@ import pytest
 import torch
 
 from neuenh.checkpoint import Bundle, BundleError
-from neuenh.data.sampling import sample_directions
+from neuenh.data.directions import sample_directions
 from neuenh.materials import MaterialTable
 from neuenh.models import get_model
+from ggx_states import PAPER_STATE
 
 
 @pytest.fixture()
 def bundle():
-    model = get_model("ggx", state="00011100100", seed=2)
+    model = get_model("ggx", state=PAPER_STATE, seed=2)
     table = MaterialTable(model.specs, ["a", "b"], model.latent_dim)
     with torch.no_grad():
         for p in table.parameters():
@@ -39,7 +40,7 @@ def test_directory_round_trip_is_exact(bundle, tmp_path):
     _same(bundle, loaded)
     assert loaded.metrics == {"val_loss": 0.1} and loaded.training == {"epochs": 3}
     meta = json.loads((tmp_path / "m" / "model.json").read_text())
-    assert meta["state"] == "00011100100" and meta["latent_dim"] == 27 and len(meta["positions"]) == 11
+    assert meta["state"] == PAPER_STATE and meta["latent_dim"] == 27 and len(meta["positions"]) == 11
 
 
 def test_bytes_round_trip_is_exact(bundle):

@@ -5,6 +5,7 @@ from neuenh.data.samples import sample_materials
 from neuenh.data.synthetic import synthetic_ggx
 from neuenh.fit import FitConfig, fit_materials, per_material_loss
 from neuenh.models import get_model
+from ggx_states import PAPER_STATE
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +43,7 @@ def test_paper_protocol_defaults():
 
 def test_fitting_leaves_module_weights_frozen(clean_ggx):
     _, samples = clean_ggx
-    model = get_model("ggx", state="00011100100", seed=0)
+    model = get_model("ggx", state=PAPER_STATE, seed=0)
     before = {k: v.clone() for k, v in model.state_dict().items()}
     result = fit_materials(model, samples, FitConfig(epochs=5))
     for key, value in model.state_dict().items():

@@ -5,14 +5,13 @@ import torch
 
 from neuenh.models import available_models, get_model
 from neuenh.modules import ModuleConfig
+from ggx_states import GGX_POSITIONS, PAPER_STATE
 
-PAPER_STATE = "00011100100"  # F, G, invE and the x of (S*D*F) x G are neural
 
 
 def test_ggx_graph_is_the_papers():
     ggx = get_model("ggx")
-    assert ggx.positions == ("M", "S", "D", "F", "G", "invE", "S*D", "S*D*F", "S*D*F*G",
-                             "S*D*F*G*invE", "M+S*D*F*G*invE")
+    assert ggx.positions == GGX_POSITIONS
     assert ggx.describe() == "M + ((((S * D) * F) * G) * invE)"
     enhanced = get_model("ggx", state=PAPER_STATE)
     assert enhanced.describe() == "M + ((((S * D) * F^) *^ G^) * invE^)"

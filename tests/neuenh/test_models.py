@@ -17,9 +17,7 @@ from __future__ import annotations
 
 import functools
 import math
-import sys
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,11 +29,10 @@ from neuenh.models import available_models, get_model
 from neuenh.ops import NUMPY, TORCH
 from neuenh.shading import make_shading
 
-sys.path.insert(0, str(Path(__file__).parent))
-import reference_brdfs as ref  # noqa: E402
+import reference_brdfs as ref
+from ggx_states import GGX_POSITIONS, PAPER_STATE
 
 MODELS = available_models()
-PAPER_STATE = "00011100100"  # M + S·D·F̂ ×̂ Ĝ·(1/Ê), paper Sec. 6
 ALPHA_MODELS = tuple(m for m in MODELS if "alpha_x" in get_model(m).param_names)
 MODELS_WITH = {name: tuple(m for m in MODELS if name in get_model(m).positions) for name in ("D", "F", "G")}
 
@@ -681,8 +678,7 @@ def test_unknown_model_is_named():
 def test_parameter_names_are_the_papers():
     assert get_model("ggx").param_names == ("normal", "t_theta", "rho_d", "rho_s", "alpha_x", "alpha_y", "f0")
     assert get_model("ggx").specs.total_width == 12
-    assert get_model("ggx").positions == (
-        "M", "S", "D", "F", "G", "invE", "S*D", "S*D*F", "S*D*F*G", "S*D*F*G*invE", "M+S*D*F*G*invE")
+    assert get_model("ggx").positions == GGX_POSITIONS
     assert get_model("ggx", state=PAPER_STATE).module_inputs("D") == 45
 
 
@@ -694,7 +690,8 @@ def test_short_training_on_a_near_mirror_material_stays_finite(state):
     from neuenh.checkpoint import Bundle
     from neuenh.data.samples import sample_materials
     from neuenh.data.synthetic import AnalyticMaterial
-    from neuenh.train import TrainConfig, TrainingData, train_candidate
+    from neuenh.train import TrainConfig, train_candidate
+    from neuenh.data.samples import TrainingData
 
     ggx = get_model("ggx")
     mirror_params = {k: torch.as_tensor(v) for k, v in spec_values(

@@ -25,12 +25,6 @@ def test_mapping_round_trips_inside_the_range(model, spec):
     assert torch.allclose(spec.to_unit(value), unit, atol=1e-12)
 
 
-@pytest.mark.parametrize("model,spec", SPECS, ids=IDS)
-def test_init_is_the_mean_of_the_range(model, spec):
-    assert spec.init == pytest.approx((spec.low + spec.high) / 2)
-    assert spec.low <= spec.init <= spec.high
-
-
 def test_ggx_has_the_papers_twelve_parameters():
     specs = get_model("ggx").specs
     assert specs.names == ("normal", "t_theta", "rho_d", "rho_s", "alpha_x", "alpha_y", "f0")

@@ -4,6 +4,7 @@ import pytest
 
 from neuenh.models import get_model
 from neuenh.search import (
+    describe_change,
     Constraints,
     Outcome,
     candidate_seed,
@@ -99,3 +100,16 @@ def test_candidate_seeds_are_stable_and_distinct():
     assert candidate_seed(0, 3, (0, 1)) == candidate_seed(0, 3, (0, 1))
     seeds = {candidate_seed(0, r, s) for r in range(3) for s in hamming_ball(ZERO, 1, 2)}
     assert len(seeds) == 36
+
+
+@pytest.mark.parametrize("parent, state, names, expected", [
+    ("00000000000", "00000000000", None, "stay"),
+    ("00000000000", "00000100000", None, "+invE"),
+    ("00001100000", "00000100000", None, "-G"),
+    ("00001100000", "00002100000", None, "G[1->2]"),
+    ("00000000000", "00200000100", None, "+D[2] +S*D*F*G"),
+    ("00000000000", "00200000000", {("D", 2): "beckmann"}, "+D[beckmann]"),
+    ("00100000000", "00200000000", {("D", 1): "ggx16", ("D", 2): "beckmann"}, "D[ggx16->beckmann]"),
+])
+def test_describe_change(parent, state, names, expected):
+    assert describe_change(parent, state, GGX, names) == expected

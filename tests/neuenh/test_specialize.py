@@ -23,6 +23,7 @@ import torch
 from neuenh.models import available_models, get_model
 from test_models import (assert_relative, random_directions, random_params, stability_grid,
                          torch_params)
+from ggx_states import PAPER_STATE
 
 MODELS = available_models()
 
@@ -30,7 +31,7 @@ MODELS = available_models()
 def enhanced_states(name: str) -> list[str]:
     """The analytical state, every position neural, and (GGX) the paper's state."""
     n = len(get_model(name).positions)
-    return ["0" * n, "1" * n] + (["00011100100"] if name == "ggx" else [])
+    return ["0" * n, "1" * n] + ([PAPER_STATE] if name == "ggx" else [])
 
 
 def materials_of(params: dict[str, np.ndarray]) -> list[tuple[dict[str, np.ndarray], np.ndarray]]:
@@ -137,7 +138,7 @@ def test_throughput_is_measured():
     ({"latent": torch.full((5,), 0.5)}, "width 27"),
 ])
 def test_errors_name_their_culprit(params, message):
-    model = get_model("ggx", state="00011100100", seed=0)
+    model = get_model("ggx", state=PAPER_STATE, seed=0)
     full = {s.name: torch.full((s.width,), s.init) for s in model.specs} | {"latent": torch.full((27,), 0.5)}
     given = params if "missing" in message else {**full, **params}
     with pytest.raises(ValueError, match=message):

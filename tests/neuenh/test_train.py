@@ -6,9 +6,10 @@ import torch
 
 from neuenh.checkpoint import Bundle
 from neuenh.data.samples import Samples
-from neuenh.train import TrainConfig, TrainingData, log_l1, train_candidate
+from neuenh.train import TrainConfig, log_l1, train_candidate
+from neuenh.data.samples import TrainingData
+from ggx_states import PAPER_STATE
 
-PAPER_STATE = "00011100100"
 QUICK = TrainConfig(epochs=3, batch_size=2000)
 
 

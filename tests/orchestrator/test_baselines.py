@@ -9,7 +9,7 @@ from neuenh.modules import ModuleConfig
 from neuenh.train import train_candidate
 from orchestrator.baselines import search_budget, train_like_search
 from orchestrator.dataset import prepare_dataset
-from orchestrator.runner import trained_epochs
+from storage import trained_epochs
 
 from jobspecs import tiny_spec
 

@@ -144,10 +144,11 @@ def test_successive_halving_is_recorded(orchestrator, stores):
     spec = tiny_spec(max_rounds=1, prune="halving", epochs_per_round=3)
     job = orchestrator.run(orchestrator.submit(spec)[0].id)
     (round0,) = jobs.rounds(job.id)
-    assert round0.extra["prune"] == "halving" and round0.extra["first_epochs"] == 1
+    assert round0.halving is not None and round0.halving.first_epochs == 1
+    assert set(round0.halving.early_val_loss) == {c.state for c in round0.candidates}
     pruned = [c for c in round0.candidates if c.error == "pruned by successive halving"]
-    assert len(pruned) == 6 and {c.state for c in pruned} == set(round0.extra["pruned"])
-    assert round0.winner_state not in round0.extra["pruned"]
+    assert len(pruned) == 6 and {c.state for c in pruned} == {c.state for c in round0.candidates if c.pruned}
+    assert round0.winner_state not in {c.state for c in pruned}
     assert {c.epochs for c in round0.candidates if c.error is None} == {3}  # 1 before halving + 2 after
     assert [c.state for c in round0.candidates][0] == "0" * 11  # stay first: the ball's order
 
@@ -198,25 +199,25 @@ def test_warm_up_trains_the_starting_state_before_round_0(orchestrator, stores):
     from neuenh.train import train_candidate
     from neuenh.search import candidate_seed
     from orchestrator.dataset import prepare_dataset
-    from orchestrator.runner import trained_epochs
+    from storage import trained_epochs
 
     jobs, artifacts = stores
     spec = tiny_spec(warmup_epochs=2, max_rounds=1)
     job = orchestrator.run(orchestrator.submit(spec)[0].id)
     [round0] = jobs.rounds(job.id)
-    warmup = round0.extra["warmup"]
-    assert warmup["epochs"] == 2 and warmup["val_loss"] > 0 and trained_epochs([round0]) == 2 + 1
+    warmup = round0.warmup
+    assert warmup.epochs == 2 and warmup.val_loss > 0 and trained_epochs([round0]) == 2 + 1
 
     data, _ = prepare_dataset(spec, artifacts)
     zeros = (0,) * 11
     warm = train_candidate(spec.initial_bundle(data.names), "0" * 11, data, spec.train_config(2),
                            candidate_seed(spec.train.seed, -1, zeros))
-    assert warm.val_loss == warmup["val_loss"]
+    assert warm.val_loss == warmup.val_loss
     stay = train_candidate(warm.bundle, "0" * 11, data, spec.train_config(), candidate_seed(spec.train.seed, 0, zeros))
     assert next(c for c in round0.candidates if c.state == "0" * 11).val_loss == stay.val_loss
 
     cold = orchestrator.run(orchestrator.submit(tiny_spec(max_rounds=1))[0].id)
-    assert "warmup" not in jobs.rounds(cold.id)[0].extra
+    assert jobs.rounds(cold.id)[0].warmup is None
 
 
 def test_resume_before_round_0_warms_up_the_same_way(stores):
@@ -241,13 +242,14 @@ def test_polish_trains_the_final_state_once_more_as_a_last_round(orchestrator, s
     from neuenh.search import candidate_seed
     from neuenh.train import train_candidate
     from orchestrator.dataset import prepare_dataset
-    from orchestrator.runner import trained_epochs
+    from storage import RoundKind, trained_epochs
 
     jobs, artifacts = stores
     spec = tiny_spec(max_rounds=1, polish_epochs=2)
     job = orchestrator.run(orchestrator.submit(spec)[0].id)
     round0, polish = jobs.rounds(job.id)
-    assert job.status == JobStatus.STOPPED and polish.extra == {"polish": "STOPPED"}
+    assert job.status == JobStatus.STOPPED and (polish.kind, polish.outcome) == (RoundKind.POLISH, JobStatus.STOPPED)
+    assert round0.kind is RoundKind.SEARCH and not polish.converged
     assert polish.parent_state == polish.winner_state == round0.winner_state
     assert [c.state for c in polish.candidates] == [round0.winner_state] and polish.winner.epochs == 2
     assert trained_epochs([round0, polish]) == 1 + 2

@@ -37,7 +37,7 @@ def hamming_round(index: int, parent: str, winner_position: int | None, *,
     return RoundRecord(index=index, parent_state=parent, winner_state=winner,
                        candidates=tuple(candidates), started_at=T0 + 10 * index,
                        finished_at=T0 + 10 * index + 9, artifact_key=f"jobs/x/rounds/{index:04d}/ckpt",
-                       extra=extra or {"pruned": [], "radius": 1})
+                       extra=extra or {"radius": 1})
 
 
 def running_job(store: JobStore, spec: dict | None = None) -> str:

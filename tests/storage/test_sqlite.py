@@ -15,6 +15,7 @@ from storage_kit import N_POSITIONS, running_job
 
 import storage
 from storage import JobStatus, SchemaVersionError, SQLiteJobStore, StorageError
+from storage.jobs import HalvingRecord, RoundKind, WarmupRecord, trained_epochs
 from storage.migrations import MIGRATIONS, SCHEMA_VERSION, Migration, migrate, schema_version
 
 REPO = Path(storage.__file__).resolve().parents[1]
@@ -24,6 +25,7 @@ REPO = Path(storage.__file__).resolve().parents[1]
 RELEASED = {
     1: "a9210cb3",
     2: "32a8955a",
+    3: "5afb9317",
 }
 
 
@@ -88,6 +90,40 @@ def test_upgrades_a_version_1_database(tmp_path):
     with raw(path) as conn:
         assert schema_version(conn) == SCHEMA_VERSION
         assert conn.execute("SELECT name FROM sqlite_master WHERE name = 'jobs_by_status'").fetchone()
+
+
+def test_upgrades_a_version_2_database_moving_round_kinds_out_of_extra(tmp_path):
+    """Before version 3 a polish round, a warm-up, successive halving and pruned candidates were
+    keys of the rounds' ``extra`` JSON; a store written then reads as typed fields, extra cleared."""
+    path = tmp_path / "v2.db"
+    with raw(path) as conn:
+        conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
+        conn.execute("INSERT INTO schema_version VALUES (2)")
+        for m in MIGRATIONS[:2]:
+            for statement in m.statements:
+                conn.execute(statement)
+        conn.execute("INSERT INTO jobs (id, spec, status, created_at, updated_at, last_round, current_state) "
+                     "VALUES ('old', '{}', 'CONVERGED', 1.0, 2.0, 1, '01')")
+        warmup = '{"epochs":4,"train_loss":0.5,"val_loss":0.6,"wall_s":3.5,"node":"n1"}'
+        conn.execute("INSERT INTO rounds VALUES ('old', 0, '00', '01', 0.2, 1.0, 2.0, 'k0', ?)",
+                     ('{"first_epochs":1,"prune":"halving","pruned":["10"],"radius":1,'
+                      '"early_val_loss":{"00":0.4,"01":0.3,"10":0.9},"warmup":' + warmup + '}',))
+        conn.execute("INSERT INTO rounds VALUES ('old', 1, '01', '01', 0.1, 3.0, 4.0, 'k1', ?)",
+                     ('{"polish":"CONVERGED"}',))
+        for position, (state, error) in enumerate([("00", None), ("01", None), ("10", "pruned")]):
+            conn.execute("INSERT INTO candidates VALUES ('old', 0, ?, ?, 0.5, 0.2, 3, 1.0, NULL, ?, 7, '{}')",
+                         (position, state, error))
+        conn.execute("INSERT INTO candidates VALUES ('old', 1, 0, '01', 0.5, 0.1, 2, 1.0, NULL, NULL, 8, '{}')")
+    with SQLiteJobStore(path) as store:
+        first, polish = store.rounds("old")
+    assert (first.kind, first.outcome, first.extra) == (RoundKind.SEARCH, None, {"radius": 1})
+    assert first.warmup == WarmupRecord(epochs=4, train_loss=0.5, val_loss=0.6, wall_s=3.5, node="n1")
+    assert first.halving == HalvingRecord(first_epochs=1, early_val_loss={"00": 0.4, "01": 0.3, "10": 0.9})
+    assert [c.pruned for c in first.candidates] == [False, False, True]
+    assert (polish.kind, polish.outcome, polish.extra, polish.warmup) == \
+        (RoundKind.POLISH, JobStatus.CONVERGED, {}, None)
+    assert not polish.converged  # its winner is its parent, yet the search did not converge there
+    assert trained_epochs([first, polish]) == 4 + 3 + 2
 
 
 def test_a_failed_migration_changes_nothing(tmp_path):

@@ -17,6 +17,7 @@ from jobspecs import tiny_spec
 from storage import JobStatus, LocalArtifactStore, SQLiteJobStore
 from workers.inline import InlineExecutor
 from workers.ray_executor import RayExecutor
+from ggx_states import PAPER_STATE
 
 CONFIG = TrainConfig(epochs=1, batch_size=1000, lr=5e-3)
 
@@ -67,7 +68,7 @@ def test_a_failing_candidate_comes_back_as_a_report(executor, data):
 def test_cancellation_stops_the_remaining_candidates(executor, data):
     parent = Bundle.initial("ggx", data.names).to_bytes()
     flag = threading.Event()
-    tasks = _tasks(*(["00011100100"] * 1 + [f"{'0' * i}1{'0' * (10 - i)}" for i in range(11)]), epochs=30)
+    tasks = _tasks(*([PAPER_STATE] * 1 + [f"{'0' * i}1{'0' * (10 - i)}" for i in range(11)]), epochs=30)
     got = []
     for report in executor.train(executor.put_dataset(data), [parent], tasks, CONFIG, cancelled=flag.is_set):
         got.append(report)

@@ -1,6 +1,7 @@
-"""EXR captures (one material per texel) and per-texel parameter images.
+"""EXR images, captures (one material per texel; ``neuenh.data.capture``) and per-texel parameter
+images (``neuenh.data.param_images``).
 
-Captures are rendered here from an analytical spatially varying GGX (``render_capture``), so
+Captures are rendered here from an analytical spatially varying GGX (``captures.render_capture``), so
 every value read back is compared with the model evaluated independently, texel by texel.
 """
 
@@ -12,11 +13,12 @@ import pytest
 import torch
 
 from neuenh.data.errors import DataError
-from neuenh.data.exr import (
-    CAPTURE_JSON, capture_directions, parameter_channels, parameter_images, read_capture, read_exr_channels,
-    read_parameter_exr, render_capture, write_exr_channels, write_parameter_exr, write_rgb_exr,
-)
-from neuenh.data.measured import TableMaterial
+from captures import capture_directions, render_capture
+from neuenh.data.capture import read_capture
+from neuenh.data.exr import read_exr_channels, write_exr_channels, write_rgb_exr
+from neuenh.data.formats import CAPTURE_JSON, detect_format
+from neuenh.data.param_images import parameter_channels, parameter_images, read_parameter_exr, write_parameter_exr
+from neuenh.data.measured import TableMaterial, load_measured
 from neuenh.data.samples import sample_materials
 from neuenh.models import get_model
 
@@ -110,6 +112,23 @@ def test_f_r_cos_captures_are_divided_by_cos_theta_i(tmp_path, rendered):
 
 
 # -- parameter images ------------------------------------------------------------------------
+def test_the_format_is_told_by_content_alone(rendered, tmp_path):
+    """``detect_format``, the one sniffer: a capture's folder and its JSON (renamed), an EXR image
+    (renamed), never by the name; a measured-material reader refuses them by name of their kind."""
+    folder, maps, _ = rendered
+    disguised_json = tmp_path / "capture.csv"
+    disguised_json.write_text((folder / "float" / CAPTURE_JSON).read_text())
+    disguised_exr = tmp_path / "image.npz"
+    shutil.copy(folder / "float" / "0000.exr", disguised_exr)
+    assert [detect_format(p) for p in (folder / "float", disguised_json, disguised_exr)] == ["capture", "capture", "exr"]
+    write_parameter_exr(tmp_path / "params.bin", maps)
+    assert detect_format(tmp_path / "params.bin") == "exr"
+    with pytest.raises(DataError, match="an OpenEXR image, not a measured material file"):
+        load_measured(disguised_exr)
+    with pytest.raises(DataError, match="not a regular file .*without the capture.json"):
+        detect_format(tmp_path)
+
+
 def test_parameter_channels_are_named_per_component():
     assert parameter_channels("alpha_x", 1) == ["alpha_x"]
     assert parameter_channels("rho_d", 3) == ["rho_d.R", "rho_d.G", "rho_d.B"]

@@ -1,6 +1,5 @@
 """``load_measured``: format by content, one contract for every source, errors for the rest."""
 
-import sys
 import zipfile
 from pathlib import Path
 
@@ -15,8 +14,7 @@ from neuenh.data.merl import write_merl
 from neuenh.data.samples import sample_materials
 from neuenh.data.table import write_table
 
-sys.path.insert(0, str(Path(__file__).parent))
-from data_files import (  # noqa: E402
+from data_files import (
     NBRDF_WEIGHTS, RGL_DIR, hemisphere, lambertian, nbrdf_weights, shared, tiny_rgl_fields, write_tensor_file,
 )
 
@@ -130,7 +128,7 @@ def _zip(path, members):
     ("empty", lambda p: p.write_bytes(b""), "unrecognised content"),
     ("text", lambda p: p.write_text("theta_h theta_d phi_d r g b\n0 0 0 1 1 1\n"), "unrecognised content"),
     ("random", lambda p: p.write_bytes(np.random.default_rng(0).bytes(5000)), "unrecognised content"),
-    ("other npz", lambda p: np.savez(p, x=np.zeros(3)), r"neither NBRDF weights .* nor a measurement table.*\[x\]"),
+    ("other npz", lambda p: np.savez(p, x=np.zeros(3)), r"neither NBRDF weights .* a measurement table .* nor a dataset.*\[x\]"),
     ("broken zip", lambda p: p.write_bytes(b"PK\x03\x04" + b"\0" * 40), "not a readable .npz"),
     ("zip with garbage member", lambda p: _zip(p, {"wi.npy": b"nonsense", "wo.npy": b"", "f_r.npy": b""}),
      "is not a .npy array"),

@@ -3,8 +3,6 @@ folding, invalid bins and broken files."""
 
 import math
 import struct
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,11 +14,10 @@ from neuenh.data.merl import (
     flat_index,
     load_merl, read_merl, write_merl,
 )
-from neuenh.data.sampling import from_rusinkiewicz, to_rusinkiewicz
+from neuenh.data.directions import from_rusinkiewicz, to_rusinkiewicz
 from neuenh.models import get_model
 
-sys.path.insert(0, str(Path(__file__).parent))
-from data_files import hemisphere, lambertian  # noqa: E402
+from data_files import hemisphere, lambertian
 
 GGX_PARAMS = {
     "normal": torch.tensor([0.0, 0.0]), "t_theta": torch.tensor([0.0]),

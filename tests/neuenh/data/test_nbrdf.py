@@ -2,8 +2,6 @@
 the forward pass against a hand-written numpy one."""
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,10 +9,9 @@ import torch
 
 from neuenh.data.errors import DataError
 from neuenh.data.nbrdf import NBRDFError, load_nbrdf, nbrdf_material, nbrdf_names
-from neuenh.data.sampling import to_rusinkiewicz
+from neuenh.data.directions import to_rusinkiewicz
 
-sys.path.insert(0, str(Path(__file__).parent))
-from data_files import NBRDF_WEIGHTS, hemisphere, nbrdf_weights, shared  # noqa: E402
+from data_files import NBRDF_WEIGHTS, hemisphere, nbrdf_weights, shared
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,6 @@ Examples are derandomised (the suite is reproducible) and kept few, so the run s
 """
 
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +18,7 @@ from neuenh.data.errors import DataError
 from neuenh.data.merl import FILE_SIZE, load_merl, write_merl
 from neuenh.data.rgl import load_rgl
 
-sys.path.insert(0, str(Path(__file__).parent))
-from data_files import hemisphere, tensor_file_bytes, tiny_rgl_fields  # noqa: E402
+from data_files import hemisphere, tensor_file_bytes, tiny_rgl_fields
 
 FUZZ = settings(deadline=None, derandomize=True, database=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -7,7 +7,6 @@ materials (uniform / linear VNDF, bilinear rgb: every step of the evaluator is e
 
 import math
 import struct
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +15,9 @@ import torch
 
 from neuenh.data.errors import DataError
 from neuenh.data.rgl import RGLMaterial, TensorFileError, load_rgl, read_tensor_file
-from neuenh.data.sampling import to_rusinkiewicz
+from neuenh.data.directions import to_rusinkiewicz
 
-sys.path.insert(0, str(Path(__file__).parent))
-from data_files import (  # noqa: E402
+from data_files import (
     RGL_DIR, RGL_MATERIALS, RGL_REFERENCE, hemisphere, shared, tensor_file_bytes, tiny_rgl_fields,
     write_tensor_file,
 )

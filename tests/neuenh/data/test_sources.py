@@ -2,7 +2,6 @@
 and a bad path or a file of the wrong kind is a clear error."""
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -11,13 +10,12 @@ import torch
 from pydantic import TypeAdapter, ValidationError
 
 from neuenh.data.errors import DataError
-from neuenh.data.exr import capture_directions, render_capture
+from captures import capture_directions, render_capture
 from neuenh.data.merl import write_merl
 from neuenh.data.sources import DataSource, materialise
 from neuenh.data.table import write_table
 
-sys.path.insert(0, str(Path(__file__).parent))
-from data_files import NBRDF_WEIGHTS, RGL_DIR, hemisphere, lambertian, nbrdf_weights, shared  # noqa: E402
+from data_files import NBRDF_WEIGHTS, RGL_DIR, hemisphere, lambertian, nbrdf_weights, shared
 
 SOURCE = TypeAdapter(DataSource)
 

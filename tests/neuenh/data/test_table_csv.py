@@ -1,7 +1,6 @@
 """Measurement tables as CSV (and weights in both formats): round trips, detection by content,
 and every problem reported with the file, the row and what is wrong."""
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,8 +12,7 @@ from neuenh.data.errors import DataError
 from neuenh.data.measured import TableMaterial, detect_format
 from neuenh.data.table import CSV_COLUMNS, TableError, load_table, read_table, write_table
 
-sys.path.insert(0, str(Path(__file__).parent))
-from data_files import hemisphere  # noqa: E402
+from data_files import hemisphere
 
 HEADER = ",".join(CSV_COLUMNS)
 

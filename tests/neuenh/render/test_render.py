@@ -34,7 +34,7 @@ from neuenh.render import (
     write_exr,
     write_png,
 )
-from neuenh.render.sampling import (
+from neuenh.render.mis import (
     cosine_pdf,
     ggx_half_vectors,
     ggx_reflection_pdf,

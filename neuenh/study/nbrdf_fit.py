@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from .data.nbrdf import network_input
-from .data.samples import Samples
-from .train import log_l1
+from ..data.nbrdf import network_input
+from ..data.samples import Samples
+from ..train import log_l1
 
 __all__ = ["NBRDFConfig", "NBRDFFit", "NBRDFNetwork", "fit_nbrdf"]
 

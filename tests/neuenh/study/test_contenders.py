@@ -3,13 +3,13 @@
 import pytest
 import torch
 
-from neuenh.contenders import GraphContender, NBRDFContender
+from neuenh.study.contenders import GraphContender, NBRDFContender
 from neuenh.data.samples import sample_materials
 from neuenh.data.synthetic import synthetic_ggx
 from neuenh.fit import FitConfig
 from neuenh.models import get_model
 from neuenh.modules import ModuleConfig
-from neuenh.nbrdf_fit import NBRDFConfig
+from neuenh.study.nbrdf_fit import NBRDFConfig
 from neuenh.train import log_l1
 
 

@@ -21,10 +21,10 @@ from typing import Callable
 
 import torch
 
-from .data.samples import Samples
-from .fit import FitConfig, fit_materials
-from .graph import BRDFModel
-from .materials import MaterialTable
+from ..data.samples import Samples
+from ..fit import FitConfig, fit_materials
+from ..graph import BRDFModel
+from ..materials import MaterialTable
 from .nbrdf_fit import NBRDFConfig, fit_nbrdf
 
 __all__ = ["Contender", "FittedMaterial", "GraphContender", "NBRDFContender"]

@@ -1,4 +1,4 @@
-"""Held-out evaluation (neuenh.evaluate): plain GGX measurements from known parameters, fitted on
+"""Held-out evaluation (neuenh.study.heldout): plain GGX measurements from known parameters, fitted on
 one set of rows and measured on a disjoint one; the numbers checked against numpy."""
 
 import math
@@ -9,16 +9,16 @@ import pytest
 import torch
 
 from neuenh.data.measured import TableMaterial, load_measured
-from neuenh.data.sampling import sample_directions
+from neuenh.data.directions import sample_directions
 from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
-from neuenh.evaluate import (draw_fit_test, fit_and_evaluate, heldout_log_l1, predict_f_r, split_rows,
+from neuenh.study.heldout import (draw_fit_test, fit_and_evaluate, heldout_log_l1, predict_f_r, split_rows,
                              write_predictions)
 from neuenh.fit import FitConfig, fit_materials
 from neuenh.materials import MaterialTable
 from neuenh.models import get_model
 
-RGL = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "rgl"
+RGL = Path(__file__).resolve().parents[3] / ".." / "shared" / "data" / "rgl"
 TRUE = {
     "normal": [0.03, -0.02], "t_theta": [0.4], "rho_d": [0.3, 0.2, 0.1], "rho_s": [0.6, 0.5, 0.7],
     "alpha_x": [0.12], "alpha_y": [0.25], "f0": [0.3],
@@ -145,7 +145,7 @@ def test_fit_and_evaluate_an_rgl_material():
 def test_continuous_sources_are_drawn_at_every_azimuth():
     """Fit and test pairs of a continuous source cover phi_h, even for an isotropic material, so a
     model with anisotropic parameters cannot fit one azimuth and be tested on the same one."""
-    from neuenh.data.sampling import to_rusinkiewicz
+    from neuenh.data.directions import to_rusinkiewicz
     from neuenh.data.synthetic import synthetic_zoo
 
     (material,) = synthetic_zoo(1, seed=3, families=("oren_nayar",))

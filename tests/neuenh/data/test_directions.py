@@ -3,7 +3,7 @@ import math
 import pytest
 import torch
 
-from neuenh.data.sampling import from_rusinkiewicz, sample_directions, to_rusinkiewicz
+from neuenh.data.directions import from_rusinkiewicz, sample_directions, to_rusinkiewicz
 
 
 def _angles(n, seed):

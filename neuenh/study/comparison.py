@@ -18,12 +18,12 @@ from typing import Sequence
 import torch
 
 from .contenders import Contender, Directions
-from .data.sampling import sample_directions
-from .evaluate import draw_fit_test
-from .render import EnvironmentMap, ball_scene, render, sphere_scene
-from .render.envmaps import studio_environment
-from .render.metrics import delta_e_itp, ssim
-from .train import log_l1
+from ..data.directions import sample_directions
+from .heldout import draw_fit_test
+from ..render import EnvironmentMap, ball_scene, render, sphere_scene
+from ..render.envmaps import studio_environment
+from ..render.metrics import delta_e_itp, ssim
+from ..train import log_l1
 
 __all__ = ["ContenderResult", "MaterialComparison", "RenderSetup", "compare_material", "eval_throughput"]
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-REPO = Path(__file__).resolve().parents[3]
+REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
 RGL_DIR = SHARED_DATA / "rgl"
 RGL_REFERENCE = RGL_DIR / "reference_values.npz"

@@ -29,12 +29,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .data.samples import Samples
-from .data.sampling import sample_directions
-from .fit import FitConfig, fit_materials, per_material_loss
-from .graph import BRDFModel
-from .materials import MaterialTable
-from .train import predict
+from ..data.samples import Samples
+from ..data.directions import sample_directions
+from ..fit import FitConfig, fit_materials, per_material_loss
+from ..graph import BRDFModel
+from ..materials import MaterialTable
+from ..train import predict
 
 __all__ = ["draw_fit_test", "fit_and_evaluate", "heldout_log_l1", "predict_f_r", "split_rows",
            "write_predictions"]

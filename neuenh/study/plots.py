@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .summary import ModelSummary
+
 _COLOURS = {"enhanced": "#d62728", "analytical": "#1f77b4", "residual": "#2ca02c", "neural": "#9467bd"}
 
 
@@ -39,9 +41,9 @@ def pareto_front(points: list[tuple[float, float]]) -> list[int]:
     return sorted(front, key=lambda i: points[i][0])
 
 
-def speed_vs_error(path: Path, models: list[dict]) -> Path:
-    """``models``: dicts with label, family, evals_per_s, rays_per_s, params_per_material,
-    log_l1, delta_e (medians over materials). Three panels, each with its Pareto front."""
+def speed_vs_error(path: Path, models: list[ModelSummary]) -> Path:
+    """Three panels (evaluation rate, render rate, parameters per material against error), each
+    with its Pareto front."""
     plt = _plt()
     panels = [("evals_per_s", "BRDF evaluations per second (1 thread)", "log_l1", "median held-out log-L1", True),
               ("rays_per_s", "render throughput (rays per second)", "delta_e", "median ΔE_ITP (BT.2124) of renders", True),
@@ -49,15 +51,15 @@ def speed_vs_error(path: Path, models: list[dict]) -> Path:
                "median held-out log-L1", False)]
     fig, axes = plt.subplots(1, 3, figsize=(16, 5), constrained_layout=True)
     for ax, (xkey, xlabel, ykey, ylabel, higher_better) in zip(axes, panels):
-        xs = [m[xkey] for m in models]
-        ys = [m[ykey] for m in models]
+        xs = [getattr(m, xkey) for m in models]
+        ys = [getattr(m, ykey) for m in models]
         signed = [(x if higher_better else -x, y) for x, y in zip(xs, ys)]
         front = pareto_front(signed)
         ax.plot([xs[i] for i in front], [ys[i] for i in front], "--", color="#888", zorder=1, label="Pareto front")
         for m, x, y in zip(models, xs, ys):
-            ax.scatter([x], [y], s=60, color=_COLOURS.get(m["family"], "#333"), zorder=2,
-                       edgecolor="black" if m["family"] == "enhanced" else "none")
-            ax.annotate(m["label"], (x, y), textcoords="offset points", xytext=(5, 4), fontsize=8)
+            ax.scatter([x], [y], s=60, color=_COLOURS.get(m.family, "#333"), zorder=2,
+                       edgecolor="black" if m.family == "enhanced" else "none")
+            ax.annotate(m.label, (x, y), textcoords="offset points", xytext=(5, 4), fontsize=8)
         ax.set_xscale("log")
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
@@ -80,7 +82,7 @@ def search_path(path: Path, rounds: list[dict]) -> Path:
         colour = cmap(k / max(len(rounds) - 1, 1))
         c = [x for x in r["candidates"] if x.get("val_loss") is not None]
         ax.scatter([x["weights"] for x in c], [x["val_loss"] for x in c], s=18, color=colour, alpha=0.7,
-                   label=f"round {r['index']}" + (" (polish)" if r.get("polish") else ""))
+                   label=f"round {r['index']}" + (" (polish)" if r.get("kind") == "polish" else ""))
         win = next(x for x in r["candidates"] if x["state"] == r["winner_state"])
         winners.append((win["weights"], win["val_loss"], r["winner_state"]))
     ax.plot([w[0] for w in winners], [w[1] for w in winners], "-o", color="#d62728", lw=1.5, ms=5, label="path taken")
@@ -96,16 +98,16 @@ def search_path(path: Path, rounds: list[dict]) -> Path:
     return _save(fig, path)
 
 
-def heldout_bars(path: Path, materials: list[str], models: list[dict], values: dict[str, list[float]]) -> Path:
+def heldout_bars(path: Path, materials: list[str], models: list[ModelSummary], values: dict[str, list[float]]) -> Path:
     """Held-out log-L1 per material (groups) and model (bars), log scale."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(14, 5), constrained_layout=True)
     width = 0.8 / len(models)
     x = np.arange(len(materials))
     for j, m in enumerate(models):
-        ax.bar(x + (j - (len(models) - 1) / 2) * width, values[m["name"]], width,
-               color=_COLOURS.get(m["family"], "#333"), alpha=0.45 + 0.55 * (m["family"] == "enhanced"),
-               edgecolor="black", linewidth=0.4, label=m["label"])
+        ax.bar(x + (j - (len(models) - 1) / 2) * width, values[m.name], width,
+               color=_COLOURS.get(m.family, "#333"), alpha=0.45 + 0.55 * (m.family == "enhanced"),
+               edgecolor="black", linewidth=0.4, label=m.label)
     ax.set_xticks(x, [name.replace("_rgb", "") for name in materials], rotation=15)
     ax.set_yscale("log")
     ax.set_ylabel("held-out log-L1 (lower is better)")
@@ -118,7 +120,7 @@ def render_grid(path: Path, title: str, columns: list[tuple[str, np.ndarray]], t
                 mask: np.ndarray) -> Path:
     """Top row: the truth then each column's render (tone-mapped); bottom row: each column's
     relative luminance error against the truth, one shared colour scale."""
-    from neuenh.render.output import error_map, tonemap
+    from ..render.output import error_map, tonemap
 
     plt = _plt()
     n = len(columns) + 1

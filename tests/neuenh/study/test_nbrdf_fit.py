@@ -6,7 +6,7 @@ import torch
 
 from neuenh.data.nbrdf import NBRDFMaterial
 from neuenh.data.samples import sample_materials
-from neuenh.nbrdf_fit import NBRDFConfig, NBRDFNetwork, fit_nbrdf
+from neuenh.study.nbrdf_fit import NBRDFConfig, NBRDFNetwork, fit_nbrdf
 from neuenh.train import log_l1
 
 

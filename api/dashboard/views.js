@@ -1,0 +1,213 @@
+// @ts-check
+/* The page's views: each fills its part of index.html from the API's answers and nothing else. */
+
+import { $, breakable, clear, el } from "./dom.js";
+import { diff, digitClass, digitMeaning, fmtDelta, fmtGain, fmtLoss, fmtSeconds, fmtTime, isOperator, neuralNames } from "./format.js";
+
+/** @typedef {import("./types.js").Job} Job */
+/** @typedef {import("./types.js").Round} Round */
+/** @typedef {import("./types.js").History} History */
+
+/** @param {string} status */
+function badge(status) {
+  return el("span", { class: "badge s-" + String(status).toLowerCase(), text: status });
+}
+
+/** @param {Job} job */
+function miniProgress(job) {
+  const p = job.progress;
+  if (p && p.total > 0) {
+    const pct = Math.round((100 * p.done) / p.total);
+    return el("div", { class: "mini" },
+      el("div", { class: "mini-bar" }, el("div", { class: "mini-fill", style: `width:${pct}%` })),
+      el("span", { class: "muted", text: `round ${p.round} · ${p.done}/${p.total}` }));
+  }
+  if (job.status === "QUEUED") return el("span", { class: "muted", text: "waiting" });
+  if (job.status === "PREPARING") return el("span", { class: "muted", text: "preparing data" });
+  /** @type {Record<string, string>} */
+  const ends = { CONVERGED: "converged", STOPPED: "finished", CANCELLED: "cancelled", FAILED: "failed" };
+  return el("span", { class: "muted", text: ends[job.status] || "–" });
+}
+
+/** The jobs table; a click on a row selects its job through the URL hash.
+ * @param {Job[]} jobs @param {string | null} selected */
+export function renderJobs(jobs, selected) {
+  $("auth").hidden = true;
+  $("jobs-panel").hidden = false;
+  const table = /** @type {HTMLTableElement} */ ($("jobs"));
+  const body = clear(table.tBodies[0]);
+  for (const job of jobs) {
+    const href = "#job=" + encodeURIComponent(job.id);
+    const tr = el("tr", { "data-job": job.id, class: job.id === selected ? "selected" : null },
+      el("td", {}, el("a", { href, title: job.id, text: job.name || job.id.slice(0, 8) }),
+        job.name ? el("span", { class: "muted id", text: " " + job.id.slice(0, 8) }) : null),
+      el("td", { text: job.model }),
+      el("td", {}, badge(job.status)),
+      el("td", { class: "num", text: job.last_round === null ? "0" : String(job.last_round + 1) }),
+      el("td", { class: "mono", text: job.current_state || "–" }),
+      el("td", {}, miniProgress(job)),
+      el("td", { class: "muted", text: fmtTime(job.created_at) }));
+    tr.addEventListener("click", (ev) => {
+      if (ev.target instanceof Element && ev.target.closest("a")) return;
+      location.hash = href;
+    });
+    body.appendChild(tr);
+  }
+  $("jobs-empty").hidden = jobs.length > 0;
+  table.hidden = jobs.length === 0;
+  $("jobs-count").textContent = jobs.length ? `${jobs.length} job${jobs.length > 1 ? "s" : ""}, newest first` : "";
+}
+
+/** The selected job's title, facts, status, buttons and summary cards.
+ * @param {Job} job @param {Round[]} rounds @param {History | null} history @param {string[]} positions @param {boolean} cancelArmed */
+export function renderHeader(job, rounds, history, positions, cancelArmed) {
+  $("job-title").textContent = job.name || "job " + job.id.slice(0, 8);
+  const spec = job.spec || {};
+  const search = spec.search || {};
+  const bits = [job.id, job.model, `created ${fmtTime(job.created_at)}`];
+  if (search.radius !== undefined) bits.push(`radius ${search.radius}`);
+  if (search.epochs_per_round !== undefined) bits.push(`${search.epochs_per_round} epochs/round`);
+  if (search.max_rounds !== undefined) bits.push(`max ${search.max_rounds} rounds`);
+  if (Array.isArray(spec.data)) bits.push(spec.data.map((/** @type {{source: string}} */ d) => d.source).join(" + "));
+  $("job-meta").textContent = bits.join(" · ");
+  const status = $("job-status");
+  status.textContent = job.status;
+  status.className = "badge s-" + job.status.toLowerCase();
+
+  const err = $("job-error");
+  err.textContent = job.error ? "Error: " + job.error : "";
+  err.hidden = !job.error;
+
+  const cancel = $("cancel");
+  cancel.hidden = job.terminal;
+  cancel.textContent = cancelArmed ? "Really cancel?" : "Cancel job";
+
+  const download = /** @type {HTMLButtonElement} */ ($("download"));
+  download.disabled = job.last_round === null;
+  download.title = job.last_round === null ? "available once round 0 is committed" : "";
+
+  const last = rounds[rounds.length - 1];
+  $("card-rounds").textContent = String(rounds.length);
+  $("card-loss").textContent = last ? fmtLoss(last.winner_val_loss) : "–";
+  const gain = history ? history.gain_over_start : null;
+  $("card-gain").textContent = fmtGain(gain);
+  $("card-gain").title = history && history.start_val_loss !== null
+    ? `the starting ${job.model} state trained the same epochs in round 0: ${fmtLoss(history.start_val_loss)}` : "";
+  const state = job.current_state || (last && last.winner_state);
+  $("card-neural").textContent = state ? `${neuralNames(state, positions).length} of ${positions.length}` : "–";
+}
+
+/** The running round's progress bar; hidden for a finished job.
+ * @param {Job} job */
+export function renderProgress(job) {
+  const box = $("progress");
+  const p = job.progress;
+  if (job.terminal || (!p && job.status !== "QUEUED" && job.status !== "PREPARING")) {
+    box.hidden = true;
+    return;
+  }
+  box.hidden = false;
+  let label, detail = "", pct = 0;
+  if (!p || p.total === 0) {
+    label = job.status === "QUEUED" ? "Queued: waiting for the worker" : (p && p.message ? `Round ${p.round}: ${p.message}` : "Preparing the data");
+  } else {
+    pct = (100 * p.done) / p.total;
+    label = `Round ${p.round}: ${p.done} of ${p.total} candidates trained`;
+    const parts = [];
+    if (p.best_val_loss !== null) parts.push(`best so far ${fmtLoss(p.best_val_loss)}${p.state ? " (" + p.state + ")" : ""}`);
+    if (p.message) parts.push(p.message);
+    parts.push(`elapsed ${fmtSeconds(p.elapsed_s)}`);
+    detail = parts.join(" · ");
+  }
+  $("progress-label").textContent = label;
+  $("progress-detail").textContent = detail;
+  $("progress-fill").style.width = pct.toFixed(1) + "%";
+  box.classList.toggle("indeterminate", !p || p.total === 0);
+}
+
+/** What a round's change column says: the served change, or why it stayed.
+ * @param {Round} r */
+function changeText(r) {
+  if (r.kind === "polish") return "polish: trained on, lr decaying";
+  if (r.change !== "stay") return r.change;
+  return r.converged ? "stay: converged" : "stay";
+}
+
+/** The trail through the hypercube: one row per round, a digit per position.
+ * @param {Round[]} rounds @param {string[]} positions @param {Job | null} job */
+export function renderTrail(rounds, positions, job) {
+  const table = /** @type {HTMLTableElement} */ ($("trail"));
+  const head = clear(/** @type {HTMLTableSectionElement} */ (table.tHead));
+  const body = clear(table.tBodies[0]);
+  const foot = clear(/** @type {HTMLTableSectionElement} */ (table.tFoot));
+  const nodes = positions.filter((n) => !isOperator(n)).length;
+  if (positions.length) {
+    head.appendChild(el("tr", { class: "groups" },
+      el("th", { colspan: 1 }),
+      nodes ? el("th", { colspan: nodes, class: "group", text: "terms" }) : null,
+      positions.length - nodes ? el("th", { colspan: positions.length - nodes, class: "group ops", text: "operators" }) : null,
+      el("th", { colspan: 3 })));
+    head.appendChild(el("tr", {},
+      el("th", { class: "num", text: "Round" }),
+      positions.map((name, i) => el("th", { class: "pos" + (isOperator(name) ? " op" : ""), "data-index": i, title: name }, breakable(name))),
+      el("th", { text: "Change that won" }),
+      el("th", { class: "num", text: "Winner val loss" }),
+      el("th", { class: "num", text: "Wall" })));
+  }
+  /** @type {number | null} */
+  let prevLoss = null;
+  for (const r of rounds) {
+    const changed = new Set(diff(r.parent_state, r.winner_state));
+    const cells = [];
+    for (let i = 0; i < positions.length; i++) {
+      const d = r.winner_state[i] || "?";
+      cells.push(el("td", {
+        class: `digit ${digitClass(d)}` + (changed.has(i) ? " flipped" : ""),
+        title: `${positions[i]}: ${digitMeaning(d)}` + (changed.has(i) ? ` (was ${r.parent_state[i]})` : ""),
+        text: d,
+      }));
+    }
+    const delta = fmtDelta(prevLoss, r.winner_val_loss);
+    prevLoss = r.winner_val_loss;
+    body.appendChild(el("tr", { "data-round": r.round, "data-state": r.winner_state },
+      el("td", { class: "num", text: String(r.round) }),
+      cells,
+      el("td", { class: "change" + (changed.size ? "" : " stay") }, changeText(r)),
+      el("td", { class: "num mono" }, fmtLoss(r.winner_val_loss),
+        delta ? el("span", { class: "delta " + (delta.down ? "down" : "up"), text: delta.text }) : null),
+      el("td", { class: "num muted", text: fmtSeconds(r.wall_s) })));
+  }
+  const p = job && !job.terminal ? job.progress : null;
+  if (p && p.total > 0 && !rounds.some((r) => r.round === p.round)) {
+    foot.appendChild(el("tr", { class: "pending" },
+      el("td", { class: "num", text: String(p.round) }),
+      el("td", { colspan: positions.length + 3, text: `training… ${p.done}/${p.total} candidates` + (p.best_val_loss !== null ? `, best ${fmtLoss(p.best_val_loss)}` : "") })));
+  }
+  $("trail-empty").hidden = rounds.length > 0 || !job;
+  table.hidden = positions.length === 0;
+}
+
+/** The final (or current) model: its state digit by digit with the position names.
+ * @param {Job} job @param {string | null} state @param {Round[]} rounds @param {string[]} positions */
+export function renderFinal(job, state, rounds, positions) {
+  $("final-heading").textContent = job.terminal ? "Final model" : "Current model (last committed round)";
+  const strip = clear($("final-state"));
+  const text = $("final-text");
+  if (!state) {
+    text.textContent = "No model yet: it is available once round 0 is committed.";
+    return;
+  }
+  strip.appendChild(el("span", { class: "mono state-code", text: state }));
+  for (let i = 0; i < positions.length; i++) {
+    const d = state[i] || "?";
+    strip.appendChild(el("span", { class: `chip ${digitClass(d)}`, title: digitMeaning(d) },
+      el("span", { class: "chip-name", text: positions[i] }), el("span", { class: "chip-digit", text: d })));
+  }
+  const neural = neuralNames(state, positions);
+  const last = rounds[rounds.length - 1];
+  const parts = [neural.length ? `neural at ${neural.join(", ")}` : "all terms analytical"];
+  if (last) parts.push(`validation loss ${fmtLoss(last.winner_val_loss)} after round ${last.round}`);
+  if (job.status === "CONVERGED") parts.push("converged: no single change improved it further");
+  else if (job.status === "STOPPED") parts.push("stopped at max_rounds");
+  text.textContent = parts.join(" · ");
+}

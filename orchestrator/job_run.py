@@ -1,0 +1,260 @@
+"""One job's run: what every step of a running job needs, owned by one object.
+
+A ``JobRun`` is built by ``Orchestrator.run`` for one job and lives while the job runs. It holds the
+job id and its parsed spec, the model graph and the search constraints, the resources and training
+config every candidate gets, the dataset handle once prepared, the stores and the executor, and the
+clock progress reports count from. Its steps (prepare, warm up, a search round, the polish, the
+commit) follow the state machine of ``orchestrator.runner``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from typing import Callable
+
+from neuenh.models import get_model
+from neuenh.search import Outcome, candidate_seed, hamming_ball, initial_state, keep_better_half, select, weight_cost
+from storage import (ArtifactStore, CandidateRecord, HalvingRecord, JobStatus, JobStore, RoundKind, RoundRecord,
+                     WarmupRecord, checkpoint_key)
+
+from .dataset import prepare_dataset
+from .executor import CandidateReport, CandidateTask, Executor, Resources
+from .progress import Progress
+from .spec import JobSpec, neural_weights
+
+log = logging.getLogger("neuenh.orchestrator")
+
+QUEUED, PREPARING, RUNNING = JobStatus.QUEUED, JobStatus.PREPARING, JobStatus.RUNNING
+CONVERGED, STOPPED, CANCELLED = JobStatus.CONVERGED, JobStatus.STOPPED, JobStatus.CANCELLED
+
+PRUNED = "pruned by successive halving"
+
+
+@dataclasses.dataclass(frozen=True)
+class RoundResult:
+    """A trained search round before its commit: the winner, every report in ball order, and with
+    successive halving its record and the states it pruned."""
+
+    winner: CandidateReport
+    reports: list[CandidateReport]
+    halving: HalvingRecord | None = None
+    pruned: frozenset[str] = frozenset()
+
+
+class Cancelled(Exception):
+    """The job was cancelled (its status is CANCELLED in the store)."""
+
+
+class Interrupted(Exception):
+    """This process is stopping: the job is left as it is and resumes on the next start."""
+
+
+class JobRun:
+    def __init__(self, job_id: str, spec: JobSpec, jobs: JobStore, artifacts: ArtifactStore, executor: Executor,
+                 on_progress: Callable[[Progress], None], should_stop: Callable[[], bool]):
+        self.job_id, self.spec = job_id, spec
+        self.jobs, self.artifacts, self.executor = jobs, artifacts, executor
+        self.on_progress, self.should_stop = on_progress, should_stop
+        self.graph = get_model(spec.model).graph
+        self.digits = spec.digits()
+        self.constraints = spec.constraints()
+        self.resources = Resources(spec.resources.cpus_per_candidate, spec.resources.gpus_per_candidate)
+        self.train_config = spec.train_config()
+        self.clock = time.perf_counter()  # progress reports count from here
+        self.dataset: object | None = None  # the executor's handle, once prepared
+
+    # -- the state machine ---------------------------------------------------------------------
+    def execute(self) -> None:
+        """From the job's stored status and last committed round to a terminal status."""
+        if self.jobs.get_job(self.job_id).status == QUEUED:
+            self.jobs.set_status(self.job_id, PREPARING)
+        self.check_cancel()
+        self.prepare()
+        if self.jobs.get_job(self.job_id).status == PREPARING:
+            self.jobs.set_status(self.job_id, RUNNING)
+        last = self.jobs.last_round(self.job_id)
+        if last is not None and last.kind is RoundKind.POLISH:  # crashed after the polish commit
+            self.jobs.set_status(self.job_id, last.outcome)
+            return
+        warmup = None
+        if last is None:
+            k, state = 0, initial_state(len(self.graph), self.digits, self.constraints)
+            parent = self.spec.initial_bundle(self.names).to_bytes()
+            if self.spec.search.warmup_epochs:
+                parent, warmup = self.warm_up(state, parent)
+            finished = False
+        else:
+            k, state = last.index + 1, self.parse(last.winner_state)
+            parent = self.artifacts.get(last.artifact_key)
+            finished = last.converged
+        while not finished and k < self.spec.search.max_rounds:
+            self.check_cancel()
+            started = time.time()
+            result = self.search_round(k, state, parent)
+            winner = result.winner
+            self.commit(k, state, winner, result.reports, started, warmup=warmup if k == 0 else None,
+                        halving=result.halving, pruned=result.pruned)
+            finished = winner.task.state == self.format(state)
+            state, parent = self.parse(winner.task.state), winner.bundle
+            self.emit(RUNNING, round=k, done=len(result.reports), total=len(result.reports), best=winner.val_loss,
+                      state=winner.task.state, message="converged" if finished else "committed")
+            k += 1
+        outcome = CONVERGED if finished else STOPPED
+        if self.spec.search.polish_epochs:
+            self.polish(k, state, parent, outcome)
+        self.jobs.set_status(self.job_id, outcome)
+
+    def prepare(self) -> None:
+        """Materialise (or read from the cache) the job's dataset and hand it to the executor."""
+        data, data_key = prepare_dataset(self.spec, self.artifacts)
+        self.jobs.append_event(self.job_id, "dataset", {"key": data_key, "materials": len(data.names),
+                                                        "train": len(data.train), "val": len(data.val),
+                                                        "bytes": data.nbytes})
+        self.names = data.names
+        self.dataset = self.executor.put_dataset(data)
+
+    def warm_up(self, state, parent: bytes) -> tuple[bytes, WarmupRecord]:
+        """The starting state trained ``warmup_epochs`` (seeded as round -1, so a resumed job warms
+        up exactly as before); returns the trained bundle and what round 0's record says of it."""
+        task = CandidateTask(self.format(state), candidate_seed(self.spec.train.seed, -1, state),
+                             self.spec.search.warmup_epochs)
+        [report] = self.train(0, [parent], [task], self.train_config, phase="warmup")
+        if not report.ok:
+            raise RuntimeError(f"warm-up of {task.state} failed: {report.error}")
+        return report.bundle, WarmupRecord(epochs=report.epochs, train_loss=report.train_loss,
+                                           val_loss=report.val_loss, wall_s=report.wall_s, node=report.node)
+
+    def search_round(self, k: int, state, parent: bytes) -> RoundResult:
+        """Round ``k``: every state of the Hamming ball around ``state``, trained from ``parent``."""
+        states = hamming_ball(state, self.spec.search.radius, self.digits, self.constraints)
+        epochs = self.spec.search.epochs_per_round
+        tasks = [CandidateTask(self.format(s), candidate_seed(self.spec.train.seed, k, s), epochs) for s in states]
+        self.jobs.append_event(self.job_id, "round_started", {"round": k, "state": self.format(state),
+                                                              "candidates": len(tasks)})
+        halving, pruned = None, frozenset()
+        if self.spec.search.prune == "halving" and len(tasks) > 2:
+            reports, halving, pruned = self.halving_round(k, parent, tasks)
+        else:
+            reports = self.train(k, [parent], tasks, self.train_config)
+        choice = select(self.outcomes([r for r in reports if r.task.state not in pruned]), state,
+                        complexity_weight=self.spec.search.complexity_weight,
+                        min_improvement=self.spec.search.min_improvement)
+        if choice is None:
+            errors = "; ".join(f"{r.task.state}: {r.error}" for r in reports[:3])
+            raise RuntimeError(f"round {k}: every candidate failed ({errors})")
+        winner = next(r for r in reports if r.task.state == self.format(choice.state))
+        return RoundResult(winner, reports, halving, pruned)
+
+    def halving_round(self, k: int, parent: bytes, tasks: list[CandidateTask]
+                      ) -> tuple[list[CandidateReport], HalvingRecord, frozenset[str]]:
+        """Successive halving: every task trains a first share of the epochs, the better half goes
+        on from there; the pruned keep their early reports."""
+        epochs = tasks[0].epochs
+        first = max(1, round(epochs * self.spec.search.halving_fraction))
+        early = self.train(k, [parent], [dataclasses.replace(t, epochs=first) for t in tasks], self.train_config,
+                           phase="halving")
+        survivors = keep_better_half(self.outcomes(early), self.spec.search.complexity_weight)
+        by_state = {r.task.state: r for r in early}
+        second = [CandidateTask(r.task.state, r.task.seed, epochs - first, parent=i)
+                  for i, r in enumerate(by_state[self.format(s)] for s in survivors)]
+        late = self.train(k, [by_state[t.state].bundle for t in second], second, self.train_config, phase="continue")
+        late_by_state = {r.task.state: dataclasses.replace(r, epochs=r.epochs + first) for r in late}
+        reports = [late_by_state.get(r.task.state, r) for r in early]
+        halving = HalvingRecord(first_epochs=first, early_val_loss={r.task.state: r.val_loss for r in early})
+        return reports, halving, frozenset(r.task.state for r in early if r.task.state not in late_by_state)
+
+    def polish(self, k: int, state, parent: bytes, outcome: JobStatus) -> None:
+        """The final state trained ``polish_epochs`` more with a decaying lr, committed as round
+        ``k`` of kind POLISH recording the search's ``outcome`` (so a job resumed after this commit
+        only sets its status)."""
+        self.check_cancel()
+        started = time.time()
+        name = self.format(state)
+        task = CandidateTask(name, candidate_seed(self.spec.train.seed, k, state), self.spec.search.polish_epochs)
+        [report] = self.train(k, [parent], [task], self.spec.polish_config(), phase="polish")
+        if not report.ok:
+            raise RuntimeError(f"polishing {name} failed: {report.error}")
+        self.commit(k, state, report, [report], started, kind=RoundKind.POLISH, outcome=outcome)
+        self.emit(RUNNING, round=k, done=1, total=1, best=report.val_loss, state=name, message="polished")
+
+    # -- steps ---------------------------------------------------------------------------------
+    def train(self, k: int, parents: list[bytes], tasks: list[CandidateTask], config,
+              phase: str = "train") -> list[CandidateReport]:
+        """Every task trained by the executor; reports in the tasks' order."""
+        reports: list[CandidateReport] = []
+        best = None
+        self.emit(RUNNING, round=k, total=len(tasks), message=phase)
+        cancelled = lambda: self.should_stop() or self.cancel_requested()  # noqa: E731
+        for report in self.executor.train(self.dataset, parents, tasks, config, self.resources, cancelled=cancelled):
+            reports.append(report)
+            if report.ok and (best is None or report.val_loss < best):
+                best = report.val_loss
+            self.jobs.append_event(self.job_id, "candidate", {"round": k, "phase": phase, **_candidate_row(report)})
+            self.emit(RUNNING, round=k, done=len(reports), total=len(tasks), best=best, state=report.task.state,
+                      message=phase)
+        if len(reports) < len(tasks):
+            self.check_cancel()
+            raise RuntimeError(f"round {k}: the executor returned {len(reports)} of {len(tasks)} candidates")
+        order = {t.state: i for i, t in enumerate(tasks)}
+        return sorted(reports, key=lambda r: order[r.task.state])  # ball order, not completion order
+
+    def outcomes(self, reports: list[CandidateReport]) -> list[Outcome]:
+        """What the selection rule compares: each state's loss, cost and failure."""
+        weight = self.spec.search.complexity_weight
+        return [Outcome(self.parse(r.task.state), r.val_loss,
+                        weight_cost(neural_weights(self.spec, r.task.state)) if weight else 0.0,
+                        failed=not r.ok)
+                for r in reports]
+
+    def commit(self, k: int, state, winner: CandidateReport, reports: list[CandidateReport], started: float, *,
+               kind: RoundKind = RoundKind.SEARCH, outcome: JobStatus | None = None,
+               warmup: WarmupRecord | None = None, halving: HalvingRecord | None = None,
+               pruned: frozenset[str] = frozenset()) -> None:
+        """Round ``k``'s winner checkpoint, durably, then the round itself in one transaction."""
+        key = checkpoint_key(self.job_id, k)
+        self.artifacts.put(key, winner.bundle)  # durable before the round becomes visible
+        self.jobs.commit_round(self.job_id, RoundRecord(
+            index=k, parent_state=self.format(state), winner_state=winner.task.state,
+            candidates=tuple(_candidate_record(r, r.task.state in pruned) for r in reports),
+            started_at=started, finished_at=time.time(), artifact_key=key,
+            kind=kind, outcome=outcome, warmup=warmup, halving=halving,
+        ))
+
+    # -- cancellation and progress -------------------------------------------------------------
+    def cancel_requested(self) -> bool:
+        return self.jobs.get_job(self.job_id).status == CANCELLED
+
+    def check_cancel(self) -> None:
+        if self.should_stop():
+            raise Interrupted()
+        if self.cancel_requested():
+            raise Cancelled()
+
+    def emit(self, status: JobStatus, *, round: int = -1, done: int = 0, total: int = 0,
+             best: float | None = None, state: str = "", message: str = "") -> None:
+        self.on_progress(Progress(self.job_id, status, round, done, total, best, state,
+                                  time.perf_counter() - self.clock, message))
+
+    def parse(self, state: str):
+        return self.graph.parse_state(state, self.digits)
+
+    def format(self, digits) -> str:
+        return self.graph.format_state(digits)
+
+
+def _candidate_row(r: CandidateReport) -> dict:
+    """A report as JSON (non-finite losses as None)."""
+    finite = lambda x: x if math.isfinite(x) else None  # noqa: E731
+    return {"state": r.task.state, "seed": r.task.seed, "train_loss": finite(r.train_loss),
+            "val_loss": finite(r.val_loss), "epochs": r.epochs, "wall_s": r.wall_s, "node": r.node,
+            "error": r.error}
+
+
+def _candidate_record(r: CandidateReport, pruned: bool) -> CandidateRecord:
+    return CandidateRecord(
+        state=r.task.state, train_loss=r.train_loss, val_loss=r.val_loss, epochs=r.epochs, wall_s=r.wall_s,
+        node=r.node, error=r.error if r.error or not pruned else PRUNED, seed=r.task.seed, pruned=pruned,
+    )
