@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import sqlite3
 import subprocess
+import os
 import sys
 import textwrap
 import time
@@ -175,7 +176,6 @@ def test_refuses_a_database_from_a_newer_version(tmp_path):
 WRITER = textwrap.dedent("""
     import sys, time
     from storage import SQLiteJobStore
-    sys.path.insert(0, sys.argv[4])
     from storage_kit import INITIAL, N_POSITIONS, hamming_round
     store = SQLiteJobStore(sys.argv[1])
     job_id, n = sys.argv[2], int(sys.argv[3])
@@ -198,8 +198,9 @@ def test_another_process_reads_while_one_writes(tmp_path):
     store = SQLiteJobStore(path)
     job_id = running_job(store)
     writer = subprocess.Popen(
-        [sys.executable, "-c", WRITER, str(path), job_id, str(n), str(Path(__file__).parent)],
-        cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        [sys.executable, "-c", WRITER, str(path), job_id, str(n)], cwd=REPO, stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(Path(__file__).parent)])})
     try:
         assert writer.stdout.readline().strip() == "ready"
         seen = [len(store.rounds(job_id))]
