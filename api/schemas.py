@@ -173,17 +173,21 @@ class HistoryPublic(BaseModel):
     next_since_round: int = Field(description="poll again with ?since_round= this value")
 
     @classmethod
-    def from_records(cls, job: JobRecord, rounds: list[RoundRecord], since_round: int = 0) -> "HistoryPublic":
-        """``rounds`` are all the job's committed rounds; those from ``since_round`` on are listed."""
+    def from_records(cls, job: JobRecord, rounds: list[RoundRecord], since_round: int = 0, *,
+                     round0: RoundRecord | None = None, last: RoundRecord | None = None) -> "HistoryPublic":
+        """``rounds``: the job's committed rounds from ``since_round`` on. ``round0`` (the gain's
+        reference) and ``last`` (the job's last committed round) default to ``rounds``' own first
+        and last, so a caller passes them only when ``rounds`` does not hold them."""
         from neuenh.models import get_model
 
         positions = list(get_model(job.spec.get("model", "ggx")).positions)
-        start = start_val_loss(rounds)
-        shown = [r for r in rounds if r.index >= since_round]
+        round0 = round0 or (rounds[0] if rounds and rounds[0].index == 0 else None)
+        last = last or (rounds[-1] if rounds else None)
+        start = start_val_loss(round0)
         return cls(job_id=job.id, status=job.status, terminal=job.terminal, current_state=job.current_state,
-                   start_val_loss=start, gain_over_start=_gain(rounds[-1].winner_val_loss, start) if rounds else None,
-                   rounds=[RoundPublic.from_record(r, positions, start) for r in shown],
-                   next_since_round=shown[-1].index + 1 if shown else since_round)
+                   start_val_loss=start, gain_over_start=_gain(last.winner_val_loss, start) if last else None,
+                   rounds=[RoundPublic.from_record(r, positions, start) for r in rounds],
+                   next_since_round=rounds[-1].index + 1 if rounds else since_round)
 
 
 class NodePublic(BaseModel):

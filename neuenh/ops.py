@@ -98,19 +98,16 @@ class _TorchOps:
 
     @staticmethod
     def minimum(a, b):
-        if _is_const(a) and _is_const(b):
-            return min(a, b)
         if _is_const(a):
             a, b = b, a
-        return torch.clamp(a, max=b) if _is_const(b) else torch.minimum(a, b)
+        # a constant bound is a clamp (folded by Python when both are constants)
+        return _TorchOps.clamp(a, hi=b) if _is_const(b) else torch.minimum(a, b)
 
     @staticmethod
     def maximum(a, b):
-        if _is_const(a) and _is_const(b):
-            return max(a, b)
         if _is_const(a):
             a, b = b, a
-        return torch.clamp(a, min=b) if _is_const(b) else torch.maximum(a, b)
+        return _TorchOps.clamp(a, lo=b) if _is_const(b) else torch.maximum(a, b)
 
     @staticmethod
     def clamp(x, lo: float | None = None, hi: float | None = None):

@@ -64,6 +64,7 @@ class JobRun:
         self.resources = Resources(spec.resources.cpus_per_candidate, spec.resources.gpus_per_candidate)
         self.train_config = spec.train_config()
         self.clock = time.perf_counter()  # progress reports count from here
+        self.names: list[str] = []  # the dataset's materials, once prepared
         self.dataset: object | None = None  # the executor's handle, once prepared
 
     # -- the state machine ---------------------------------------------------------------------

@@ -245,13 +245,13 @@ class RoundRecord:
         return self.kind is RoundKind.SEARCH and self.winner_state == self.parent_state
 
 
-def start_val_loss(rounds: list[RoundRecord]) -> float | None:
+def start_val_loss(round0: RoundRecord | None) -> float | None:
     """Round 0's stay candidate's validation loss: the starting state (plain analytical unless the
     spec says otherwise) trained like every candidate, what a search's gain is measured against.
     None before round 0 or when that candidate failed."""
-    if not rounds:
+    if round0 is None:
         return None
-    stay = next((c for c in rounds[0].candidates if c.state == rounds[0].parent_state and c.ok), None)
+    stay = next((c for c in round0.candidates if c.state == round0.parent_state and c.ok), None)
     return stay.val_loss if stay is not None and stay.val_loss > 0 else None
 
 
@@ -327,9 +327,9 @@ class JobStore(ABC):
         """Atomically store a complete round (see the class docstring); returns it as stored."""
 
     @abstractmethod
-    def rounds(self, job_id: str, *, since_round: int = 0) -> list[RoundRecord]:
-        """Committed rounds with ``index >= since_round``, in order, each with its candidates in
-        the order they were committed."""
+    def rounds(self, job_id: str, *, since_round: int = 0, until_round: int | None = None) -> list[RoundRecord]:
+        """Committed rounds with ``since_round <= index <= until_round`` (no upper bound when None),
+        in order, each with its candidates in the order they were committed."""
 
     @abstractmethod
     def last_round(self, job_id: str) -> RoundRecord | None:

@@ -245,10 +245,11 @@ class SQLiteJobStore(JobStore):
             _append(c, job_id, now, EVENT_ROUND, round_payload(record))
         return record
 
-    def rounds(self, job_id: str, *, since_round: int = 0) -> list[RoundRecord]:
+    def rounds(self, job_id: str, *, since_round: int = 0, until_round: int | None = None) -> list[RoundRecord]:
         with self._read(f"read rounds of job {job_id}") as c:
             _require(c, job_id)
-            return _load_rounds(c, job_id, since=int(since_round))
+            until = None if until_round is None else int(until_round)
+            return _load_rounds(c, job_id, since=int(since_round), until=until)
 
     def last_round(self, job_id: str) -> RoundRecord | None:
         with self._read(f"read the last round of job {job_id}") as c:

@@ -68,7 +68,12 @@ def get_job(job_id: str, jobs: JobStoreDep, job_queue: JobQueueDep) -> JobPublic
 def job_history(job_id: str, jobs: JobStoreDep,
                 since_round: Annotated[int, Query(ge=0)] = 0) -> HistoryPublic:
     """Committed rounds with index >= ``since_round``, each with every candidate and the winner."""
-    return HistoryPublic.from_records(jobs.get_job(job_id), jobs.rounds(job_id), since_round)
+    job = jobs.get_job(job_id)
+    rounds = jobs.rounds(job_id, since_round=since_round)
+    # A poll for the new rounds reads round 0 (the gain's reference) and nothing else again.
+    round0 = None if since_round == 0 else next(iter(jobs.rounds(job_id, until_round=0)), None)
+    last = None if rounds or job.last_round is None else jobs.last_round(job_id)
+    return HistoryPublic.from_records(job, rounds, since_round, round0=round0, last=last)
 
 
 @router.post("/{job_id}/cancel", response_model=JobPublic,

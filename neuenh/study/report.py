@@ -105,6 +105,7 @@ def run_study(settings: StudySettings) -> StudySummary:
 
 
 def _contenders(s: StudySettings) -> list:
+    """Every model of ``contender_infos()``, in its order, ready to be fitted per material."""
     from ..checkpoint import Bundle
     from ..fit import FitConfig
     from ..models import get_model
@@ -113,13 +114,21 @@ def _contenders(s: StudySettings) -> list:
     from .nbrdf_fit import NBRDFConfig
 
     fit = FitConfig(epochs=s.fit_epochs, starts=s.fit_starts)
-    enhanced, trained = load_model(s.model)
-    out = [GraphContender(ENHANCED, "Enhanced GGX (ours)", "enhanced", enhanced, trained, fit)]
-    out += [GraphContender(n, label, "analytical", get_model(n), config=fit) for n, label in ANALYTICAL.items()]
-    for b in BASELINES.values():
-        bundle = Bundle.load(b.bundle_dir(s.baselines))
-        out.append(GraphContender(b.name, b.label, b.family, bundle.model, bundle.materials, fit))
-    out.append(NBRDFContender(NBRDFConfig(epochs=s.fit_epochs) if s.fit_epochs else NBRDFConfig()))
+    out = []
+    for info in contender_infos():
+        if info.name == ENHANCED:
+            model, trained = load_model(s.model)
+        elif info.name in ANALYTICAL:
+            model, trained = get_model(info.name), None
+        elif info.name in BASELINES:
+            bundle = Bundle.load(BASELINES[info.name].bundle_dir(s.baselines))
+            model, trained = bundle.model, bundle.materials
+        elif info.name == NBRDFContender.name:  # a network per material: no shared model
+            out.append(NBRDFContender(NBRDFConfig(epochs=s.fit_epochs) if s.fit_epochs else NBRDFConfig()))
+            continue
+        else:
+            raise ValueError(f"the registry names a contender nothing builds: {info.name!r}")
+        out.append(GraphContender(info.name, info.label, info.family, model, trained, fit))
     return out
 
 

@@ -332,6 +332,8 @@ class TestJobStoreContract:
         assert job_store.rounds(job_id) == committed
         assert job_store.rounds(job_id, since_round=4) == committed[4:]
         assert job_store.rounds(job_id, since_round=6) == []
+        assert job_store.rounds(job_id, until_round=0) == committed[:1]
+        assert job_store.rounds(job_id, since_round=2, until_round=3) == committed[2:4]
         assert [r.index for r in job_store.rounds(other)] == [0, 1]
         chain = job_store.rounds(job_id)
         assert all(a.winner_state == b.parent_state for a, b in zip(chain, chain[1:]))
