@@ -39,6 +39,7 @@ test: $(STAMP) browser
 bench: $(STAMP)
 	$(PY) bench/bench_core.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_data.py --write docs/BENCHMARKS.md
+	$(PY) bench/bench_speed.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_search.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_api.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_cluster.py --write docs/BENCHMARKS.md

@@ -1,0 +1,102 @@
+"""Speed of the shipped enhanced GGX against plain GGX and NBRDF (issue 13), side by side in one run.
+
+    python bench/bench_speed.py [--write docs/BENCHMARKS.md]
+
+Per model, one thread, on one material of ``models/enhanced-ggx`` (its first training material;
+plain GGX gets the same analytical parameters): evaluations per second at a batch of 100,000
+Rusinkiewicz-uniform direction pairs and the time of one call on 300 pairs, for the public
+``evaluate`` and for the per-material ``SpecializedBRDF`` (``BRDFModel.specialize``), with the
+specialized evaluator's FLOPs per evaluation. NBRDF is a 6-21-21-3 network (Glorot-initialised:
+its speed does not depend on its weights).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
+
+import torch  # noqa: E402
+
+from bench.harness import Timer, fmt_rate, machine, machine_line, wait_quiet  # noqa: E402
+from bench.report import write_section  # noqa: E402
+
+SECTION = "## Speed of the enhanced model (issue 13)"
+BATCH, SMALL = 100_000, 300
+
+
+def cases() -> tuple[dict, dict, dict]:
+    """(batch cases, small-call cases, FLOPs per evaluation) by row name."""
+    from neuenh.data.directions import sample_directions
+    from neuenh.models import get_model
+    from neuenh.pretrained import load_model
+    from neuenh.study.nbrdf_fit import NBRDFNetwork
+
+    enhanced, materials = load_model("enhanced-ggx")
+    values, latent = materials.gather(torch.zeros(1, dtype=torch.long))
+    analytic = {k: v[0].detach() for k, v in values.items()}
+    models = {"enhanced GGX": (enhanced, {**analytic, "latent": latent[0].detach()}),
+              "plain GGX": (get_model("ggx"), analytic)}
+    batch, small, flops = {}, {}, {}
+    pairs = {n: tuple(x.float() for x in sample_directions(n, seed=1, anisotropic=True)) for n in (BATCH, SMALL)}
+    for name, (model, params) in models.items():
+        special = model.specialize(params)
+        flops[name] = special.flops_per_evaluation
+        for n, table in ((BATCH, batch), (SMALL, small)):
+            wi, wo = pairs[n]
+            table[f"{name}, evaluate"] = lambda m=model, p=params, wi=wi, wo=wo: m.evaluate(wi, wo, p)
+            table[f"{name}, specialized"] = lambda s=special, wi=wi, wo=wo: s(wi, wo)
+    nbrdf = NBRDFNetwork()
+    for n, table in ((BATCH, batch), (SMALL, small)):
+        table["NBRDF (per material)"] = lambda wi=pairs[n][0], wo=pairs[n][1]: nbrdf.evaluate(wi, wo)
+    return batch, small, flops
+
+
+def markdown_section(env: dict, timer: Timer, batch: dict, small: dict, flops: dict, command: str) -> str:
+    ggx = batch["plain GGX, specialized"].seconds
+    lines = [SECTION, "", f"Command: `{command}`  ", machine_line(env), f"Method: {timer.method()}.", "",
+             f"The shipped `models/enhanced-ggx` on its first training material, one torch thread. *Batch*: "
+             f"{BATCH:,} Rusinkiewicz-uniform pairs; *300 pairs*: one call (per-call overhead). × GGX: the "
+             "evaluations/s ratio to specialized plain GGX.", "",
+             "| model | path | evaluations/s, batch 1e5 | × GGX | one call on 300 pairs | FLOPs per evaluation |",
+             "|---|---|---:|---:|---:|---:|"]
+    for row, t in batch.items():
+        model, _, path = row.partition(", ")
+        cost = f"{flops[model]:,}" if path == "specialized" else "—"
+        lines.append(f"| {model} | {path or 'network'} | {fmt_rate(BATCH / t.seconds)} | {ggx / t.seconds:.2f} | "
+                     f"{1e3 * small[row].seconds:.3f} ms | {cost} |")
+    special = batch["enhanced GGX, specialized"].seconds
+    lines += ["", f"Specialized enhanced / specialized plain GGX: **{ggx / special:.2f}**; specialized enhanced / "
+              f"NBRDF: **{batch['NBRDF (per material)'].seconds / special:.2f}**; specialized enhanced / its "
+              f"`evaluate`: **{batch['enhanced GGX, evaluate'].seconds / special:.2f}**."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--write", metavar="PATH", help="write/replace this section of PATH (docs/BENCHMARKS.md)")
+    parser.add_argument("--repeats", type=int, default=9)
+    parser.add_argument("--max-background", type=float, default=0.3)
+    parser.add_argument("--max-wait", type=float, default=300.0)
+    args = parser.parse_args(argv)
+    command = "python bench/bench_speed.py" + (f" --write {args.write}" if args.write else "")
+    torch.set_num_threads(1)
+    wait_quiet(args.max_wait, args.max_background)
+    env = machine()
+    batch_cases, small_cases, flops = cases()
+    timer = Timer(repeats=args.repeats, min_time=0.2, max_background=args.max_background)
+    with torch.no_grad():
+        batch, small = timer.measure(batch_cases), timer.measure(small_cases)
+    text = markdown_section(env, timer, batch, small, flops, command)
+    print(text)
+    if args.write:
+        write_section(Path(args.write), SECTION, text)
+        print(f"written to {args.write}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
