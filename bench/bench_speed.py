@@ -8,12 +8,20 @@ Rusinkiewicz-uniform direction pairs and the time of one call on 300 pairs, for 
 ``evaluate`` and for the per-material ``SpecializedBRDF`` (``BRDFModel.specialize``), with the
 specialized evaluator's FLOPs per evaluation. NBRDF is a 6-21-21-3 network (Glorot-initialised:
 its speed does not depend on its weights).
+
+Training: one step of ``train.train_candidate`` (forward, the log-L1, backward into module weights,
+latent and analytical parameters) of the shipped state over all its training materials, at
+batches of 4096 and 100,000 samples: the reference path (``forward`` on per-sample gathered
+parameters, what training ran before issue 13) against ``forward_indexed`` (per-material work once
+per material). ``--compile`` adds ``torch.compile`` of the indexed step (its compile time reported
+apart; the pinned torch on this CPU).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,7 +63,55 @@ def cases() -> tuple[dict, dict, dict]:
     return batch, small, flops
 
 
-def markdown_section(env: dict, timer: Timer, batch: dict, small: dict, flops: dict, command: str) -> str:
+TRAIN_BATCHES = (4096, 100_000)
+
+
+def training_cases(compile_step: bool) -> tuple[dict, dict]:
+    """(cases by row name, compile seconds by row name): one training step per case."""
+    from neuenh.data.directions import sample_directions
+    from neuenh.pretrained import load_model
+    from neuenh.train import log_l1
+
+    model, materials = load_model("enhanced-ggx")
+    cases, compile_s = {}, {}
+    for n in TRAIN_BATCHES:
+        wi, wo = (x.float() for x in sample_directions(n, seed=2, anisotropic=True))
+        material = torch.randint(0, len(materials), (n,), generator=torch.Generator().manual_seed(0))
+        with torch.no_grad():
+            target = model.forward_indexed(wi, wo, materials.values(), materials.latent, material).clamp_min(0) * 1.1
+
+        def reference(wi=wi, wo=wo, material=material, target=target):
+            values, latent = materials.gather(material)
+            log_l1(model(wi, wo, values, latent), target, wi).mean().backward()
+
+        def indexed_loss(wi, wo, material, target):
+            pred = model.forward_indexed(wi, wo, materials.values(), materials.latent, material)
+            return log_l1(pred, target, wi).mean()
+
+        cases[f"reference, batch {n}"] = reference
+        cases[f"indexed, batch {n}"] = lambda f=indexed_loss, a=(wi, wo, material, target): f(*a).backward()
+        if compile_step:
+            compiled = torch.compile(indexed_loss)
+            start = time.perf_counter()
+            compiled(wi, wo, material, target).backward()
+            compile_s[f"torch.compile, batch {n}"] = time.perf_counter() - start
+            cases[f"torch.compile, batch {n}"] = lambda f=compiled, a=(wi, wo, material, target): f(*a).backward()
+    return cases, compile_s
+
+
+def training_section(measured: dict, compile_s: dict) -> list[str]:
+    lines = ["", "**Training step** (forward, log-L1, backward into weights, latent and parameters; all "
+             "the shipped model's training materials):", "",
+             "| path | batch | samples/s | × reference |", "|---|---:|---:|---:|"]
+    for row, t in measured.items():
+        path, _, batch = row.partition(", batch ")
+        ref = measured[f"reference, batch {batch}"].seconds
+        note = f" (compile {compile_s[row]:.0f} s)" if row in compile_s else ""
+        lines.append(f"| {path}{note} | {int(batch):,} | {fmt_rate(int(batch) / t.seconds)} | {ref / t.seconds:.2f} |")
+    return lines
+
+
+def markdown_section(env: dict, timer: Timer, batch: dict, small: dict, flops: dict, command: str) -> list[str]:
     ggx = batch["plain GGX, specialized"].seconds
     lines = [SECTION, "", f"Command: `{command}`  ", machine_line(env), f"Method: {timer.method()}.", "",
              f"The shipped `models/enhanced-ggx` on its first training material, one torch thread. *Batch*: "
@@ -72,6 +128,12 @@ def markdown_section(env: dict, timer: Timer, batch: dict, small: dict, flops: d
     lines += ["", f"Specialized enhanced / specialized plain GGX: **{ggx / special:.2f}**; specialized enhanced / "
               f"NBRDF: **{batch['NBRDF (per material)'].seconds / special:.2f}**; specialized enhanced / its "
               f"`evaluate`: **{batch['enhanced GGX, evaluate'].seconds / special:.2f}**."]
+    return lines
+
+
+def document(env: dict, timer: Timer, batch: dict, small: dict, flops: dict, training: dict, compile_s: dict,
+             command: str) -> str:
+    lines = markdown_section(env, timer, batch, small, flops, command) + training_section(training, compile_s)
     return "\n".join(lines) + "\n"
 
 
@@ -81,8 +143,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=9)
     parser.add_argument("--max-background", type=float, default=0.3)
     parser.add_argument("--max-wait", type=float, default=300.0)
+    parser.add_argument("--compile", action="store_true", help="add torch.compile of the training step")
     args = parser.parse_args(argv)
-    command = "python bench/bench_speed.py" + (f" --write {args.write}" if args.write else "")
+    command = "python bench/bench_speed.py" + (" --compile" if args.compile else "") \
+        + (f" --write {args.write}" if args.write else "")
     torch.set_num_threads(1)
     wait_quiet(args.max_wait, args.max_background)
     env = machine()
@@ -90,7 +154,9 @@ def main(argv: list[str] | None = None) -> int:
     timer = Timer(repeats=args.repeats, min_time=0.2, max_background=args.max_background)
     with torch.no_grad():
         batch, small = timer.measure(batch_cases), timer.measure(small_cases)
-    text = markdown_section(env, timer, batch, small, flops, command)
+    train_cases, compile_s = training_cases(args.compile)
+    training = timer.measure(train_cases)
+    text = document(env, timer, batch, small, flops, training, compile_s, command)
     print(text)
     if args.write:
         write_section(Path(args.write), SECTION, text)

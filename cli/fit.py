@@ -47,8 +47,11 @@ def add_parser(commands) -> None:
                    help="an enhanced model's starting points: analytical (default) fits the analytical "
                         "model first and starts from it; paper: the range means and latent 0.5")
     p.add_argument("--method", choices=("fast", "paper"), default="fast",
-                   help="fast (default): Adam with cosine decay; paper: RMSProp lr 1e-3, 1000 epochs")
-    p.add_argument("--epochs", type=int, default=None, help="override the method's epoch count")
+                   help="fast (default): a plain model by L-BFGS, an enhanced one by Adam with cosine "
+                        "decay, every start in one batch; paper: RMSProp lr 1e-3, 1000 epochs")
+    p.add_argument("--epochs", type=int, default=None,
+                   help="override the method's epoch count (a plain model's fast fit: L-BFGS iterations "
+                        "per surrogate phase)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: all)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("-o", "--output", type=Path, help="write a bundle with the fitted materials here")
@@ -117,8 +120,9 @@ def _check_heldout_args(args) -> None:
 
 
 def _table(report: dict) -> str:
+    lbfgs = report["method"] == "fast" and set(report["state"]) == {"0"}  # a plain model's fast fit
     lines = [f"{report['model']} (state {report['state']}), {report['method']} fit, "
-             f"{report['epochs']} epochs in {report['wall_s']:.1f} s"]
+             f"{report['epochs']} {'L-BFGS iterations' if lbfgs else 'epochs'} in {report['wall_s']:.1f} s"]
     for m in report["materials"]:
         p = m["params"]
         scalars = "  ".join(f"{k}={_fmt(v)}" for k, v in p.items() if k != "latent")

@@ -281,10 +281,20 @@ class BRDFModel(nn.Module):
         shading = make_shading(wi, wo, values)
         neural_terms = self._neural_term_outputs(digits, shading, values, latent)
 
+        def term(expr: Term, digit: int) -> torch.Tensor:
+            return neural_terms[expr.name] if digit else expr.formula(shading)
+
+        return self._combine(digits, term, shading.above)
+
+    def _combine(self, digits: Sequence[int], term: Callable[[Term, int], torch.Tensor],
+                 above: torch.Tensor) -> torch.Tensor:
+        """The graph's value from its terms' values (``term(expr, digit)``): operators combine
+        their operands, or their module does; exactly 0 below either horizon (``above`` false)."""
+
         def run(expr: Expr) -> torch.Tensor:
             digit = digits[self.graph.index[expr.name]]
             if isinstance(expr, Term):
-                return neural_terms[expr.name] if digit else expr.formula(shading)
+                return term(expr, digit)
             left, right = run(expr.left), run(expr.right)
             if digit:
                 return self.neural[expr.name](
@@ -293,7 +303,50 @@ class BRDFModel(nn.Module):
             return left + right if expr.op == "+" else left * right
 
         out = run(self.graph.root).expand(-1, 3)
-        return torch.where(shading.above, out, torch.zeros_like(out))
+        return torch.where(above, out, torch.zeros_like(out))
+
+    def forward_indexed(
+        self,
+        wi: torch.Tensor,
+        wo: torch.Tensor,
+        values: Mapping[str, torch.Tensor],
+        latent: torch.Tensor | None,
+        material: torch.Tensor,
+        digits: Sequence[int] | None = None,
+    ) -> torch.Tensor:
+        """``forward`` for samples of a table of materials, the training and fitting path.
+
+        ``values``: physical values per *material*, (m, width) each; ``latent`` (m, latent_dim);
+        ``material`` (n,) the table row of each sample. Equals ``forward(wi, wo,
+        values[material], latent[material])`` up to float rounding, but what depends on the
+        material alone is computed once per material: terms that read no direction (their
+        formula or their module), and the first-layer contribution of the 12 + latent
+        per-material inputs of every module replacing a term (``NeuralModule.forward_indexed``).
+        """
+        digits = self.digits if digits is None else digits
+        # index_select, not [material]: its backward accumulates in a fixed order (bit-identical).
+        shading = make_shading(wi, wo, {k: torch.index_select(v, 0, material) for k, v in values.items()})
+        per_material = Shading(None, None, None, None, None, None, None, values, None)
+        modules_read = any(d and isinstance(p, Term) for p, d in zip(self.graph.positions, digits))
+        material_input = None
+        if modules_read:
+            parts = [self.specs.unit_vector(values).to(wi.dtype)]
+            if self.latent_dim:
+                parts.append(latent.to(wi.dtype))
+            material_input = torch.cat(parts, dim=-1)
+            directions = torch.cat([shading.wi.array, shading.wo.array], dim=-1)
+        m = material_input.shape[0] if modules_read else next(iter(values.values())).shape[0]
+
+        def term(expr: Term, digit: int) -> torch.Tensor:
+            if digit:
+                return self.neural[expr.name].forward_indexed(
+                    material_input, directions if expr.reads_directions else None, material)
+            if not expr.reads_directions:  # a function of the parameters alone: per material
+                value = torch.as_tensor(expr.formula(per_material), dtype=wi.dtype)
+                return torch.index_select(value.expand(m, expr.width), 0, material)
+            return expr.formula(shading)
+
+        return self._combine(digits, term, shading.above)
 
     def _neural_term_outputs(
         self,

@@ -100,8 +100,32 @@ class NeuralModule(nn.Module):
         dtype = x.dtype
         x = x.to(self.layers[0].weight.dtype)
         for layer in self.layers[:-1]:
-            x = nn.functional.leaky_relu(layer(x), self.negative_slope)
+            # In place: the layer's fresh output is not needed by its own backward (saves a pass
+            # over the widest tensors).
+            x = nn.functional.leaky_relu(layer(x), self.negative_slope, inplace=True)
         return self.layers[-1](x).to(dtype)
+
+    def forward_indexed(self, per_material: torch.Tensor, per_sample: torch.Tensor | None,
+                        material: torch.Tensor) -> torch.Tensor:
+        """``forward(cat([per_material[material], per_sample]))`` without building that input:
+        the first layer's per-material part ``b1 + W1[:, :P] @ per_material`` is computed once per
+        material (m rows) and gathered per sample, so each sample pays only for its own inputs.
+
+        ``per_material`` (m, P); ``per_sample`` (n, Q) or None when the module reads nothing
+        else (then the whole module runs on the m rows and its output is gathered); ``material``
+        (n,) the row of each sample."""
+        first = self.layers[0]
+        dtype = per_material.dtype
+        per_material = per_material.to(first.weight.dtype)
+        k = per_material.shape[1]
+        if per_sample is None:
+            return torch.index_select(self.forward(per_material), 0, material).to(dtype)
+        # index_select, not [material]: its backward accumulates in a fixed order (bit-identical).
+        x = torch.index_select(torch.addmm(first.bias, per_material, first.weight[:, :k].t()), 0, material)
+        x = torch.addmm(x, per_sample.to(first.weight.dtype), first.weight[:, k:].t())
+        for layer in self.layers[1:]:
+            x = layer(nn.functional.leaky_relu(x, self.negative_slope, inplace=True))
+        return x.to(dtype)
 
     def flops_per_sample(self) -> int:
         """Multiply-adds counted as two FLOPs, activations ignored."""

@@ -73,16 +73,23 @@ def slog1p(x: torch.Tensor) -> torch.Tensor:
     return torch.sign(x) * torch.log1p(x.abs())
 
 
+def log_residual(pred: torch.Tensor, target: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
+    """Per-sample, per-channel residual (n, 3) of the paper loss: log(1 + f_gt cos_i) - log(1 + f cos_i).
+    ``wi`` in the local (ground-truth) frame."""
+    cos_i = wi[:, 2:3].clamp_min(0.0)
+    return torch.log1p(target * cos_i) - slog1p(pred * cos_i)
+
+
 def log_l1(pred: torch.Tensor, target: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
     """Per-sample paper loss (n,), averaged over RGB. ``wi`` in the local (ground-truth) frame."""
-    cos_i = wi[:, 2:3].clamp_min(0.0)
-    return (torch.log1p(target * cos_i) - slog1p(pred * cos_i)).abs().mean(dim=1)
+    return log_residual(pred, target, wi).abs().mean(dim=1)
 
 
 def predict(model: BRDFModel, materials: MaterialTable, samples: Samples, index: torch.Tensor | slice) -> torch.Tensor:
-    """The model's raw f_r (n, 3) for rows ``index`` of ``samples``, each with its material's parameters."""
-    values, latent = materials.gather(samples.material[index])
-    return model(samples.wi[index], samples.wo[index], values, latent)
+    """The model's raw f_r (n, 3) for rows ``index`` of ``samples``, each with its material's
+    parameters (``BRDFModel.forward_indexed``: what depends on the material alone runs per material)."""
+    return model.forward_indexed(samples.wi[index], samples.wo[index], materials.values(), materials.latent,
+                                 samples.material[index])
 
 
 @torch.no_grad()

@@ -37,7 +37,8 @@ def fit_job(
     job_id: str, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep, fit_lock: FitLockDep,
     files: Annotated[list[UploadFile], File(description="one measurement table per material (.npz or CSV)")],
     method: Annotated[Literal["fast", "paper"], Form()] = "fast",
-    epochs: Annotated[int, Form(ge=0, description="0: the method's default, 300 (fast) or 1000 (paper)")] = 0,
+    epochs: Annotated[int, Form(ge=0, description="0: the method's default, 300 (fast) or 1000 (paper); "
+                                                  "a plain model's fast fit counts L-BFGS iterations per phase")] = 0,
 ) -> FitPublic:
     job = jobs.get_job(job_id)
     last = jobs.last_round(job_id)

@@ -37,7 +37,11 @@ BRDF = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
 
 def model_brdf(model, params: Mapping[str, torch.Tensor], state: str | None = None) -> BRDF:
-    """A ``BRDFModel`` with fixed parameters as a BRDF callable."""
+    """A ``BRDFModel`` with fixed parameters as a BRDF callable: its specialized evaluator
+    (``BRDFModel.specialize``, equal to ``evaluate`` and several times faster), or ``evaluate``
+    in another ``state`` of the model."""
+    if state is None or state == model.state:
+        return model.specialize(params)
 
     def f(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
         return model.evaluate(wi, wo, params, state=state)

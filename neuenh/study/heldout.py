@@ -34,12 +34,10 @@ from ..data.directions import sample_directions
 from ..fit import FitConfig, fit_materials, per_material_loss
 from ..graph import BRDFModel
 from ..materials import MaterialTable
-from ..train import predict
 
 __all__ = ["draw_fit_test", "fit_and_evaluate", "heldout_log_l1", "predict_f_r", "split_rows",
            "write_predictions"]
 
-_BATCH = 200_000
 
 
 def _check_names(materials: MaterialTable, samples: Samples) -> None:
@@ -63,14 +61,16 @@ def heldout_log_l1(model: BRDFModel, materials: MaterialTable, samples: Samples)
 @torch.no_grad()
 def predict_f_r(model: BRDFModel, materials: MaterialTable, samples: Samples) -> torch.Tensor:
     """The fitted model's ``f_r`` (n, 3), without the cosine, at every row of ``samples``, each
-    with its material's fitted parameters: ``train.predict`` clipped at zero, i.e. what
-    ``model.evaluate(wi, wo, materials.as_params(i))`` returns. (The loss sees the unclipped
-    value; the two differ only where an enhanced model's module predicts a negative value.)"""
+    with its material's fitted parameters: what ``model.evaluate(wi, wo, materials.as_params(i))``
+    returns, computed by each material's specialized evaluator (``BRDFModel.specialize``). (The
+    loss sees the value before clipping at zero; the two differ only where an enhanced model's
+    module predicts a negative value.)"""
     _check_names(materials, samples)
-    out = [predict(model, materials, samples, slice(lo, lo + _BATCH)) for lo in range(0, len(samples), _BATCH)]
-    if not out:
-        return torch.zeros(0, 3)
-    return torch.cat(out).clamp_min(0.0)
+    out = torch.zeros(len(samples), 3)
+    for i in torch.unique(samples.material).tolist():
+        rows = torch.nonzero(samples.material == i).squeeze(1)
+        out[rows] = model.specialize(materials.as_params(i))(samples.wi[rows], samples.wo[rows]).float()
+    return out
 
 
 def write_predictions(path: str | os.PathLike, samples: Samples, f_r: torch.Tensor) -> Path:

@@ -14,7 +14,7 @@ from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
 from neuenh.study.heldout import (draw_fit_test, fit_and_evaluate, heldout_log_l1, predict_f_r, split_rows,
                              write_predictions)
-from neuenh.fit import FitConfig, fit_materials
+from neuenh.fit import SURROGATE_EPS, FitConfig, fit_materials
 from neuenh.materials import MaterialTable
 from neuenh.models import get_model
 
@@ -79,8 +79,10 @@ def test_heldout_loss_is_small_and_close_to_the_fit_loss(fitted):
 @pytest.mark.parametrize("which", ["fitted", "initial"])
 def test_heldout_loss_equals_a_numpy_computation_from_the_predictions(fitted, which):
     """mean |log(1 + f cos_i) - log(1 + f_hat cos_i)| in float64 numpy from the predictions: equal
-    to rel 1e-6 (abs 1e-9: torch evaluates each term in float32, whose rounding, ~1e-8 per term,
-    matters only when the loss itself is ~1e-3; the unfitted initial parameters give a loss ~0.1)."""
+    to rel 1e-6 (abs 1e-8: torch evaluates each term in float32, the predictions by the specialized
+    evaluator and the loss by the training path, whose rounding, ~1e-8 per term, matters only when
+    the loss itself is tiny: the fitted clean table ends near 1e-6; the unfitted initial parameters
+    give a loss ~0.1)."""
     model, _, test, _, result = fitted
     materials = result.materials if which == "fitted" else MaterialTable(model.specs, test.names, model.latent_dim)
     pred = predict_f_r(model, materials, test).double().numpy()
@@ -88,7 +90,7 @@ def test_heldout_loss_equals_a_numpy_computation_from_the_predictions(fitted, wh
     cos = np.clip(test.wi[:, 2].double().numpy(), 0, None)[:, None]
     expected = np.mean(np.abs(np.log1p(f * cos) - np.log1p(pred * cos)))
     (heldout,) = heldout_log_l1(model, materials, test)
-    assert heldout == pytest.approx(expected, rel=1e-6, abs=1e-9)
+    assert heldout == pytest.approx(expected, rel=1e-6, abs=1e-8)
     if which == "initial":
         assert expected > 0.05  # the comparison at rel 1e-6 is meaningful here
 
@@ -98,7 +100,8 @@ def test_predictions_are_the_model_with_the_fitted_parameters(fitted):
     pred = predict_f_r(model, result.materials, test)
     direct = model.evaluate(test.wi, test.wo, result.materials.as_params(0))
     assert pred.shape == (N_TEST, 3) and not pred.requires_grad
-    torch.testing.assert_close(pred, direct, rtol=1e-6, atol=0)
+    # the specialized evaluator, in float32: equal to evaluate to its contract (tests/neuenh/test_specialize.py)
+    torch.testing.assert_close(pred, direct, rtol=1e-4, atol=1e-6 * float(direct.max()))
 
 
 def test_names_must_match_the_fitted_materials(fitted):
@@ -126,7 +129,8 @@ def test_fit_and_evaluate_a_table(measured, fitted):
     out = fit_and_evaluate(get_model("ggx"), measured, N_FIT, N_TEST, seed=1, config=FitConfig(epochs=EPOCHS))
     assert out["split"] == "disjoint rows" and (out["n_fit"], out["n_test"]) == (N_FIT, N_TEST)
     assert out["heldout_log_l1"] < HELDOUT_BOUND and out["fit_loss"] < HELDOUT_BOUND and out["fit_s"] > 0
-    assert set(out["params"]) == set(TRUE) and out["epochs"] == EPOCHS
+    # a plain model's fast fit reports the L-BFGS iterations it ran, at most EPOCHS per surrogate phase
+    assert set(out["params"]) == set(TRUE) and 0 < out["epochs"] <= len(SURROGATE_EPS) * EPOCHS
     # the same split, seed and config as the step-by-step fixture: the same numbers
     assert out["fit_loss"] == result.losses[0]
     assert out["heldout_log_l1"] == heldout_log_l1(model, result.materials, test)[0]
