@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install browser demo test bench report clean
+.PHONY: install browser compiler demo test bench report clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,9 +28,15 @@ browser:
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends chromium >/dev/null; } || \
 	  echo "note: chromium is not installed and this is not root; the dashboard browser test will skip"
 
+# torch.compile (the opt-in compiled training step, train.compile) builds C++ kernels with g++.
+compiler:
+	@command -v g++ >/dev/null || { [ "$$(id -u)" = 0 ] && \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends g++ >/dev/null; } || \
+	  echo "note: g++ is not installed and this is not root; the compiled-training test will skip"
+
 # The dashboard's pure modules under Node's own test runner, then every Python test with the 25
 # slowest listed (make them cheaper before adding more).
-test: $(STAMP) browser
+test: $(STAMP) browser compiler
 	@if command -v node >/dev/null; then node --test tests/dashboard/; \
 	  else echo "note: node is not installed; the dashboard's unit tests (tests/dashboard) skip"; fi
 	$(PY) -m pytest -q --durations=25
@@ -39,7 +45,8 @@ test: $(STAMP) browser
 bench: $(STAMP)
 	$(PY) bench/bench_core.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_data.py --write docs/BENCHMARKS.md
-	$(PY) bench/bench_speed.py --write docs/BENCHMARKS.md
+	$(PY) bench/bench_speed.py --compile --write docs/BENCHMARKS.md
+	$(PY) bench/bench_fit.py --before bench/fit_before_issue13.json --write docs/BENCHMARKS.md
 	$(PY) bench/bench_search.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_api.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_cluster.py --write docs/BENCHMARKS.md

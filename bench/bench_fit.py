@@ -8,6 +8,7 @@ study (``neuenh.study.heldout.draw_fit_test``, seed 0) are fitted with the defau
 the checkout it runs in, one torch thread; the wall time of ``fit_materials`` and its fit loss are
 recorded. It uses only the public fit API, so the same file runs unchanged in an older checkout:
 ``--before`` reads that run's ``--json`` and puts both side by side (loss ratio, time ratio).
+``bench/fit_before_issue13.json`` is that run at commit 351a26c (before issue 13), on this machine.
 """
 
 from __future__ import annotations
@@ -103,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.write_text(json.dumps(now, indent=1))
     before = json.loads(args.before.read_text()) if args.before else None
-    command = "python bench/bench_fit.py" + (" --before BEFORE.json" if before else "") \
+    command = "python bench/bench_fit.py" + (f" --before {args.before}" if before else "") \
         + (f" --write {args.write}" if args.write else "")
     text = markdown_section(env, now, before, command)
     print(text)

@@ -74,6 +74,10 @@ class TrainSpec(_Strict):
     lr_final: float | None = Field(None, gt=0.0, description=(
         "unset: a constant lr (the paper); else each candidate's lr follows a cosine from lr down to "
         "lr_final over its epochs, so candidates are compared settled"))
+    compile: bool = Field(False, description=(
+        "compile each candidate's training step with torch.compile (the workers need a C++ compiler): "
+        "1.5-1.8x faster steps after ~8 s of compiling per batch shape, so worth it for long candidates "
+        "(from ~700 steps of 100K samples; docs/BENCHMARKS.md)"))
 
     @model_validator(mode="after")
     def _check_lr(self) -> "TrainSpec":
@@ -130,7 +134,8 @@ class JobSpec(_Strict):
 
     def train_config(self, epochs: int | None = None) -> TrainConfig:
         return TrainConfig(epochs=self.search.epochs_per_round if epochs is None else epochs,
-                           lr=self.train.lr, batch_size=self.train.batch_size, lr_final=self.train.lr_final)
+                           lr=self.train.lr, batch_size=self.train.batch_size, lr_final=self.train.lr_final,
+                           compile=self.train.compile)
 
     def polish_config(self) -> TrainConfig:
         """The final state's last training: ``polish_epochs``, lr decayed to ``lr_final`` (lr/100)."""
