@@ -53,6 +53,18 @@ class ProgressPublic(BaseModel):
         return cls.model_validate(dataclasses.asdict(p))  # job_id and status are not repeated here
 
 
+def valid_text(value: Any) -> Any:
+    """``value`` with every lone UTF-16 surrogate in its strings (keys too) replaced by U+FFFD, so
+    it always encodes as UTF-8 (specs are checked at submission; older stores may hold some)."""
+    if isinstance(value, str):
+        return "".join("\ufffd" if "\ud800" <= c <= "\udfff" else c for c in value)
+    if isinstance(value, dict):
+        return {valid_text(k): valid_text(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [valid_text(v) for v in value]
+    return value
+
+
 class JobPublic(BaseModel):
     id: str
     name: str | None
@@ -75,13 +87,14 @@ class JobPublic(BaseModel):
         from neuenh.models import get_model  # builds a small graph: ~50 us, no cache needed
 
         url = f"{base}/jobs/{job.id}"
-        model = job.spec.get("model", "ggx")
+        spec = valid_text(job.spec)  # a store written before specs were checked may hold lone surrogates
+        model = spec.get("model", "ggx")
         return cls(
-            id=job.id, name=job.spec.get("name"), model=model, positions=list(get_model(model).positions),
+            id=job.id, name=spec.get("name"), model=model, positions=list(get_model(model).positions),
             status=job.status,
             terminal=job.terminal, error=job.error, created_at=_time(job.created_at),
             updated_at=_time(job.updated_at), last_round=job.last_round,
-            current_state=job.current_state, spec=job.spec,
+            current_state=job.current_state, spec=spec,
             progress=ProgressPublic.from_progress(progress) if progress and not job.terminal else None,
             links=Links(self=url, history=f"{url}/history", model=f"{url}/model", cancel=f"{url}/cancel"),
         )

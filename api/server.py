@@ -28,15 +28,25 @@ def serve(settings: Settings, announce: Callable[[str], None] = print) -> None:
         host, port = sock.getsockname()[:2]
         url = f"http://{'[' + host + ']' if ':' in host else host}:{port}"
         announce(f"neuenh serve: dashboard {url}/  API {url}/v1  docs {url}/docs  data {settings.data_dir}")
-        config = uvicorn.Config(create_app(settings, lock=lock), limit_concurrency=256,
-                                timeout_graceful_shutdown=10, log_level="info",
-                                # pollers keep connections open: closing idle ones after uvicorn's
-                                # 5 s races with a client reusing them (a reset seen under load)
-                                timeout_keep_alive=75,
-                                access_log=settings.access_log)
-        uvicorn.Server(config).run(sockets=[sock])
+        uvicorn.Server(uvicorn_config(create_app(settings, lock=lock), settings)).run(sockets=[sock])
     finally:
         lock.release()
+
+
+def uvicorn_config(app, settings: Settings, log_level: str = "info"):
+    """The uvicorn configuration the service runs with (and its tests): requests beyond
+    ``max_connections`` open connections get 503, and a connection that sends no complete request
+    head within ``head_timeout`` s is closed (``api.connections``), so idle clients cannot hold
+    the slots."""
+    import uvicorn
+
+    from .connections import protocol
+
+    return uvicorn.Config(app, http=protocol(settings.head_timeout), limit_concurrency=settings.max_connections,
+                          timeout_graceful_shutdown=10, log_level=log_level,
+                          # pollers keep connections open: closing idle ones after uvicorn's
+                          # 5 s races with a client reusing them (a reset seen under load)
+                          timeout_keep_alive=75, access_log=settings.access_log)
 
 
 def _listen(host: str, port: int) -> socket.socket:

@@ -24,6 +24,10 @@ class Settings(BaseSettings):
         None, description="when set, every /v1 route but /health needs 'Authorization: Bearer <token>'")
     ray_address: str | None = Field(None, description="join this Ray cluster; embedded Ray when unset")
     access_log: bool = Field(False, description="log every request (uvicorn's access log)")
+    head_timeout: float = Field(10.0, gt=0.0, description="seconds a connection has to send a complete "
+                                                          "request head (after opening, and after each "
+                                                          "response) before it is closed")
+    max_connections: int = Field(512, ge=1, description="open connections beyond which requests get 503")
     ray_num_cpus: int | None = Field(None, ge=1, description="CPUs of the embedded Ray (default: all)")
     data_roots: list[Path] = Field(
         default_factory=list,

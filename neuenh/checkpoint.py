@@ -15,6 +15,7 @@ file + rename) and ``model.json`` last, so a directory with a ``model.json`` is 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import tempfile
@@ -85,15 +86,19 @@ class Bundle:
 
     # -- disk --------------------------------------------------------------------------------
     def save(self, directory: str | os.PathLike) -> Path:
+        """Write the bundle's files, each atomically, ``model.json`` last with the SHA-256 of the
+        other two: a save killed half-way (new weights beside the old ``model.json``) is refused
+        by ``load`` with an error naming the file, never loaded as a mix of two models."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
-        _atomic(directory / WEIGHTS, lambda p: save_file(_weights(self.model), p))
+        digests = {WEIGHTS: _atomic(directory / WEIGHTS, lambda p: save_file(_weights(self.model), p))}
         if self.materials is not None:
             meta = {"names": json.dumps(list(self.materials.names))}
-            _atomic(directory / MATERIALS, lambda p: save_file(self.materials.tensors(), p, metadata=meta))
+            digests[MATERIALS] = _atomic(directory / MATERIALS,
+                                         lambda p: save_file(self.materials.tensors(), p, metadata=meta))
         elif (directory / MATERIALS).exists():
             (directory / MATERIALS).unlink()
-        text = json.dumps(self.describe(), indent=2, sort_keys=False) + "\n"
+        text = json.dumps({**self.describe(), "digests": digests}, indent=2, sort_keys=False) + "\n"
         _atomic(directory / MODEL_JSON, lambda p: Path(p).write_text(text))
         return directory
 
@@ -107,6 +112,13 @@ class Bundle:
             meta = json.loads(meta_path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise BundleError(f"{meta_path}: not valid JSON ({exc})") from None
+        for name, digest in (meta.get("digests") or {}).items():  # bundles saved before digests have none
+            if name not in (WEIGHTS, MATERIALS):
+                raise BundleError(f"{meta_path}: digests name an unknown file {name!r}")
+            path = directory / name
+            if path.is_file() and _sha256(path) != digest:  # a missing one is named by its reader below
+                raise BundleError(f"{path}: does not match {MODEL_JSON} (changed since, or left by another "
+                                  "save); save the bundle again")
         weights = _read_safetensors(directory / WEIGHTS)
         materials = None
         if (directory / MATERIALS).exists():
@@ -207,15 +219,24 @@ def _read_materials(path: Path) -> tuple[dict[str, torch.Tensor], list[str]]:
     return tensors, json.loads(meta["names"])
 
 
-def _atomic(path: Path, write) -> None:
-    """Write through a temporary file in the same directory, then rename over ``path``."""
+def _sha256(path: Path) -> str:
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
+
+
+def _atomic(path: Path, write) -> str:
+    """Write through a temporary file in the same directory, then rename over ``path``; returns
+    the SHA-256 of what was written."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     try:
         write(tmp)
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
+            f.seek(0)
+            digest = hashlib.file_digest(f, "sha256").hexdigest()
         os.replace(tmp, path)
+        return digest
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

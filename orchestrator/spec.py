@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Any, Annotated, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -27,6 +27,27 @@ from neuenh.models import available_models, get_model
 from neuenh.modules import ModuleConfig
 from neuenh.search import Constraints
 from neuenh.train import TrainConfig
+
+
+def lone_surrogate_path(value: Any, path: str = "") -> str | None:
+    """The dotted path of the first string (key or value) in ``value`` holding a lone surrogate,
+    or None when every string is valid Unicode."""
+    if isinstance(value, str):
+        return path if any("\ud800" <= c <= "\udfff" for c in value) else None
+    if isinstance(value, dict):
+        for key, item in value.items():
+            where = f"{path}.{key}" if path else str(key)
+            found = lone_surrogate_path(key, where) if isinstance(key, str) else None
+            if found is None:
+                found = lone_surrogate_path(item, where)
+            if found is not None:
+                return found
+    if isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            found = lone_surrogate_path(item, f"{path}[{i}]")
+            if found is not None:
+                return found
+    return None
 
 
 class _Strict(BaseModel):
@@ -70,7 +91,7 @@ class TrainSpec(_Strict):
     lr: float = Field(1e-3, gt=0.0)
     batch_size: int = Field(100_000, ge=1)
     val_fraction: float = Field(0.1, gt=0.0, lt=1.0)
-    seed: int = 0
+    seed: int = Field(0, ge=0, lt=2**32, description="seeds the split and every candidate's initialisation")
     lr_final: float | None = Field(None, gt=0.0, description=(
         "unset: a constant lr (the paper); else each candidate's lr follows a cosine from lr down to "
         "lr_final over its epochs, so candidates are compared settled"))
@@ -100,6 +121,16 @@ class JobSpec(_Strict):
     train: TrainSpec = Field(default_factory=TrainSpec)
     data: list[DataSource] = Field(min_length=1)
     resources: ResourcesSpec = Field(default_factory=ResourcesSpec)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _valid_unicode(cls, data: Any) -> Any:
+        """JSON can spell a lone UTF-16 surrogate (``"\\ud800"``), which is no character: such text
+        cannot be stored or sent back as UTF-8 (one such job name once broke every job listing)."""
+        bad = lone_surrogate_path(data)
+        if bad is not None:
+            raise ValueError(f"{bad or 'the spec'}: text holds a lone surrogate (U+D800..U+DFFF), not valid Unicode")
+        return data
 
     @model_validator(mode="after")
     def _check(self) -> "JobSpec":

@@ -19,7 +19,7 @@ from fastapi import APIRouter, File, Form, HTTPException, UploadFile, status
 from neuenh.checkpoint import Bundle
 from neuenh.data.errors import DataError
 from neuenh.data.samples import Samples
-from neuenh.data.table import read_table
+from neuenh.data.table import TableTooLarge, read_table
 from neuenh.fit import FitConfig, fit_materials
 
 from ..deps import ArtifactStoreDep, Authorized, FitLockDep, JobStoreDep, SettingsDep
@@ -48,10 +48,10 @@ def fit_job(
     if epochs > settings.max_epochs:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"epochs: {epochs} exceeds this service's limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)")
-    samples = _read_uploads(files, settings.max_samples)
     bundle = Bundle.from_bytes(artifacts.get(last.artifact_key))
     model = bundle.model
-    with fit_lock:
+    with fit_lock:  # reading uploads costs memory like a fit: one at a time too
+        samples = _read_uploads(files, settings.max_samples)
         result = fit_materials(model, samples, FitConfig(method=method, epochs=epochs or None),
                                trained=bundle.materials)
     return FitPublic(job_id=job_id, round=last.index, **result.report(model, method, samples))
@@ -70,14 +70,14 @@ def _read_uploads(files: list[UploadFile], max_samples: int) -> Samples:
                 while chunk := upload.file.read(1 << 20):
                     out.write(chunk)
             try:
-                table = read_table(path, name=name)
+                table = read_table(path, name=name, max_rows=max_samples)
+            except TableTooLarge as exc:  # refused from the row count alone, before reading values
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                    f"{upload.filename}: {exc.rows} measurements exceed this service's limit of "
+                                    f"{max_samples} per material (NEUENH_MAX_SAMPLES)") from None
             except DataError as exc:  # its message names the temporary path: name the upload instead
                 raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                                     str(exc).replace(str(path), upload.filename or name)) from None
-            if len(table) > max_samples:
-                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                    f"{upload.filename}: {len(table)} measurements exceed this service's limit of "
-                                    f"{max_samples} per material (NEUENH_MAX_SAMPLES)")
             tables.append(table)
     return Samples.concat(tables)
 

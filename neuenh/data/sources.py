@@ -56,7 +56,8 @@ class _Source(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     samples: int = Field(20_000, ge=1, description="measurements per material")
-    seed: int = 0
+    # below 2^32: material i's seed is seed * 100003 + i, which must fit torch's 64-bit seeds
+    seed: int = Field(0, ge=0, lt=2**32)
 
 
 class SyntheticZoo(_Source):

@@ -23,8 +23,9 @@ columns                    meaning
 Column names are case-insensitive and may come in any order; the nine required ones must all be
 present, and no other column is allowed (a typo would otherwise be silently ignored).
 
-Both formats are validated the same way — unit directions (|norm - 1| <= 1e-3), finite values,
-``f_r`` and ``weight`` non-negative, matching lengths, at least one row — and every problem is a
+Both formats are validated the same way — unit directions (|norm - 1| <= 1e-3) above the horizon
+(z > 0), finite values, ``f_r`` and ``weight`` non-negative, matching lengths, at least one row, at
+most the reader's ``max_rows`` (an npz's from its headers, before inflating) — and every problem is a
 ``TableError`` naming the file, the row (0-based, the same in both formats; CSV errors add the
 1-based line of the file) and what is wrong.
 
@@ -60,6 +61,14 @@ class TableError(DataError):
     """A measurement table that cannot be used; the message names the file and the problem."""
 
 
+class TableTooLarge(TableError):
+    """A table with more rows than the reader was allowed (``max_rows``)."""
+
+    def __init__(self, path: Path, rows: int, max_rows: int):
+        super().__init__(f"{path}: {rows} rows exceed the limit of {max_rows}")
+        self.rows, self.max_rows = rows, max_rows
+
+
 @dataclass
 class Table:
     """A table's measurements (one material), its optional per-row weights, and its format."""
@@ -92,8 +101,10 @@ def looks_like_csv_table(head: bytes) -> bool:
 
 
 # -- reading ---------------------------------------------------------------------------------
-def load_table(path: str | os.PathLike, name: str | None = None) -> Table:
-    """The table at ``path`` (npz or CSV, told apart by content); ``name`` defaults to the stem."""
+def load_table(path: str | os.PathLike, name: str | None = None, max_rows: int | None = None) -> Table:
+    """The table at ``path`` (npz or CSV, told apart by content); ``name`` defaults to the stem.
+    ``max_rows``: refuse a larger table before reading its values (an npz's row counts come from
+    its arrays' headers, before anything is decompressed)."""
     path = check_file(path, TableError)
     try:
         with open(path, "rb") as f:
@@ -101,21 +112,59 @@ def load_table(path: str | os.PathLike, name: str | None = None) -> Table:
     except OSError as exc:
         raise TableError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     if head in _ZIP_MAGIC:
-        arrays, fmt = _read_npz(path), "npz"
+        arrays, fmt = _read_npz(path, max_rows), "npz"
     else:
-        arrays, fmt = _read_csv(path), "csv"
+        arrays, fmt = _read_csv(path, max_rows), "csv"
     samples, weight = _validated(path, arrays, fmt)
     if name is not None:
         samples = Samples(samples.wi, samples.wo, samples.f_r, samples.material, (name,))
     return Table(samples, weight, fmt)
 
 
-def read_table(path: str | os.PathLike, name: str | None = None) -> Samples:
+def read_table(path: str | os.PathLike, name: str | None = None, max_rows: int | None = None) -> Samples:
     """The measurements of the table at ``path`` (npz or CSV) as one material's ``Samples``."""
-    return load_table(path, name).samples
+    return load_table(path, name, max_rows).samples
 
 
-def _read_npz(path: Path) -> dict[str, np.ndarray]:
+def _too_many(path: Path, rows: int, max_rows: int | None) -> None:
+    if max_rows is not None and rows > max_rows:
+        raise TableTooLarge(path, rows, max_rows)
+
+
+def _check_npz_headers(path: Path, max_rows: int | None) -> None:
+    """Read only the .npy headers of the table's arrays: their shapes against ``max_rows``, and
+    the bytes they claim against the bytes the archive holds (a header claiming 10^12 rows, or a
+    few MB of deflated zeros that inflate to GBs, is refused before any array is decompressed)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for info in archive.infolist():
+                key = info.filename.removesuffix(".npy")
+                if key not in (*_KEYS, WEIGHT):
+                    continue
+                with archive.open(info) as member:
+                    try:
+                        version = np.lib.format.read_magic(member)
+                    except ValueError:
+                        raise TableError(f"{path}: {key} is not an array") from None
+                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                   else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read_header(member)
+                    header_bytes = member.tell()
+                if not shape:
+                    continue  # a scalar: the shape checks after loading name it
+                _too_many(path, int(shape[0]), max_rows)
+                claimed = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                if claimed + header_bytes > info.file_size:
+                    raise TableError(f"{path}: {key}'s header claims shape {tuple(shape)} ({claimed} bytes) but "
+                                     f"the archive holds {info.file_size - header_bytes} bytes of it")
+    except TableError:
+        raise
+    except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
+        raise TableError(f"{path}: not a readable .npz table ({exc})") from None
+
+
+def _read_npz(path: Path, max_rows: int | None = None) -> dict[str, np.ndarray]:
+    _check_npz_headers(path, max_rows)
     try:
         with np.load(path, allow_pickle=False) as npz:
             arrays = {k: npz[k] for k in npz.files if k in (*_KEYS, WEIGHT)}
@@ -139,7 +188,7 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
     return arrays
 
 
-def _read_csv(path: Path) -> dict[str, np.ndarray]:
+def _read_csv(path: Path, max_rows: int | None = None) -> dict[str, np.ndarray]:
     try:
         text = path.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -150,6 +199,7 @@ def _read_csv(path: Path) -> dict[str, np.ndarray]:
     numbered = [(i + 1, line) for i, line in enumerate(lines) if line.strip() and not line.lstrip().startswith("#")]
     if not numbered:
         raise TableError(f"{path}: the table is empty (no header line {','.join(CSV_COLUMNS)})")
+    _too_many(path, len(numbered) - 1, max_rows)
     header_line, header_text = numbered[0]
     header = [c.strip().strip('"').lower() for c in next(csv.reader([header_text]))]
     duplicates = sorted({c for c in header if header.count(c) > 1})
@@ -218,6 +268,11 @@ def _validated(path: Path, arrays: dict[str, np.ndarray], fmt: str) -> tuple[Sam
         if bad.any():
             row = int(np.argmax(bad))
             raise TableError(f"{path}: {key} must hold unit vectors ({where(row)} has norm {norms[row]:.4g})")
+    below = (np.asarray(arrays["wi"])[:, 2] <= 0) | (np.asarray(arrays["wo"])[:, 2] <= 0)
+    if below.any():  # f_r is 0 there by definition: such rows would fit any parameters perfectly
+        row = int(np.argmax(below))
+        raise TableError(f"{path}: {int(below.sum())} row(s) have wi or wo at or below the horizon (z <= 0; "
+                         f"first at {where(row)}); a BRDF is measured above it")
     for key in ("f_r", *([WEIGHT] if WEIGHT in arrays else [])):
         negative = arrays[key] < 0
         if negative.any():

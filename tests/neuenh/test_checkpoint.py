@@ -85,3 +85,25 @@ def _edit_json(directory, **changes):
     meta = json.loads((directory / "model.json").read_text())
     meta.update(changes)
     (directory / "model.json").write_text(json.dumps(meta))
+
+
+def test_a_save_killed_half_way_is_refused_not_loaded_as_a_mix(bundle, tmp_path):
+    """The weights of another save beside this save's model.json (a kill between the two files'
+    renames) load as neither model: the digest in model.json names the file."""
+    bundle.save(tmp_path / "a")
+    other = Bundle(get_model("ggx", state=PAPER_STATE, seed=9), bundle.materials)
+    other.save(tmp_path / "b")
+    os.replace(tmp_path / "b" / "weights.safetensors", tmp_path / "a" / "weights.safetensors")
+    with pytest.raises(BundleError, match="weights.safetensors: does not match model.json"):
+        Bundle.load(tmp_path / "a")
+
+
+def test_a_flipped_byte_in_the_tensor_data_is_refused(bundle, tmp_path):
+    """Still a valid safetensors file, different numbers: refused, never used silently."""
+    bundle.save(tmp_path)
+    path = tmp_path / "materials.safetensors"
+    data = bytearray(path.read_bytes())
+    data[-3] ^= 0x10  # inside the last tensor's values
+    path.write_bytes(bytes(data))
+    with pytest.raises(BundleError, match="materials.safetensors: does not match model.json"):
+        Bundle.load(tmp_path)

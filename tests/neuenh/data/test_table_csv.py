@@ -120,3 +120,65 @@ def test_missing_table_and_folder(tmp_path):
         read_table(tmp_path / "none.csv")
     with pytest.raises(TableError, match="not a regular file"):
         read_table(tmp_path)
+
+
+# -- hostile tables (issue 17): refused from their headers, before anything is inflated ---------
+def _bomb(path: Path, rows: int) -> Path:
+    """Deflated zeros: a few hundred KB on disk, 3 x rows x 3 float64 once read."""
+    zeros = np.zeros((rows, 3))
+    np.savez_compressed(path, wi=zeros, wo=zeros, f_r=zeros)
+    return path
+
+
+def test_a_decompression_bomb_is_refused_from_its_headers(tmp_path):
+    import tracemalloc
+
+    path = _bomb(tmp_path / "bomb.npz", 3_000_000)  # 216 MB of arrays
+    assert path.stat().st_size < 2_000_000
+    tracemalloc.start()
+    try:
+        with pytest.raises(TableError, match="3000000 rows exceed the limit of 1000"):
+            read_table(path, max_rows=1000)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 5_000_000  # nothing was inflated
+
+
+def test_a_csv_over_the_row_limit_is_refused(tmp_path):
+    wi, wo, f_r, _ = _arrays(n=40)
+    path = write_table(tmp_path / "t.csv", wi, wo, f_r)
+    assert len(read_table(path, max_rows=40)) == 40
+    with pytest.raises(TableError, match="40 rows exceed the limit of 39"):
+        read_table(path, max_rows=39)
+
+
+def test_an_npz_header_claiming_more_than_the_archive_holds_is_one_error(tmp_path):
+    """A header that claims 10^12 rows (numpy would try to allocate 24 TB) names the array."""
+    import io
+    import zipfile
+
+    def member(shape) -> bytes:
+        buffer = io.BytesIO()
+        np.lib.format.write_array_header_1_0(buffer, {"descr": "<f8", "fortran_order": False, "shape": shape})
+        return buffer.getvalue() + np.zeros(6).tobytes()
+
+    path = tmp_path / "liar.npz"
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("wi.npy", member((10**12, 3)))
+        archive.writestr("wo.npy", member((2, 3)))
+        archive.writestr("f_r.npy", member((2, 3)))
+    with pytest.raises(TableError, match=r"wi's header claims shape \(1000000000000, 3\)"):
+        read_table(path)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".csv"])
+def test_directions_below_the_horizon_are_refused_naming_the_rows(tmp_path, suffix):
+    """Such rows have f_r 0 by definition, and a table of them fitted to log-L1 0.00000 with the
+    starting parameters (issue 17, case 9)."""
+    wi, wo, f_r, _ = _arrays(n=10)
+    wo = wo.copy()
+    wo[[3, 7], 2] *= -1
+    path = write_table(tmp_path / f"t{suffix}", wi, wo, f_r)
+    with pytest.raises(TableError, match=r"2 row\(s\) have wi or wo at or below the horizon .*first at row 3"):
+        read_table(path)
