@@ -46,18 +46,30 @@ FitLockDep = Annotated[threading.Lock, Depends(get_fit_lock)]
 _bearer = HTTPBearer(auto_error=False, description="the service's NEUENH_API_TOKEN")
 
 
+def token_refusal(settings: Settings, authorization: str | None) -> HTTPException | None:
+    """The 401 for an ``Authorization`` header value, or None when it may pass: with ``api_token``
+    set, ``Bearer <token>`` is demanded (constant-time compare). Shared by the route dependency and
+    the middleware that refuses before a body is read (``api.app.AuthFirst``)."""
+    if settings.api_token is None:
+        return None
+    scheme, _, token = (authorization or "").partition(" ")
+    if scheme.lower() != "bearer" or not token.strip():
+        return HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token (Authorization: Bearer <token>)",
+                             headers={"WWW-Authenticate": "Bearer"})
+    expected = settings.api_token.get_secret_value().encode()
+    if not hmac.compare_digest(token.strip().encode(), expected):
+        return HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid bearer token",
+                             headers={"WWW-Authenticate": 'Bearer error="invalid_token"'})
+    return None
+
+
 def require_token(settings: SettingsDep,
                   credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]) -> None:
-    """With ``api_token`` set, demand ``Authorization: Bearer <token>`` (constant-time compare)."""
-    if settings.api_token is None:
-        return
-    if credentials is None:
-        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token (Authorization: Bearer <token>)",
-                            headers={"WWW-Authenticate": "Bearer"})
-    expected = settings.api_token.get_secret_value().encode()
-    if not hmac.compare_digest(credentials.credentials.encode(), expected):
-        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid bearer token",
-                            headers={"WWW-Authenticate": 'Bearer error="invalid_token"'})
+    """With ``api_token`` set, demand ``Authorization: Bearer <token>`` (see ``token_refusal``)."""
+    header = None if credentials is None else f"{credentials.scheme} {credentials.credentials}"
+    refusal = token_refusal(settings, header)
+    if refusal is not None:
+        raise refusal
 
 
 Authorized = Depends(require_token)

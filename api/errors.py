@@ -18,7 +18,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
 
 from orchestrator.spec import SpecError
-from storage import ConflictError, InvalidKeyError, InvalidRecordError, NotFoundError, StorageError
+from storage import (ConflictError, CorruptArtifactError, InvalidKeyError, InvalidRecordError, NotFoundError,
+                     StorageError)
 
 from .schemas import ErrorPublic
 
@@ -66,6 +67,9 @@ async def _storage(request: Request, exc: StorageError) -> JSONResponse:
         return _json(status.HTTP_409_CONFLICT, str(exc))
     if isinstance(exc, (InvalidRecordError, InvalidKeyError)):
         return _json(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc))
+    if isinstance(exc, CorruptArtifactError):  # named, never served: the operator restores it from a backup
+        log.error("%s %s: %s", request.method, request.url.path, exc)
+        return _json(status.HTTP_500_INTERNAL_SERVER_ERROR, f"{exc} (restore it from a backup: docs/DEPLOY.md)")
     return await _unexpected(request, exc)
 
 

@@ -32,6 +32,7 @@ class JobQueue:
         self._queue: queue.Queue = queue.Queue()
         self._progress: dict[str, Progress] = {}
         self._on_progress = on_progress
+        self.broken: dict[str, str] = {}  # job id -> why it could not be run or updated
         self.jobs = jobs
         self.orchestrator = Orchestrator(jobs, artifacts, executor, on_progress=self._record,
                                          should_stop=self._stopping.is_set)
@@ -84,7 +85,10 @@ class JobQueue:
             try:
                 job = self.orchestrator.run(job_id)
                 log.info("job %s: %s", job_id, job.status.value)
-            except Exception:  # the orchestrator records job failures itself; keep the thread alive
+            except Exception as exc:  # the orchestrator records job failures itself; keep the thread alive
+                # ... unless the store itself failed (e.g. a damaged database): the job cannot even
+                # be marked FAILED, so it is reported as broken by /health instead of looking RUNNING
                 log.exception("job %s: the job queue could not run it", job_id)
+                self.broken[job_id] = f"{type(exc).__name__}: {exc}"
             finally:
                 self.current = None

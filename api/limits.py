@@ -8,6 +8,8 @@ from pathlib import Path
 
 from fastapi import HTTPException, status
 
+from neuenh.models import get_model
+from orchestrator.executor import ClusterInfo
 from orchestrator.spec import JobSpec
 
 from .settings import Settings
@@ -53,7 +55,50 @@ def known_materials(source) -> int | None:
     return len(source.paths) if hasattr(source, "paths") else None
 
 
-def check_limits(spec: JobSpec, settings: Settings) -> None:
+# Bytes per measurement while a dataset is prepared and trained on: wi, wo, f_r (float32) and the
+# material index (int64) = 44 B, held about four times over (generated, split, shared with the
+# workers, a training batch's intermediates).
+BYTES_PER_SAMPLE = 4 * 44
+# Bytes per material beyond its samples: the source object, its parameters and the per-material
+# tables (measured: a synthetic material costs ~20 KB while preparing; 2.5x headroom).
+BYTES_PER_MATERIAL = 50_000
+
+
+def estimated_bytes(spec: JobSpec) -> int:
+    """A job's memory while preparing and training, from its spec alone (sources whose size the
+    spec does not say count as none: their files are bounded by the data roots)."""
+    samples = sum((known_materials(s) or 0) * (getattr(s, "samples", 0) or 0) for s in spec.data)
+    materials = sum(known_materials(s) or 0 for s in spec.data)
+    return samples * BYTES_PER_SAMPLE + materials * BYTES_PER_MATERIAL
+
+
+def module_weights(spec: JobSpec, hidden: list[int]) -> int:
+    """Weights of the largest module of that hidden shape: the widest input is a term module's
+    (all parameters, the latent and both directions), the widest output 3 (RGB)."""
+    widths = [get_model(spec.model).specs.total_width + spec.latent_dim + 6, *hidden, 3]
+    return sum(a * b + b for a, b in zip(widths[:-1], widths[1:]))
+
+
+def unsatisfiable(spec: JobSpec, cluster: ClusterInfo) -> list[str]:
+    """What a candidate asks that no node of ``cluster`` has: such a job would wait forever
+    (RUNNING 0/n, every later job queued behind it)."""
+    alive = [n for n in cluster.nodes if n.alive]
+    if not any(n.cpus > 0 for n in alive):
+        return []  # no worker has joined yet: nothing to judge by
+    cpus = max((n.cpus for n in alive), default=0.0)
+    gpus = max((n.gpus for n in alive), default=0.0)
+    wants = spec.resources
+    problems = []
+    if wants.cpus_per_candidate > cpus:
+        problems.append(f"resources.cpus_per_candidate: {wants.cpus_per_candidate:g}, but the largest node of this "
+                        f"cluster has {cpus:g} CPUs: no candidate could ever start")
+    if wants.gpus_per_candidate > gpus:
+        problems.append(f"resources.gpus_per_candidate: {wants.gpus_per_candidate:g}, but the largest node of this "
+                        f"cluster has {gpus:g} GPUs: no candidate could ever start")
+    return problems
+
+
+def check_limits(spec: JobSpec, settings: Settings, cluster: ClusterInfo | None = None) -> None:
     problems = []
     n = candidates_bound(spec)
     if n > settings.max_candidates_per_round:
@@ -69,6 +114,21 @@ def check_limits(spec: JobSpec, settings: Settings) -> None:
     if widest > settings.max_module_width:
         problems.append(f"module: a hidden width of {widest} exceeds this service's limit of "
                         f"{settings.max_module_width} (NEUENH_MAX_MODULE_WIDTH)")
+    for hidden in (spec.module.hidden, *spec.module.alternatives):
+        if len(hidden) > settings.max_module_depth:
+            problems.append(f"module: {len(hidden)} hidden layers exceed this service's limit of "
+                            f"{settings.max_module_depth} (NEUENH_MAX_MODULE_DEPTH)")
+        elif (weights := module_weights(spec, hidden)) > settings.max_module_weights:
+            problems.append(f"module: hidden {hidden} makes {weights} weights per module; this service allows "
+                            f"{settings.max_module_weights} (NEUENH_MAX_MODULE_WEIGHTS)")
+    materials = sum(known_materials(s) or 0 for s in spec.data)
+    if materials > settings.max_materials:
+        problems.append(f"data: {materials} materials exceed this service's limit of {settings.max_materials} "
+                        "(NEUENH_MAX_MATERIALS)")
+    memory = estimated_bytes(spec)
+    if memory > settings.max_job_memory_bytes:
+        problems.append(f"data: preparing and training this job needs about {memory / 1e9:.1f} GB; this service "
+                        f"allows {settings.max_job_memory_bytes / 1e9:.1f} GB (NEUENH_MAX_JOB_MEMORY_BYTES)")
     total = 0
     for i, source in enumerate(spec.data):
         samples = getattr(source, "samples", None)
@@ -81,5 +141,7 @@ def check_limits(spec: JobSpec, settings: Settings) -> None:
         problems.append(f"data: {total} measurements in all exceed this service's limit of "
                         f"{settings.max_total_samples} (NEUENH_MAX_TOTAL_SAMPLES)")
     problems += outside_data_roots(spec, settings)
+    if cluster is not None and not settings.autoscaling:
+        problems += unsatisfiable(spec, cluster)
     if problems:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "job spec over limits: " + "; ".join(problems))

@@ -260,3 +260,5 @@ class Health(BaseModel):
     version: str
     worker_alive: bool
     auth: bool
+    broken_jobs: dict[str, str] = Field(default_factory=dict, description=(
+        "jobs the service could not run or update (e.g. a damaged job database), with the reason"))

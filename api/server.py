@@ -10,6 +10,8 @@ import logging
 import socket
 from typing import Callable
 
+from storage import SQLiteJobStore
+
 from .settings import Settings, check_listen_address
 
 
@@ -23,6 +25,9 @@ def serve(settings: Settings, announce: Callable[[str], None] = print) -> None:
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     lock = owner_lock(settings).acquire()
     try:
+        # a damaged or unreadable job database is one line (exit 2) now, not uvicorn's startup traceback
+        with SQLiteJobStore(settings.data_dir / "jobs.sqlite") as store:
+            store.check_integrity()
         sock = _listen(settings.host, settings.port)
         logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
         host, port = sock.getsockname()[:2]

@@ -8,6 +8,8 @@ S3-compatible store instead of ``data_dir/artifacts``; the job store stays in ``
 
 from __future__ import annotations
 
+import ipaddress
+import socket
 from pathlib import Path
 
 from pydantic import Field, SecretStr
@@ -24,6 +26,9 @@ class Settings(BaseSettings):
         None, description="when set, every /v1 route but /health needs 'Authorization: Bearer <token>'")
     ray_address: str | None = Field(None, description="join this Ray cluster; embedded Ray when unset")
     access_log: bool = Field(False, description="log every request (uvicorn's access log)")
+    allowed_hosts: list[str] = Field(default_factory=list, description=(
+        "Host header values (names, without the port) requests may carry (JSON list in NEUENH_ALLOWED_HOSTS); "
+        "empty: any when a token is set, else loopback names only (a DNS-rebinding page gets 421)"))
     head_timeout: float = Field(10.0, gt=0.0, description="seconds a connection has to send a complete "
                                                           "request head (after opening, and after each "
                                                           "response) before it is closed")
@@ -43,6 +48,13 @@ class Settings(BaseSettings):
                                                                  "where the spec says both)")
     max_latent_dim: int = Field(256, ge=0, description="largest latent_dim")
     max_module_width: int = Field(1024, ge=1, description="largest hidden width of a neural module")
+    max_module_depth: int = Field(16, ge=1, description="most hidden layers of a neural module")
+    max_module_weights: int = Field(1_000_000, ge=1, description="most weights of one neural module")
+    autoscaling: bool = Field(False, description=(
+        "the cluster grows on demand: accept jobs whose candidates no current node can hold"))
+    max_materials: int = Field(10_000, ge=1, description="most materials of a job's dataset")
+    max_job_memory_bytes: int = Field(8_000_000_000, ge=1, description=(
+        "largest estimated memory of preparing and training a job (api/limits.py, estimated_bytes)"))
     max_request_bytes: int = Field(1_000_000, ge=1, description="largest request body; 413 beyond")
     max_upload_bytes: int = Field(64_000_000, ge=1, description="largest measurement upload to "
                                                                   "POST /v1/jobs/{id}/fit; 413 beyond")
@@ -65,11 +77,18 @@ class Settings(BaseSettings):
         30.0, ge=0.0, description="how long shutdown waits for the running job to reach a safe stop")
 
 
-LOOPBACK = ("127.", "::1", "localhost")
+def is_loopback(host: str) -> bool:
+    """Whether every address ``host`` resolves to is a loopback address (a name is resolved, not
+    matched by prefix: ``localhost.example`` is somebody's machine; an unresolvable name is not)."""
+    try:
+        infos = socket.getaddrinfo(host, None, proto=socket.IPPROTO_TCP)
+    except (socket.gaierror, UnicodeError):
+        return False
+    return bool(infos) and all(ipaddress.ip_address(info[4][0].split("%")[0]).is_loopback for info in infos)
 
 
 def check_listen_address(settings: Settings) -> None:
     """Refuse to serve beyond this machine without a token (a ValueError naming the fix)."""
-    if settings.api_token is None and not settings.host.startswith(LOOPBACK):
+    if settings.api_token is None and not is_loopback(settings.host):
         raise ValueError(f"refusing to listen on {settings.host} without NEUENH_API_TOKEN: anyone on the "
                          "network could submit jobs; set a token or listen on 127.0.0.1")

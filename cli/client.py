@@ -164,6 +164,8 @@ def status(args, api: Api) -> int:
         return 0
     print(f"service {api.url}: {health['status']} (neuenh {health['version']}, worker "
           f"{'alive' if health['worker_alive'] else 'down'}, auth {'on' if health['auth'] else 'off'})")
+    for job_id, why in (health.get("broken_jobs") or {}).items():
+        print(f"broken job {job_id}: {why}")
     if cluster is not None:
         print(f"cluster: {cluster['backend']}{' at ' + cluster['address'] if cluster.get('address') else ''}, "
               f"{len(cluster['nodes'])} node(s), {cluster['cpus']:g} CPUs ({cluster['cpus_available']:g} free), "

@@ -130,10 +130,17 @@ def _lights(info: dict) -> list:
     return lights
 
 
+def _regular_file(path: Path, what: str) -> None:
+    """A missing path and one that is not a regular file (a folder, a FIFO) are different mistakes."""
+    if not path.exists():
+        raise FileNotFoundError(f"{what}: no such file")
+    if not path.is_file():
+        raise ValueError(f"{what}: not a regular file")
+
+
 def _read_params(path: Path, material: str | None) -> tuple[str, dict]:
     """One material's parameters from ``neuenh fit --json`` output."""
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
+    _regular_file(path, str(path))
     try:
         doc = json.loads(path.read_text())
         materials = doc["materials"]
@@ -210,8 +217,6 @@ def _truth_source(args):
     if args.truth is not None:
         from neuenh.data.measured import load_measured
 
-        if not args.truth.is_file():
-            raise FileNotFoundError(f"{args.truth}: no such file")
         material = load_measured(args.truth, args.truth_material)
         if not hasattr(material, "evaluate"):
             raise ValueError(f"{args.truth}: a measurement table has no continuous evaluation; "
@@ -252,11 +257,9 @@ def run(args) -> int:
     if existing and not args.force:
         raise ValueError(f"{out}: {', '.join(existing)} already exist(s); use --force to overwrite")
     light_info = _lighting(args)
-    if args.truth is not None and not args.truth.is_file():
-        raise FileNotFoundError(f"{args.truth}: no such file")
-    for flag, path in (("--params", args.params), ("--truth-params", args.truth_params)):
-        if path is not None and not path.is_file():
-            raise FileNotFoundError(f"{flag} {path}: no such file")
+    for flag, path in (("--truth", args.truth), ("--params", args.params), ("--truth-params", args.truth_params)):
+        if path is not None:
+            _regular_file(path, f"{flag} {path}")
 
     from neuenh.render import ball_scene, render, sphere_scene, write_error_map, write_exr, write_png
     from neuenh.render.metrics import delta_e_itp, ssim

@@ -231,6 +231,7 @@ def _atomic(path: Path, write) -> str:
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, 0o644)  # mkstemp's (or the writer's) 0600 would hide a shared model from colleagues
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
             f.seek(0)

@@ -186,17 +186,22 @@ def fit_plain(model: BRDFModel, samples: Samples, config: FitConfig = FitConfig(
     start_time = time.perf_counter()
     warmed = MaterialTable(model.specs, samples.names, model.latent_dim)
     adam_rows(model, samples, warmed, dataclasses.replace(config, epochs=min(PLAIN_WARMUP, config.resolved_epochs)))
-    (direct, from_adam) = fit_starts(model, samples, [MaterialTable(model.specs, samples.names, model.latent_dim),
+    direct, from_adam = fit_starts(model, samples, [MaterialTable(model.specs, samples.names, model.latent_dim),
                                                      warmed], config)
+    materials, losses = _best_per_material(model, samples, [direct, from_adam])
+    trace = [(time.perf_counter() - start_time, float(sum(losses) / len(losses)))] if trace_every else []
+    return FitResult(materials, losses, time.perf_counter() - start_time, direct.epochs, trace)
+
+
+def _best_per_material(model: BRDFModel, samples: Samples, fits: list[FitResult]) -> tuple[MaterialTable, list[float]]:
+    """Each material's parameters and loss from the fit (of the same materials) where it ended lowest."""
     m = len(samples.names)
-    best = [0 if direct.losses[i] <= from_adam.losses[i] else 1 for i in range(m)]
-    _, table = _stack(samples, [direct.materials, from_adam.materials])
+    best = [min(range(len(fits)), key=lambda f: fits[f].losses[i]) for i in range(m)]
+    _, table = _stack(samples, [f.materials for f in fits])
     table = table.subset([f * m + i for i, f in enumerate(best)])
     materials = MaterialTable(model.specs, samples.names, model.latent_dim,
                               {k: v.detach() for k, v in table.raw.items()}, table.latent.detach())
-    losses = [(direct, from_adam)[f].losses[i] for i, f in enumerate(best)]
-    trace = [(time.perf_counter() - start_time, float(sum(losses) / m))] if trace_every else []
-    return FitResult(materials, losses, time.perf_counter() - start_time, direct.epochs, trace)
+    return materials, [fits[f].losses[i] for i, f in enumerate(best)]
 
 
 def fit_starts(
@@ -245,19 +250,16 @@ def fit_best_start(
     best start after ``NARROW_AT`` of its epochs; ``paper``: every start to the end, one after
     another."""
     start_time = time.perf_counter()
-    m = len(samples.names)
     if config.method == "paper":
         fits = fit_starts(model, samples, starts, config, seed=seed, trace_every=trace_every)
-        best = [min(range(len(fits)), key=lambda f: fits[f].losses[i]) for i in range(m)]
-        _, table = _stack(samples, [f.materials for f in fits])
-        table = table.subset([f * m + i for i, f in enumerate(best)])
+        materials, losses = _best_per_material(model, samples, fits)
         trace = fits[0].trace
     else:
         stacked, table = _stack(samples, starts)
         table, _, trace = adam_rows(model, stacked, table, config, starts=len(starts), trace_every=trace_every)
-    materials = MaterialTable(model.specs, samples.names, model.latent_dim,
-                              {k: v.detach() for k, v in table.raw.items()}, table.latent.detach())
-    losses = per_material_loss(model, materials, samples)
+        materials = MaterialTable(model.specs, samples.names, model.latent_dim,
+                                  {k: v.detach() for k, v in table.raw.items()}, table.latent.detach())
+        losses = per_material_loss(model, materials, samples)
     return FitResult(materials, losses, time.perf_counter() - start_time, config.resolved_epochs, trace)
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
+from typing import Callable
 
 from safetensors.torch import load, save
 
@@ -32,7 +33,7 @@ def dataset_key(spec: JobSpec) -> str:
         "split_seed": spec.train.seed,
     }
     digest = hashlib.sha256(json.dumps(recipe, sort_keys=True).encode()).hexdigest()
-    return f"datasets/{digest}.safetensors"
+    return f"datasets/{digest}.json"  # the cache index: it names the dataset's content key
 
 
 def _file_digest(path: Path) -> str:
@@ -59,13 +60,18 @@ def from_bytes(blob: bytes) -> TrainingData:
     return TrainingData(parts["train"], parts["val"])
 
 
-def prepare_dataset(spec: JobSpec, artifacts) -> tuple[TrainingData, str]:
-    """The job's data, built or read from the cache; returns it with its artifact key."""
-    key = dataset_key(spec)
-    if artifacts.exists(key):
-        return from_bytes(artifacts.get(key)), key
-    data = materialise(spec.data, spec.train.val_fraction, spec.train.seed)
-    artifacts.put(key, to_bytes(data))
+def prepare_dataset(spec: JobSpec, artifacts, check: Callable[[], None] | None = None) -> tuple[TrainingData, str]:
+    """The job's data, built or read from the cache; returns it with its (content) artifact key.
+    The cache is indexed by the recipe's hash (``dataset_key``); the index names the dataset's
+    content key, which ``get`` verifies, so a corrupted cached dataset is an error, never used.
+    ``check`` runs before each material is built (see ``materialise``)."""
+    index = dataset_key(spec)
+    if artifacts.exists(index):
+        key = json.loads(artifacts.get(index))["content"]
+        return from_bytes(artifacts.get(key)), key  # a content key: get re-hashes the bytes
+    data = materialise(spec.data, spec.train.val_fraction, spec.train.seed, check)
+    key = artifacts.put_content(to_bytes(data))
+    artifacts.put(index, json.dumps({"content": key}).encode())
     return data, key
 
 

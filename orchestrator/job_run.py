@@ -18,7 +18,7 @@ from typing import Callable
 from neuenh.models import get_model
 from neuenh.search import Outcome, candidate_seed, hamming_ball, initial_state, keep_better_half, select, weight_cost
 from storage import (ArtifactStore, CandidateRecord, HalvingRecord, JobStatus, JobStore, RoundKind, RoundRecord,
-                     WarmupRecord, checkpoint_key)
+                     WarmupRecord)
 
 from .dataset import prepare_dataset
 from .executor import CandidateReport, CandidateTask, Executor, Resources
@@ -28,6 +28,7 @@ from .spec import JobSpec, neural_weights
 log = logging.getLogger("neuenh.orchestrator")
 
 QUEUED, PREPARING, RUNNING = JobStatus.QUEUED, JobStatus.PREPARING, JobStatus.RUNNING
+MAX_PREPARE_ATTEMPTS = 2  # unfinished preparations before a job fails instead of retrying
 CONVERGED, STOPPED, CANCELLED = JobStatus.CONVERGED, JobStatus.STOPPED, JobStatus.CANCELLED
 
 PRUNED = "pruned by successive halving"
@@ -109,13 +110,37 @@ class JobRun:
         self.jobs.set_status(self.job_id, outcome)
 
     def prepare(self) -> None:
-        """Materialise (or read from the cache) the job's dataset and hand it to the executor."""
-        data, data_key = prepare_dataset(self.spec, self.artifacts)
+        """Materialise (or read from the cache) the job's dataset and hand it to the executor.
+
+        Cancelling (or stopping the service) interrupts it between materials. Each start is
+        recorded first: a preparation that was started ``MAX_PREPARE_ATTEMPTS`` times and never
+        finished (the process died in it, e.g. out of memory) fails the job instead of killing the
+        service again on every restart."""
+        started = self._unfinished_preparations()
+        if started >= MAX_PREPARE_ATTEMPTS:
+            raise RuntimeError(f"preparing the dataset started {started} times and never finished (the "
+                               "service died while preparing it, e.g. out of memory); not retried")
+        self.jobs.append_event(self.job_id, "preparing", {})
+        try:
+            data, data_key = prepare_dataset(self.spec, self.artifacts, check=self.check_cancel)
+        except Interrupted:
+            self.jobs.append_event(self.job_id, "preparation_interrupted", {})
+            raise
         self.jobs.append_event(self.job_id, "dataset", {"key": data_key, "materials": len(data.names),
                                                         "train": len(data.train), "val": len(data.val),
                                                         "bytes": data.nbytes})
         self.names = data.names
         self.dataset = self.executor.put_dataset(data)
+
+    def _unfinished_preparations(self) -> int:
+        """Preparations started since the last one that finished or was interrupted cleanly."""
+        count = 0
+        for event in self.jobs.events(self.job_id):
+            if event.kind == "preparing":
+                count += 1
+            elif event.kind in ("dataset", "preparation_interrupted"):
+                count = 0
+        return count
 
     def warm_up(self, state, parent: bytes) -> tuple[bytes, WarmupRecord]:
         """The starting state trained ``warmup_epochs`` (seeded as round -1, so a resumed job warms
@@ -214,9 +239,10 @@ class JobRun:
                kind: RoundKind = RoundKind.SEARCH, outcome: JobStatus | None = None,
                warmup: WarmupRecord | None = None, halving: HalvingRecord | None = None,
                pruned: frozenset[str] = frozenset()) -> None:
-        """Round ``k``'s winner checkpoint, durably, then the round itself in one transaction."""
-        key = checkpoint_key(self.job_id, k)
-        self.artifacts.put(key, winner.bundle)  # durable before the round becomes visible
+        """Round ``k``'s winner checkpoint, durably, then the round itself in one transaction. The
+        checkpoint is content-addressed: the round record holds its SHA-256 (the key), and every
+        read re-hashes it, so a changed byte is an error naming it, never a silently wrong model."""
+        key = self.artifacts.put_content(winner.bundle)  # durable before the round becomes visible
         self.jobs.commit_round(self.job_id, RoundRecord(
             index=k, parent_state=self.format(state), winner_state=winner.task.state,
             candidates=tuple(_candidate_record(r, r.task.state in pruned) for r in reports),

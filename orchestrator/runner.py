@@ -78,6 +78,11 @@ class Orchestrator:
         except Interrupted:
             run.emit(self.jobs.get_job(job_id).status, message="interrupted")
         except Exception as exc:  # any failure ends the job FAILED with its reason, never silently
+            if self.jobs.get_job(job_id).status is JobStatus.CANCELLED:
+                # a cancel that raced a step (e.g. a commit refused by the CANCELLED status): the
+                # job ended as asked; nothing failed
+                log.info("job %s: cancelled during %s: %s", job_id, type(exc).__name__, exc)
+                return self.jobs.get_job(job_id)
             log.error("job %s failed:\n%s", job_id, traceback.format_exc())
             if not self.jobs.get_job(job_id).terminal:
                 self.jobs.set_status(job_id, JobStatus.FAILED, error=f"{type(exc).__name__}: {exc}")

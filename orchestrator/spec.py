@@ -134,6 +134,14 @@ class JobSpec(_Strict):
 
     @model_validator(mode="after")
     def _check(self) -> "JobSpec":
+        seen: dict[tuple[str, str], int] = {}
+        for i, source in enumerate(self.data):  # synthetic sources name their materials alike
+            if source.source.startswith("synthetic_"):
+                key = (source.source, source.prefix)
+                if key in seen:
+                    raise ValueError(f"data.{seen[key]} and data.{i} are both {source.source} with prefix "
+                                     f"{source.prefix!r}: their material names collide; give one a 'prefix'")
+                seen[key] = i
         if self.model not in available_models():
             raise ValueError(f"unknown model {self.model!r}; available: {', '.join(available_models())}")
         m = self.digits()

@@ -60,7 +60,7 @@ class LocalArtifactStore(ArtifactStore):
         try:
             return self._path(key).read_bytes()
         except (FileNotFoundError, NotADirectoryError, IsADirectoryError):
-            raise NotFoundError(f"no artifact {key!r} in {self.root}") from None
+            raise NotFoundError(f"no artifact {key!r}") from None  # the message reaches clients: no server path
 
     def _exists(self, key: str) -> bool:
         return self._path(key).is_file()

@@ -59,6 +59,17 @@ class SQLiteJobStore(JobStore):
             self.close()
             raise
 
+    def check_integrity(self) -> None:
+        """Raise ``StorageError`` (saying what to do) unless SQLite's quick_check finds the database
+        intact; run at service start, so a damaged page is found before a job runs into it."""
+        try:
+            problems = [row[0] for row in self._conn().execute("PRAGMA quick_check").fetchall()]
+        except sqlite3.DatabaseError as exc:
+            problems = [str(exc)]
+        if problems != ["ok"]:
+            raise StorageError(f"the job database {self.path} is damaged ({'; '.join(problems[:3])}); stop the "
+                               "service and restore it from a backup (docs/DEPLOY.md, 'Back up and restore')")
+
     # ---------------------------------------------------------------------------- connections
 
     def _conn(self) -> sqlite3.Connection:

@@ -14,5 +14,6 @@ router = APIRouter(tags=["health"])
 
 @router.get("/health", response_model=Health)
 def health(settings: SettingsDep, job_queue: JobQueueDep) -> Health:
-    return Health(status="ok" if job_queue.alive else "degraded", version=neuenh.__version__,
-                  worker_alive=job_queue.alive, auth=settings.api_token is not None)
+    ok = job_queue.alive and not job_queue.broken
+    return Health(status="ok" if ok else "degraded", version=neuenh.__version__, worker_alive=job_queue.alive,
+                  auth=settings.api_token is not None, broken_jobs=dict(job_queue.broken))

@@ -37,7 +37,7 @@ def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, job_q
     if "gpus_per_candidate" not in spec.resources.model_fields_set and settings.default_gpus_per_candidate:
         # stored explicitly, so the job runs the same wherever and whenever it resumes
         spec.resources.gpus_per_candidate = settings.default_gpus_per_candidate
-    check_limits(spec, settings)
+    check_limits(spec, settings, job_queue.orchestrator.executor.cluster())
     job, created = job_queue.orchestrator.submit(spec, idempotency_key=idempotency_key)
     if created:
         job_queue.enqueue(job.id)

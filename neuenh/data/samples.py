@@ -7,7 +7,7 @@ index of its material in ``names``. Training reads these; a split is seeded and 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import Callable, Protocol, Sequence
 
 import torch
 
@@ -82,10 +82,14 @@ class Samples:
         )
 
 
-def sample_materials(materials: Sequence[Material], n: int, seed: int) -> Samples:
-    """``n`` samples of each material, seeded per material so adding one changes no other."""
+def sample_materials(materials: Sequence[Material], n: int, seed: int,
+                     check: Callable[[], None] | None = None) -> Samples:
+    """``n`` samples of each material, seeded per material so adding one changes no other;
+    ``check()`` runs before each material (it may raise to abandon the work)."""
     wis, wos, fs, ids = [], [], [], []
     for i, material in enumerate(materials):
+        if check is not None:
+            check()
         wi, wo, f = material.samples(n, seed=seed * 100_003 + i)
         wis.append(wi)
         wos.append(wo)

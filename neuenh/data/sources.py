@@ -7,8 +7,8 @@ discriminated by ``source``. ``materialise`` turns a list of them into contiguou
 ==================  ==========================================  ==================================
 ``source``          fields (besides ``samples``, ``seed``)      materials
 ==================  ==========================================  ==================================
-``synthetic_zoo``   ``materials``, ``families``                 closed forms GGX cannot represent
-``synthetic_ggx``   ``materials``, ``noise``                    noisy anisotropic GGX (the paper)
+``synthetic_zoo``   ``materials``, ``families``, ``prefix``     closed forms GGX cannot represent
+``synthetic_ggx``   ``materials``, ``noise``, ``prefix``        noisy anisotropic GGX (the paper)
 ``nbrdf``           ``path``, ``materials`` (names; all if      one per NBRDF network (MERL
                     omitted), ``prefix``                        stand-in)
 ``merl``            ``paths``, ``prefix``                       one per MERL ``.binary``
@@ -35,7 +35,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from typing import Annotated, Literal, Sequence, Union
+from typing import Callable, Annotated, Literal, Sequence, Union
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -56,8 +56,14 @@ class _Source(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     samples: int = Field(20_000, ge=1, description="measurements per material")
+    prefix: str = Field("", description="prepended to every material name (to keep names unique)")
     # below 2^32: material i's seed is seed * 100003 + i, which must fit torch's 64-bit seeds
     seed: int = Field(0, ge=0, lt=2**32)
+
+    def _named(self, materials: list) -> list:
+        for m in materials:
+            m.name = self.prefix + m.name
+        return materials
 
 
 class SyntheticZoo(_Source):
@@ -72,9 +78,10 @@ class SyntheticZoo(_Source):
         if unknown:
             raise ValueError(f"unknown zoo families {unknown}; available: {list(ZOO_FAMILIES)}")
 
-    def build(self) -> Samples:
+    def build(self, check: Callable[[], None] | None = None) -> Samples:
         families = tuple(self.families) if self.families else None
-        return sample_materials(synthetic_zoo(self.materials, self.seed, families), self.samples, self.seed)
+        return sample_materials(self._named(synthetic_zoo(self.materials, self.seed, families)), self.samples,
+                                self.seed, check=check)
 
 
 class SyntheticGGX(_Source):
@@ -84,26 +91,19 @@ class SyntheticGGX(_Source):
     materials: int = Field(100, ge=1)
     noise: float = Field(0.1, ge=0.0)
 
-    def build(self) -> Samples:
-        return sample_materials(synthetic_ggx(self.materials, self.seed, self.noise), self.samples, self.seed)
+    def build(self, check: Callable[[], None] | None = None) -> Samples:
+        return sample_materials(self._named(synthetic_ggx(self.materials, self.seed, self.noise)), self.samples,
+                                self.seed, check=check)
 
 
 # -- measured files --------------------------------------------------------------------------
 class _Files(_Source):
-    prefix: str = Field("", description="prepended to every material name (to keep names unique)")
-
     def files(self) -> list[Path]:
         """Every file this source reads (a folder's files, recursively), in a stable order."""
         out: list[Path] = []
         for p in map(Path, getattr(self, "paths", None) or [getattr(self, "path")]):
             out.extend(sorted(f for f in p.rglob("*") if f.is_file()) if p.is_dir() else [p])
         return out
-
-    def _named(self, materials: list) -> list:
-        for m in materials:
-            m.name = self.prefix + m.name
-        return materials
-
 
 def _paths_field():
     return Field(min_length=1, description="files, relative to the current directory")
@@ -138,7 +138,7 @@ class NBRDFSource(_Files):
     def _no_duplicates(cls, v):
         return _unique(v, "NBRDF materials")
 
-    def build(self) -> Samples:
+    def build(self, check: Callable[[], None] | None = None) -> Samples:
         found = detect_format(self.path)
         if found != "nbrdf":
             raise DataError(f"{self.path}: expected NBRDF weights for an 'nbrdf' source, but the file holds "
@@ -147,7 +147,7 @@ class NBRDFSource(_Files):
             materials = list(load_nbrdf(self.path).values())
         else:
             materials = [nbrdf_material(self.path, name) for name in self.materials]
-        return sample_materials(self._named(materials), self.samples, self.seed)
+        return sample_materials(self._named(materials), self.samples, self.seed, check=check)
 
 
 class _PathsSource(_Files):
@@ -159,9 +159,9 @@ class _PathsSource(_Files):
     def _no_duplicates(cls, v):
         return _unique(v, "paths")
 
-    def build(self) -> Samples:
+    def build(self, check: Callable[[], None] | None = None) -> Samples:
         materials = self._named([_load(p, self._kind) for p in self.paths])
-        return sample_materials(materials, self.samples, self.seed)
+        return sample_materials(materials, self.samples, self.seed, check=check)
 
 
 class MERLSource(_PathsSource):
@@ -185,9 +185,9 @@ class TableSource(_PathsSource):
     samples: int | None = Field(None, ge=1, description="rows per table; all rows when omitted")
     _kind = "table"
 
-    def build(self) -> Samples:
+    def build(self, check: Callable[[], None] | None = None) -> Samples:
         materials = self._named([_load(p, self._kind) for p in self.paths])
-        return sample_materials(materials, self.samples or max(len(m) for m in materials), self.seed)
+        return sample_materials(materials, self.samples or max(len(m) for m in materials), self.seed, check=check)
 
 
 class EXRCaptureSource(_Files):
@@ -207,10 +207,10 @@ class EXRCaptureSource(_Files):
             raise ValueError(f"region (row0, col0, row1, col1) needs 0 <= row0 < row1 and 0 <= col0 < col1, got {v}")
         return v
 
-    def build(self) -> Samples:
+    def build(self, check: Callable[[], None] | None = None) -> Samples:
         capture = read_capture(self.path, self.region, self.stride)
         materials = self._named(capture.materials())
-        return sample_materials(materials, self.samples or capture.images, self.seed)
+        return sample_materials(materials, self.samples or capture.images, self.seed, check=check)
 
 
 Source = SyntheticZoo | SyntheticGGX | NBRDFSource | MERLSource | RGLSource | TableSource | EXRCaptureSource
@@ -220,11 +220,14 @@ DataSource = Annotated[
 ]
 
 
-def materialise(sources: Sequence[Source], val_fraction: float, seed: int) -> TrainingData:
-    """All sources' samples, concatenated, split per material into training and validation."""
+def materialise(sources: Sequence[Source], val_fraction: float, seed: int,
+                check: Callable[[], None] | None = None) -> TrainingData:
+    """All sources' samples, concatenated, split per material into training and validation.
+    ``check`` is called before each material is sampled (it may raise to abandon the work, e.g.
+    when the job is cancelled while preparing)."""
     if not sources:
         raise ValueError("a job needs at least one data source")
-    parts = [s.build() for s in sources]
+    parts = [s.build(check) for s in sources]
     origin: dict[str, int] = {}
     for k, part in enumerate(parts):
         for name in part.names:

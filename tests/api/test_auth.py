@@ -51,3 +51,20 @@ def test_settings_from_environment(monkeypatch, tmp_path):
     s = Settings()
     assert (s.data_dir, s.port, s.max_epochs, s.host) == (tmp_path, 9001, 7, "127.0.0.1")
     assert s.api_token.get_secret_value() == TOKEN and TOKEN not in repr(s)
+
+
+def test_a_body_is_not_read_before_auth(server):
+    """Bodies were read before auth (issue 17, case 8): a JSON body without a token got 422 (its
+    shape was checked), and a /fit upload of up to 64 MB was spooled to disk before the 401."""
+    import socket
+
+    with server.client() as c:
+        r = c.post("/jobs", content=b"{not json", headers={"Content-Type": "application/json"})
+        assert r.status_code == 401, r.text
+    host, port = server.url.removeprefix("http://").split(":")
+    with socket.create_connection((host, int(port))) as sock:
+        sock.sendall(b"POST /v1/jobs/x/fit HTTP/1.1\r\nHost: x\r\nContent-Type: multipart/form-data; "
+                     b"boundary=b\r\nContent-Length: 60000000\r\n\r\n--b\r\n")  # 60 MB promised, 6 bytes sent
+        sock.settimeout(10)
+        head = sock.recv(4096)
+    assert head.startswith(b"HTTP/1.1 401"), head[:80]  # answered without waiting for the body

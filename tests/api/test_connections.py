@@ -53,9 +53,9 @@ def test_idle_connections_are_closed_and_health_stays_reachable(tmp_path):
 def test_a_slow_request_head_is_cut_but_a_keep_alive_client_is_not(tmp_path):
     with running_server(tmp_path, head_timeout=1.0) as server:
         (slow,) = idle_connections(server.url, 1)
-        slow.sendall(b"GET /v1/health HTTP/1.1\r\nHost: x\r\n")  # the head never ends
+        slow.sendall(b"GET /v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\n")  # the head never ends
         (after,) = idle_connections(server.url, 1)  # a complete request, then the next head hangs
-        after.sendall(b"GET /v1/health HTTP/1.1\r\nHost: x\r\n\r\n")
+        after.sendall(b"GET /v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
         assert read_response(after).startswith(b"HTTP/1.1 200")
         after.sendall(b"GET /v1/health HTTP/1.1\r\n")
         with httpx.Client(base_url=server.url, timeout=10) as client:
@@ -80,7 +80,7 @@ def test_a_slow_body_of_a_started_request_is_not_cut(tmp_path):
     with running_server(tmp_path, head_timeout=0.5) as server:
         (sock,) = idle_connections(server.url, 1)
         body = b'{"name": "x"}'
-        sock.sendall(b"POST /v1/jobs HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+        sock.sendall(b"POST /v1/jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
                      b"Content-Length: %d\r\n\r\n" % len(body))
         for byte in body[:3]:
             time.sleep(0.4)  # 1.2 s in all, past the head deadline

@@ -157,6 +157,10 @@ def test_cancel_unknown_job_is_404(client):
     (lambda b: b.update(latent_dim=10**7), "NEUENH_MAX_LATENT_DIM"),
     (lambda b: b.update(module={"hidden": [16, 10**6]}), "NEUENH_MAX_MODULE_WIDTH"),
     (lambda b: b.update(module={"hidden": [16, 0]}), "module.hidden"),
+    # issue 17, case 3: within every other limit, these exhausted memory or blocked the queue
+    (lambda b: b["data"][0].update(materials=10**6, samples=20), "NEUENH_MAX_MATERIALS"),
+    (lambda b: b.update(module={"hidden": [8] * 1_000}), "NEUENH_MAX_MODULE_DEPTH"),
+    (lambda b: b.update(module={"hidden": [1024] * 16}), "NEUENH_MAX_MODULE_WEIGHTS"),
     (lambda b: b.update(data=[{"source": "rgl", "paths": ["a\x00b.bsdf"]}]), "not a usable path"),
 ])
 def test_invalid_spec_is_422_naming_the_field(client, change, field):
@@ -211,7 +215,8 @@ def test_unexpected_error_is_500_without_internals(client):
 
 
 def test_health_and_openapi(client, server):
-    assert client.get("/health").json() == {"status": "ok", "version": "0.1.0", "worker_alive": True, "auth": False}
+    assert client.get("/health").json() == {"status": "ok", "version": "0.1.0", "worker_alive": True, "auth": False,
+                                            "broken_jobs": {}}
     spec = httpx.get(server.url + "/openapi.json").json()
     assert "JobCreate" in spec["components"]["schemas"] and "/v1/jobs/{job_id}/history" in spec["paths"]
 

@@ -7,6 +7,7 @@ cases call ``cli.main.main`` in this process instead: the same code path, withou
 """
 
 import json
+import os
 import math
 import subprocess
 import sys
@@ -159,11 +160,17 @@ def test_refuses_to_overwrite_without_force(tmp_path, capsys):
     (["--model", "phong"], ["--model 'phong' is neither an analytical model"]),
     (["--model", "ggx", "--material", "steel"], ["--material 'steel' needs parameters"]),
     (["--truth-model", "ggx", "--truth-params", "PARAMS", "--truth-material", "steel"], ["no material 'steel'"]),
-], ids=["missing-truth", "missing-env", "zero-light", "unknown-model", "material-without-params", "unknown-material"])
+    (["--truth", "FOLDER", "--model", "ggx"], ["--truth", "not a regular file"]),  # issue 17, case 15
+    (["--truth", "FIFO", "--model", "ggx"], ["--truth", "not a regular file"]),
+], ids=["missing-truth", "missing-env", "zero-light", "unknown-model", "material-without-params", "unknown-material",
+        "truth-folder", "truth-fifo"])
 def test_user_mistakes_are_one_line_errors(tmp_path, capsys, args, fragments):
     params = tmp_path / "fit.json"
     params.write_text(json.dumps({"materials": [{"name": "glossy", "params": GGX}]}))
-    subs = {"MISSING": tmp_path / "missing.bsdf", "PARAMS": params}
+    (tmp_path / "folder").mkdir()
+    os.mkfifo(tmp_path / "fifo")
+    subs = {"MISSING": tmp_path / "missing.bsdf", "PARAMS": params, "FOLDER": tmp_path / "folder",
+            "FIFO": tmp_path / "fifo"}
     args = [subs.get(a, a) for a in args]
     _one_line_error(*in_process(capsys, *args, *SMALL, "-o", tmp_path / "out"), *fragments)
     assert not (tmp_path / "out").exists()

@@ -9,7 +9,9 @@ from live_api import running_server
 def test_the_default_fills_only_an_unset_gpus_per_candidate(tmp_path):
     implicit = tiny_spec(max_rounds=1).model_dump(mode="json", exclude={"resources"})
     explicit = {**implicit, "resources": {"gpus_per_candidate": 0.0}}
-    with running_server(tmp_path / "data", default_gpus_per_candidate=0.25) as server, server.client() as c:
+    # autoscaling: this machine has no GPU, and the GPU nodes of a real deploy may not have joined yet
+    with running_server(tmp_path / "data", default_gpus_per_candidate=0.25, autoscaling=True) as server, \
+            server.client() as c:
         filled = c.post("/jobs", json=implicit).json()
         kept = c.post("/jobs", json=explicit).json()
         again = c.post("/jobs", json=implicit, headers={"Idempotency-Key": "k"}).json()

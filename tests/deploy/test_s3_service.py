@@ -12,7 +12,7 @@ from live_api import running_server, wait_for
 from orchestrator.dataset import dataset_key
 from s3_server import CREDENTIALS
 from serve_process import NEUENH, REPO, clean_env
-from storage import checkpoint_key
+from storage import SQLiteJobStore
 
 S3_SETTINGS = {"s3_access_key_id": CREDENTIALS["aws_access_key_id"],
                "s3_secret_access_key": CREDENTIALS["aws_secret_access_key"]}
@@ -29,9 +29,11 @@ def test_artifacts_live_in_the_bucket(tmp_path, s3_server):
     assert job["status"] in ("STOPPED", "CONVERGED"), job["error"]
     assert model.status_code == 200 and model.content[:2] == b"PK"
     keys = [o["Key"] for o in s3_server.client().list_objects_v2(Bucket=bucket)["Contents"]]
-    rounds = job["last_round"] + 1
-    assert {f"prod/{checkpoint_key(job_id, i)}" for i in range(rounds)} <= set(keys)
-    assert f"prod/{dataset_key(spec)}" in keys  # the cached dataset
+    with SQLiteJobStore(tmp_path / "data" / "jobs.sqlite") as store:  # each round names its checkpoint
+        checkpoints = {r.artifact_key for r in store.rounds(job_id)}
+    assert len(checkpoints) == job["last_round"] + 1 and all(k.startswith("sha256/") for k in checkpoints)
+    assert {f"prod/{k}" for k in checkpoints} <= set(keys)  # content-addressed, verified when read
+    assert f"prod/{dataset_key(spec)}" in keys  # the cached dataset's index
     assert not (tmp_path / "data" / "artifacts").exists()  # nothing on the api's disk but the job store
 
 

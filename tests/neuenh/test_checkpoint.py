@@ -107,3 +107,13 @@ def test_a_flipped_byte_in_the_tensor_data_is_refused(bundle, tmp_path):
     path.write_bytes(bytes(data))
     with pytest.raises(BundleError, match="materials.safetensors: does not match model.json"):
         Bundle.load(tmp_path)
+
+
+def test_saved_files_are_readable_by_colleagues(bundle, tmp_path):
+    """They were written mode 0600 (mkstemp's), so a shared model folder was unreadable to others
+    (issue 17, case 15)."""
+    import stat
+
+    bundle.save(tmp_path)
+    for name in ("model.json", "weights.safetensors", "materials.safetensors"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) & 0o044 == 0o044, name

@@ -303,3 +303,66 @@ def test_a_crash_between_the_polish_commit_and_the_status_trains_nothing_more(st
     assert Orchestrator(jobs, artifacts, executor).resume_all() == [job.id]
     assert jobs.get_job(job.id).status == JobStatus.STOPPED and _path(jobs, job.id) == before
     jobs.close()
+
+
+def test_a_job_cancelled_while_preparing_stops_between_materials(orchestrator, stores):
+    """PREPARING was not cancellable: a large dataset was built to the end first (issue 17, case 3)."""
+    import threading
+    import time
+
+    jobs, _ = stores
+    spec = tiny_spec()
+    spec.data[0] = spec.data[0].model_copy(update={"materials": 5_000, "samples": 50})
+    job, _ = orchestrator.submit(spec)
+    started = time.monotonic()
+
+    def cancel_when_preparing():
+        while jobs.get_job(job.id).status is not JobStatus.PREPARING:
+            time.sleep(0.01)
+        time.sleep(0.2)
+        jobs.set_status(job.id, JobStatus.CANCELLED)
+
+    canceller = threading.Thread(target=cancel_when_preparing)
+    canceller.start()
+    final = orchestrator.run(job.id)
+    canceller.join()
+    assert final.status is JobStatus.CANCELLED
+    assert not [e for e in jobs.events(job.id) if e.kind == "dataset"]  # it never finished building
+    assert time.monotonic() - started < 5
+
+
+def test_a_preparation_that_died_twice_fails_the_job_instead_of_looping(orchestrator, stores):
+    """The process died twice while preparing (out of memory): the next start fails the job with
+    the reason rather than dying a third time."""
+    jobs, _ = stores
+    job, _ = orchestrator.submit(tiny_spec())
+    jobs.set_status(job.id, JobStatus.PREPARING)
+    for _ in range(2):
+        jobs.append_event(job.id, "preparing", {})
+    final = orchestrator.run(job.id)
+    assert final.status is JobStatus.FAILED and "never finished" in final.error
+    # a clean interruption in between does not count against it
+    job, _ = orchestrator.submit(tiny_spec(), idempotency_key="other")
+    for kind in ("preparing", "preparation_interrupted", "preparing"):
+        jobs.append_event(job.id, kind, {})
+    assert orchestrator.run(job.id).status is not JobStatus.FAILED
+
+
+def test_a_cancel_racing_a_commit_ends_cancelled_without_an_error_logged(tmp_path, caplog):
+    """The cancel lands between a round's training and its commit, which the store then refuses:
+    the job ends CANCELLED as asked, and no ERROR traceback is logged (issue 17, case 15)."""
+    import logging
+
+    from storage import LocalArtifactStore, SQLiteJobStore
+
+    class CancelledJustBeforeCommit(SQLiteJobStore):
+        def commit_round(self, job_id, record):
+            self.set_status(job_id, JobStatus.CANCELLED)
+            return super().commit_round(job_id, record)
+
+    with CancelledJustBeforeCommit(tmp_path / "jobs.sqlite") as jobs:
+        o = Orchestrator(jobs, LocalArtifactStore(tmp_path / "artifacts"), InlineExecutor())
+        with caplog.at_level(logging.INFO):
+            job = o.run(o.submit(tiny_spec())[0].id)
+    assert job.status is JobStatus.CANCELLED
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR]
