@@ -16,7 +16,9 @@ running job is not cancelled: it resumes on the next start) and closes the execu
 
 from __future__ import annotations
 
+import asyncio
 import logging
+import signal
 import threading
 from contextlib import asynccontextmanager
 from typing import Callable
@@ -28,6 +30,7 @@ from orchestrator.executor import Executor
 from storage import ArtifactStore, LocalArtifactStore, OwnerLock, SQLiteJobStore
 
 from . import deps, errors
+from .auth import TokenTable
 from .middleware import AuthFirst, BodyLimit, HostCheck
 from .routes import cluster, dashboard, docs, fit, health, jobs
 from .settings import Settings
@@ -79,6 +82,8 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
         executor = (executor_factory or ray_executor)(s)
         job_queue = JobQueue(store, artifacts, executor)
         app.state.settings, app.state.jobs, app.state.artifacts = s, store, artifacts
+        app.state.tokens = TokenTable(s)  # a bad tokens file fails the start (serve checks it first)
+        _reload_tokens_on_sighup(app.state.tokens)
         app.state.job_queue = job_queue
         # Fits share the CPUs with the candidates being trained: two at once would only slow each other.
         app.state.fit_lock = threading.Lock()
@@ -113,9 +118,19 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
     app.include_router(docs.router)
     app.mount(docs.ASSETS_URL, docs.static_files(), name="docs-assets")
     app.add_middleware(BodyLimit, limit=lambda path: body_limit(app.state.settings, path))
-    app.add_middleware(AuthFirst, settings=lambda: app.state.settings)  # before any body is read
+    app.add_middleware(AuthFirst, tokens=lambda: app.state.tokens)  # before any body is read
     app.add_middleware(HostCheck, settings=lambda: app.state.settings)  # outermost
     return app
+
+
+def _reload_tokens_on_sighup(tokens: TokenTable) -> None:
+    """SIGHUP re-reads NEUENH_TOKENS_FILE, as a callback of the event loop (never inside a
+    request). Only the main thread's loop can handle signals: a server run in a thread (tests)
+    has no SIGHUP reload."""
+    try:
+        asyncio.get_running_loop().add_signal_handler(signal.SIGHUP, tokens.reload)
+    except (RuntimeError, ValueError, NotImplementedError):
+        pass
 
 
 def body_limit(settings: Settings, path: str) -> tuple[int, str]:

@@ -4,15 +4,15 @@
 
 from __future__ import annotations
 
-import hmac
 import threading
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from storage import ArtifactStore, JobStore
+from storage import ArtifactStore, JobRecord, JobStore, NotFoundError
 
+from .auth import Principal, Role
 from .settings import Settings
 from .job_queue import JobQueue
 
@@ -43,36 +43,50 @@ ArtifactStoreDep = Annotated[ArtifactStore, Depends(get_artifacts)]
 JobQueueDep = Annotated[JobQueue, Depends(get_job_queue)]
 FitLockDep = Annotated[threading.Lock, Depends(get_fit_lock)]
 
-_bearer = HTTPBearer(auto_error=False, description="the service's NEUENH_API_TOKEN")
+_bearer = HTTPBearer(auto_error=False, description="a named token (NEUENH_TOKENS_FILE) or NEUENH_API_TOKEN")
 
 
-def token_refusal(settings: Settings, authorization: str | None) -> HTTPException | None:
-    """The 401 for an ``Authorization`` header value, or None when it may pass: with ``api_token``
-    set, ``Bearer <token>`` is demanded (constant-time compare). Shared by the route dependency and
-    the middleware that refuses before a body is read (``api.app.AuthFirst``)."""
-    if settings.api_token is None:
-        return None
-    scheme, _, token = (authorization or "").partition(" ")
-    if scheme.lower() != "bearer" or not token.strip():
-        return HTTPException(status.HTTP_401_UNAUTHORIZED, "missing bearer token (Authorization: Bearer <token>)",
-                             headers={"WWW-Authenticate": "Bearer"})
-    expected = settings.api_token.get_secret_value().encode()
-    if not hmac.compare_digest(token.strip().encode(), expected):
-        return HTTPException(status.HTTP_401_UNAUTHORIZED, "invalid bearer token",
-                             headers={"WWW-Authenticate": 'Bearer error="invalid_token"'})
-    return None
+def current_principal(request: Request,
+                      _: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]) -> Principal:
+    """The caller (``api.auth``): 401 without a valid token when the service has tokens. (The
+    ``HTTPBearer`` parameter only documents the scheme in the OpenAPI schema.)"""
+    return request.app.state.tokens.authenticate(request.headers.get("authorization"))
 
 
-def require_token(settings: SettingsDep,
-                  credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]) -> None:
-    """With ``api_token`` set, demand ``Authorization: Bearer <token>`` (see ``token_refusal``)."""
-    header = None if credentials is None else f"{credentials.scheme} {credentials.credentials}"
-    refusal = token_refusal(settings, header)
-    if refusal is not None:
-        raise refusal
+Authorized = Depends(current_principal)
+PrincipalDep = Annotated[Principal, Depends(current_principal)]
 
 
-Authorized = Depends(require_token)
+def submitter(principal: PrincipalDep) -> Principal:
+    """A caller who may submit jobs and fit with them: not the read role (403)."""
+    if principal.role is Role.READ:
+        raise HTTPException(status.HTTP_403_FORBIDDEN, f"token {principal.name!r} has the read role: it can look, "
+                                                       "not submit, cancel or fit")
+    return principal
+
+
+SubmitterDep = Annotated[Principal, Depends(submitter)]
+
+
+def visible_job(job_id: str, jobs: JobStoreDep, principal: PrincipalDep) -> JobRecord:
+    """The job, if the caller may see it; another submitter's job is 404, as if it did not exist."""
+    job = jobs.get_job(job_id)
+    if not principal.may_see(job.owner):
+        raise NotFoundError(f"no job {job_id!r}")
+    return job
+
+
+VisibleJob = Annotated[JobRecord, Depends(visible_job)]
+
+
+def changeable_job(job: VisibleJob, principal: SubmitterDep) -> JobRecord:
+    """The job, if the caller may change it (cancel it, fit with it): its owner or an admin."""
+    if not principal.may_change(job.owner):
+        raise HTTPException(status.HTTP_403_FORBIDDEN, f"token {principal.name!r} cannot change job {job.id}")
+    return job
+
+
+ChangeableJob = Annotated[JobRecord, Depends(changeable_job)]
 
 
 def known_query_only(request: Request) -> None:

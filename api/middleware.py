@@ -11,7 +11,7 @@ from fastapi import HTTPException, status
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from . import deps
+from .auth import TokenTable
 from .settings import Settings
 
 
@@ -32,8 +32,7 @@ class HostCheck:
             if allowed:
                 ok = host in allowed
             else:
-                ok = settings.api_token is not None or host in ("localhost", settings.host.lower()) \
-                    or _is_ip_loopback(host)
+                ok = settings.has_tokens or host in ("localhost", settings.host.lower()) or _is_ip_loopback(host)
             if not ok:
                 detail = f"this service does not answer to Host {host!r} (NEUENH_ALLOWED_HOSTS)"
                 await JSONResponse({"detail": detail}, status.HTTP_421_MISDIRECTED_REQUEST)(scope, receive, send)
@@ -64,16 +63,16 @@ class AuthFirst:
 
     OPEN = ("/v1/health",)
 
-    def __init__(self, app: ASGIApp, settings: Callable[[], Settings]):
-        self.app, self.settings = app, settings
+    def __init__(self, app: ASGIApp, tokens: Callable[[], TokenTable]):
+        self.app, self.tokens = app, tokens
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         path = scope.get("path", "")
         if scope["type"] == "http" and path.startswith("/v1/") and path not in self.OPEN:
             authorization = dict(scope["headers"]).get(b"authorization")
-            refusal = deps.token_refusal(self.settings(), None if authorization is None
-                                         else authorization.decode("latin-1"))
-            if refusal is not None:
+            try:
+                self.tokens().authenticate(None if authorization is None else authorization.decode("latin-1"))
+            except HTTPException as refusal:
                 response = JSONResponse({"detail": refusal.detail}, refusal.status_code, headers=refusal.headers)
                 await response(scope, receive, send)
                 return

@@ -19,8 +19,10 @@ def serve(settings: Settings, announce: Callable[[str], None] = print) -> None:
     import uvicorn
 
     from .app import artifact_store, create_app, owner_lock
+    from .auth import TokenTable
 
     check_listen_address(settings)
+    TokenTable(settings)  # a bad tokens file is one line now, not a startup traceback
     artifact_store(settings).close()  # a wrong bucket or endpoint is one line now, not a startup traceback
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     lock = owner_lock(settings).acquire()

@@ -19,11 +19,18 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="NEUENH_", extra="ignore")
 
+    @property
+    def has_tokens(self) -> bool:
+        """Whether callers must present a token (``NEUENH_API_TOKEN`` or ``NEUENH_TOKENS_FILE``)."""
+        return self.api_token is not None or self.tokens_file is not None
+
     data_dir: Path = Field(Path("./neuenh-data"), description="jobs.sqlite and artifacts/ live here")
     host: str = "127.0.0.1"
     port: int = Field(8000, ge=0, le=65535)
     api_token: SecretStr | None = Field(
         None, description="when set, every /v1 route but /health needs 'Authorization: Bearer <token>'")
+    tokens_file: Path | None = Field(None, description=(
+        "named tokens with roles (admin, submit, read), hashed, as JSON (api/auth.py); re-read on SIGHUP"))
     ray_address: str | None = Field(None, description="join this Ray cluster; embedded Ray when unset")
     access_log: bool = Field(False, description="log every request (uvicorn's access log)")
     allowed_hosts: list[str] = Field(default_factory=list, description=(
@@ -89,6 +96,6 @@ def is_loopback(host: str) -> bool:
 
 def check_listen_address(settings: Settings) -> None:
     """Refuse to serve beyond this machine without a token (a ValueError naming the fix)."""
-    if settings.api_token is None and not is_loopback(settings.host):
+    if not settings.has_tokens and not is_loopback(settings.host):
         raise ValueError(f"refusing to listen on {settings.host} without NEUENH_API_TOKEN: anyone on the "
                          "network could submit jobs; set a token or listen on 127.0.0.1")

@@ -52,9 +52,10 @@ class Orchestrator:
         self.on_progress = on_progress or (lambda p: None)
         self.should_stop = should_stop
 
-    def submit(self, spec: JobSpec, idempotency_key: str | None = None):
-        """Store a validated spec as a QUEUED job; returns (job, created) as ``JobStore.create_job``."""
-        return self.jobs.create_job(spec.model_dump(mode="json"), idempotency_key=idempotency_key)
+    def submit(self, spec: JobSpec, idempotency_key: str | None = None, owner: str | None = None):
+        """Store a validated spec as a QUEUED job of ``owner``; returns (job, created) as
+        ``JobStore.create_job``."""
+        return self.jobs.create_job(spec.model_dump(mode="json"), idempotency_key=idempotency_key, owner=owner)
 
     def resume_all(self) -> list[str]:
         """Run every job that is not terminal (after a restart), oldest first."""

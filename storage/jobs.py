@@ -104,6 +104,7 @@ class JobRecord:
     idempotency_key: str | None = None
     last_round: int | None = None      # index of the last committed round; None before round 0
     current_state: str | None = None   # B_c: winner of ``last_round``; None before round 0
+    owner: str | None = None           # the name of the token that submitted it (None: no named tokens)
 
     @property
     def terminal(self) -> bool:
@@ -300,9 +301,9 @@ class JobStore(ABC):
 
     @abstractmethod
     def create_job(self, spec: Mapping[str, Any], *,
-                   idempotency_key: str | None = None) -> tuple[JobRecord, bool]:
-        """Store a new QUEUED job; returns ``(job, created)``. ``created`` is False when an
-        existing job was returned for a repeated ``idempotency_key``."""
+                   idempotency_key: str | None = None, owner: str | None = None) -> tuple[JobRecord, bool]:
+        """Store a new QUEUED job owned by ``owner``; returns ``(job, created)``. ``created`` is
+        False when an existing job was returned for a repeated ``idempotency_key``."""
 
     @abstractmethod
     def get_job(self, job_id: str) -> JobRecord:
@@ -310,9 +311,10 @@ class JobStore(ABC):
 
     @abstractmethod
     def list_jobs(self, *, status: JobStatus | Iterable[JobStatus] | None = None,
-                  limit: int = 50, cursor: str | None = None) -> JobPage:
-        """Jobs newest first, optionally only those with the given status(es). ``cursor`` is the
-        ``next_cursor`` of the previous page (opaque); pages are stable while jobs are added."""
+                  limit: int = 50, cursor: str | None = None, owner: str | None = None) -> JobPage:
+        """Jobs newest first, optionally only those with the given status(es) and ``owner``.
+        ``cursor`` is the ``next_cursor`` of the previous page (opaque); pages are stable while
+        jobs are added."""
 
     @abstractmethod
     def unfinished_jobs(self) -> list[JobRecord]:

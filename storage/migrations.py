@@ -100,6 +100,10 @@ MIGRATIONS: tuple[Migration, ...] = (
         """UPDATE rounds SET extra = json_remove(extra, '$.polish', '$.warmup', '$.prune', '$.first_epochs',
                                                  '$.pruned', '$.early_val_loss')""",
     )),
+    Migration(4, "each job's owner (the name of the token that submitted it)", (
+        "ALTER TABLE jobs ADD COLUMN owner TEXT",  # NULL: submitted without named tokens
+        "CREATE INDEX jobs_by_owner ON jobs(owner, seq)",
+    )),
 )
 
 SCHEMA_VERSION = MIGRATIONS[-1].version

@@ -134,7 +134,7 @@ class SQLiteJobStore(JobStore):
     # ----------------------------------------------------------------------------------- jobs
 
     def create_job(self, spec: Mapping[str, Any], *,
-                   idempotency_key: str | None = None) -> tuple[JobRecord, bool]:
+                   idempotency_key: str | None = None, owner: str | None = None) -> tuple[JobRecord, bool]:
         if not isinstance(spec, Mapping):
             raise InvalidRecordError(f"a job spec is a JSON object (mapping), got {type(spec).__name__}")
         spec_json = canonical_json(dict(spec), "job spec")
@@ -146,26 +146,26 @@ class SQLiteJobStore(JobStore):
                 row = c.execute("SELECT * FROM jobs WHERE idempotency_key = ?",
                                 (idempotency_key,)).fetchone()
                 if row is not None:
-                    if row["spec"] != spec_json:
+                    if row["spec"] != spec_json or row["owner"] != owner:
                         raise ConflictError(
                             f"idempotency key {idempotency_key!r} was already used for job {row['id']} "
-                            f"with a different spec")
+                            f"with a different spec" + ("" if row["owner"] == owner else " or owner"))
                     return _job(row), False
             job_id = uuid.uuid4().hex
-            c.execute("INSERT INTO jobs (id, spec, status, created_at, updated_at, idempotency_key) "
-                      "VALUES (?, ?, ?, ?, ?, ?)",
-                      (job_id, spec_json, JobStatus.QUEUED.value, now, now, idempotency_key))
+            c.execute("INSERT INTO jobs (id, spec, status, created_at, updated_at, idempotency_key, owner) "
+                      "VALUES (?, ?, ?, ?, ?, ?, ?)",
+                      (job_id, spec_json, JobStatus.QUEUED.value, now, now, idempotency_key, owner))
             _append(c, job_id, now, EVENT_STATUS,
                     {"status": JobStatus.QUEUED.value, "previous": None, "error": None})
         return JobRecord(id=job_id, spec=json.loads(spec_json), status=JobStatus.QUEUED,
-                         created_at=now, updated_at=now, idempotency_key=idempotency_key), True
+                         created_at=now, updated_at=now, idempotency_key=idempotency_key, owner=owner), True
 
     def get_job(self, job_id: str) -> JobRecord:
         with self._read(f"get job {job_id}") as c:
             return _job(_require(c, job_id))
 
     def list_jobs(self, *, status: JobStatus | Iterable[JobStatus] | None = None,
-                  limit: int = 50, cursor: str | None = None) -> JobPage:
+                  limit: int = 50, cursor: str | None = None, owner: str | None = None) -> JobPage:
         if not isinstance(limit, int) or limit < 1:
             raise InvalidRecordError(f"limit must be a positive integer, got {limit!r}")
         try:
@@ -176,6 +176,9 @@ class SQLiteJobStore(JobStore):
         if statuses is not None:
             where.append(f"status IN ({', '.join('?' * len(statuses))})")
             args += [s.value for s in statuses]
+        if owner is not None:
+            where.append("owner = ?")
+            args.append(owner)
         if cursor is not None:
             try:
                 before = int(cursor)
@@ -307,7 +310,7 @@ def _job(row: sqlite3.Row) -> JobRecord:
     return JobRecord(id=row["id"], spec=json.loads(row["spec"]), status=JobStatus(row["status"]),
                      created_at=row["created_at"], updated_at=row["updated_at"], error=row["error"],
                      idempotency_key=row["idempotency_key"], last_round=row["last_round"],
-                     current_state=row["current_state"])
+                     current_state=row["current_state"], owner=row["owner"])
 
 
 def _append(c: sqlite3.Connection, job_id: str, now: float, kind: str, payload: Any) -> int:

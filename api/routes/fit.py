@@ -22,7 +22,7 @@ from neuenh.data.samples import Samples
 from neuenh.data.table import TableTooLarge, read_table
 from neuenh.fit import FitConfig, fit_materials
 
-from ..deps import ArtifactStoreDep, Authorized, FitLockDep, JobStoreDep, SettingsDep
+from ..deps import ArtifactStoreDep, Authorized, ChangeableJob, FitLockDep, JobStoreDep, SettingsDep
 from ..errors import COMMON, documented
 from ..schemas import FitPublic
 
@@ -34,13 +34,13 @@ router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized], res
     413: "upload over NEUENH_MAX_UPLOAD_BYTES",
     422: "a table that cannot be read, or a request over the service's limits"}))
 def fit_job(
-    job_id: str, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep, fit_lock: FitLockDep,
+    job: ChangeableJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep, fit_lock: FitLockDep,
     files: Annotated[list[UploadFile], File(description="one measurement table per material (.npz or CSV)")],
     method: Annotated[Literal["fast", "paper"], Form()] = "fast",
     epochs: Annotated[int, Form(ge=0, description="0: the method's default, 300 (fast) or 1000 (paper); "
                                                   "a plain model's fast fit counts L-BFGS iterations per phase")] = 0,
 ) -> FitPublic:
-    job = jobs.get_job(job_id)
+    job_id = job.id
     last = jobs.last_round(job_id)
     if last is None or last.artifact_key is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"job {job_id} has no committed round yet "

@@ -16,4 +16,4 @@ router = APIRouter(tags=["health"])
 def health(settings: SettingsDep, job_queue: JobQueueDep) -> Health:
     ok = job_queue.alive and not job_queue.broken
     return Health(status="ok" if ok else "degraded", version=neuenh.__version__, worker_alive=job_queue.alive,
-                  auth=settings.api_token is not None, broken_jobs=dict(job_queue.broken))
+                  auth=settings.has_tokens, broken_jobs=dict(job_queue.broken))

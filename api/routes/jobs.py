@@ -14,7 +14,9 @@ from fastapi import APIRouter, Header, HTTPException, Query, Response, status
 from neuenh.checkpoint import Bundle
 from storage import JobStatus
 
-from ..deps import ArtifactStoreDep, Authorized, JobStoreDep, SettingsDep, JobQueueDep
+from ..auth import LOCAL
+from ..deps import (ArtifactStoreDep, Authorized, ChangeableJob, JobQueueDep, JobStoreDep, PrincipalDep,
+                    SettingsDep, SubmitterDep, VisibleJob)
 from ..errors import COMMON, documented
 from ..limits import check_limits
 from ..schemas import HistoryPublic, JobCreate, JobList, JobPublic
@@ -31,6 +33,7 @@ _ERRORS = documented({404: "no such job"})
                                       413: "request body over NEUENH_MAX_REQUEST_BYTES",
                                       422: "invalid job spec, or over the service's limits"})})
 def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, job_queue: JobQueueDep,
+               principal: SubmitterDep,
                idempotency_key: Annotated[str | None, Header(max_length=200)] = None) -> JobPublic:
     """Validate and queue a job (202). A repeated ``Idempotency-Key`` with the same spec returns
     the job it created (200)."""
@@ -38,7 +41,8 @@ def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, job_q
         # stored explicitly, so the job runs the same wherever and whenever it resumes
         spec.resources.gpus_per_candidate = settings.default_gpus_per_candidate
     check_limits(spec, settings, job_queue.orchestrator.executor.cluster())
-    job, created = job_queue.orchestrator.submit(spec, idempotency_key=idempotency_key)
+    owner = None if principal is LOCAL else principal.name
+    job, created = job_queue.orchestrator.submit(spec, idempotency_key=idempotency_key, owner=owner)
     if created:
         job_queue.enqueue(job.id)
     else:
@@ -49,26 +53,27 @@ def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, job_q
 
 
 @router.get("", response_model=JobList)
-def list_jobs(jobs: JobStoreDep, job_queue: JobQueueDep,
+def list_jobs(jobs: JobStoreDep, job_queue: JobQueueDep, principal: PrincipalDep,
               status_: Annotated[list[JobStatus] | None, Query(alias="status", description="repeat for several")] = None,
               limit: Annotated[int, Query(ge=1, le=500)] = 50,
               cursor: Annotated[str | None, Query(pattern=r"^[0-9]{1,19}$", description="next_cursor of the previous page")] = None) -> JobList:
-    """Jobs, newest first, in pages."""
-    page = jobs.list_jobs(status=status_ or None, limit=limit, cursor=cursor)
+    """Jobs, newest first, in pages (a submit token sees its own)."""
+    page = jobs.list_jobs(status=status_ or None, limit=limit, cursor=cursor,
+                          owner=None if principal.sees_all else principal.name)
     return JobList(jobs=[JobPublic.from_record(j, progress=job_queue.progress(j.id)) for j in page.jobs],
                    next_cursor=page.next_cursor)
 
 
 @router.get("/{job_id}", response_model=JobPublic, responses=_ERRORS)
-def get_job(job_id: str, jobs: JobStoreDep, job_queue: JobQueueDep) -> JobPublic:
-    return JobPublic.from_record(jobs.get_job(job_id), progress=job_queue.progress(job_id))
+def get_job(job: VisibleJob, job_queue: JobQueueDep) -> JobPublic:
+    return JobPublic.from_record(job, progress=job_queue.progress(job.id))
 
 
 @router.get("/{job_id}/history", response_model=HistoryPublic, responses=_ERRORS)
-def job_history(job_id: str, jobs: JobStoreDep,
+def job_history(job: VisibleJob, jobs: JobStoreDep,
                 since_round: Annotated[int, Query(ge=0)] = 0) -> HistoryPublic:
     """Committed rounds with index >= ``since_round``, each with every candidate and the winner."""
-    job = jobs.get_job(job_id)
+    job_id = job.id
     rounds = jobs.rounds(job_id, since_round=since_round)
     # A poll for the new rounds reads round 0 (the gain's reference) and nothing else again.
     round0 = None if since_round == 0 else next(iter(jobs.rounds(job_id, until_round=0)), None)
@@ -78,9 +83,9 @@ def job_history(job_id: str, jobs: JobStoreDep,
 
 @router.post("/{job_id}/cancel", response_model=JobPublic,
              responses={**_ERRORS, **documented({409: "the job is already finished"})})
-def cancel_job(job_id: str, jobs: JobStoreDep) -> JobPublic:
+def cancel_job(job: ChangeableJob, jobs: JobStoreDep) -> JobPublic:
     """Cancel an unfinished job. It keeps its committed rounds (and its model, if any)."""
-    job = jobs.get_job(job_id)
+    job_id = job.id
     if job.terminal:
         raise HTTPException(status.HTTP_409_CONFLICT,
                             f"job {job_id} is already {job.status.value}; only unfinished jobs can be cancelled")
@@ -90,9 +95,9 @@ def cancel_job(job_id: str, jobs: JobStoreDep) -> JobPublic:
 @router.get("/{job_id}/model", response_class=Response, responses={
     **_ERRORS, 200: {"content": {"application/zip": {}},
                      "description": "model.json, weights.safetensors, materials.safetensors"}})
-def download_model(job_id: str, jobs: JobStoreDep, artifacts: ArtifactStoreDep) -> Response:
+def download_model(job: VisibleJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep) -> Response:
     """The last committed bundle as a zip archive (load it with ``Bundle.load`` once extracted)."""
-    job = jobs.get_job(job_id)
+    job_id = job.id
     last = jobs.last_round(job_id)
     if last is None or last.artifact_key is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND,
