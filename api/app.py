@@ -80,7 +80,7 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
         owned = lock if lock is not None and lock.held else owner_lock(s).acquire()
         store = SQLiteJobStore(s.data_dir / "jobs.sqlite")
         executor = (executor_factory or ray_executor)(s)
-        job_queue = JobQueue(store, artifacts, executor)
+        job_queue = JobQueue(store, artifacts, executor, resource_wait_s=s.resource_wait_s)
         app.state.settings, app.state.jobs, app.state.artifacts = s, store, artifacts
         app.state.tokens = TokenTable(s)  # a bad tokens file fails the start (serve checks it first)
         _reload_tokens_on_sighup(app.state.tokens)

@@ -27,7 +27,7 @@ _STOP = object()
 
 class JobQueue:
     def __init__(self, jobs: JobStore, artifacts: ArtifactStore, executor: Executor,
-                 on_progress: Callable[[Progress], None] | None = None):
+                 on_progress: Callable[[Progress], None] | None = None, resource_wait_s: float = 600.0):
         self._stopping = threading.Event()
         self._queue: queue.Queue = queue.Queue()
         self._progress: dict[str, Progress] = {}
@@ -35,7 +35,7 @@ class JobQueue:
         self.broken: dict[str, str] = {}  # job id -> why it could not be run or updated
         self.jobs = jobs
         self.orchestrator = Orchestrator(jobs, artifacts, executor, on_progress=self._record,
-                                         should_stop=self._stopping.is_set)
+                                         should_stop=self._stopping.is_set, resource_wait_s=resource_wait_s)
         self.current: str | None = None
         self._thread = threading.Thread(target=self._loop, name="neuenh-job-queue", daemon=True)
 

@@ -9,7 +9,7 @@ from pathlib import Path
 from fastapi import HTTPException, status
 
 from neuenh.models import get_model
-from orchestrator.executor import ClusterInfo
+from orchestrator.executor import ClusterInfo, Resources
 from orchestrator.spec import JobSpec
 
 from .settings import Settings
@@ -81,21 +81,11 @@ def module_weights(spec: JobSpec, hidden: list[int]) -> int:
 
 def unsatisfiable(spec: JobSpec, cluster: ClusterInfo) -> list[str]:
     """What a candidate asks that no node of ``cluster`` has: such a job would wait forever
-    (RUNNING 0/n, every later job queued behind it)."""
-    alive = [n for n in cluster.nodes if n.alive]
-    if not any(n.cpus > 0 for n in alive):
-        return []  # no worker has joined yet: nothing to judge by
-    cpus = max((n.cpus for n in alive), default=0.0)
-    gpus = max((n.gpus for n in alive), default=0.0)
-    wants = spec.resources
-    problems = []
-    if wants.cpus_per_candidate > cpus:
-        problems.append(f"resources.cpus_per_candidate: {wants.cpus_per_candidate:g}, but the largest node of this "
-                        f"cluster has {cpus:g} CPUs: no candidate could ever start")
-    if wants.gpus_per_candidate > gpus:
-        problems.append(f"resources.gpus_per_candidate: {wants.gpus_per_candidate:g}, but the largest node of this "
-                        f"cluster has {gpus:g} GPUs: no candidate could ever start")
-    return problems
+    (RUNNING 0/n, every later job queued behind it). Nothing, while no worker has joined."""
+    if not any(n.alive and n.cpus > 0 for n in cluster.nodes):
+        return []
+    resources = Resources(spec.resources.cpus_per_candidate, spec.resources.gpus_per_candidate)
+    return [f"resources.{p}: no candidate could ever start" for p in cluster.missing(resources)]
 
 
 def check_limits(spec: JobSpec, settings: Settings, cluster: ClusterInfo | None = None) -> None:

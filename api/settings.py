@@ -59,6 +59,8 @@ class Settings(BaseSettings):
     max_module_weights: int = Field(1_000_000, ge=1, description="most weights of one neural module")
     autoscaling: bool = Field(False, description=(
         "the cluster grows on demand: accept jobs whose candidates no current node can hold"))
+    resource_wait_s: float = Field(600.0, ge=0.0, description=(
+        "how long a job waits for a node that can hold one of its candidates before it fails"))
     max_materials: int = Field(10_000, ge=1, description="most materials of a job's dataset")
     max_job_memory_bytes: int = Field(8_000_000_000, ge=1, description=(
         "largest estimated memory of preparing and training a job (api/limits.py, estimated_bytes)"))

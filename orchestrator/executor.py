@@ -77,6 +77,20 @@ class ClusterInfo:
     gpus_available: float
     busy_candidates: int  # tasks submitted and not yet reported
 
+    def missing(self, resources: "Resources") -> list[str]:
+        """What one candidate asks that no alive node has (empty when some node could run it)."""
+        alive = [n for n in self.nodes if n.alive]
+        cpus = max((n.cpus for n in alive), default=0.0)
+        gpus = max((n.gpus for n in alive if n.cpus >= resources.cpus), default=0.0)
+        problems = []
+        if resources.cpus > cpus:
+            problems.append(f"cpus_per_candidate: {resources.cpus:g}, but the largest node of this cluster "
+                            f"has {cpus:g} CPUs")
+        if resources.gpus > gpus:
+            problems.append(f"gpus_per_candidate: {resources.gpus:g}, but the largest node of this cluster "
+                            f"has {gpus:g} GPUs")
+        return problems
+
 
 class Executor(ABC):
     @abstractmethod

@@ -55,8 +55,10 @@ class Interrupted(Exception):
 
 class JobRun:
     def __init__(self, job_id: str, spec: JobSpec, jobs: JobStore, artifacts: ArtifactStore, executor: Executor,
-                 on_progress: Callable[[Progress], None], should_stop: Callable[[], bool]):
+                 on_progress: Callable[[Progress], None], should_stop: Callable[[], bool],
+                 resource_wait_s: float = 600.0):
         self.job_id, self.spec = job_id, spec
+        self.resource_wait_s = resource_wait_s
         self.jobs, self.artifacts, self.executor = jobs, artifacts, executor
         self.on_progress, self.should_stop = on_progress, should_stop
         self.graph = get_model(spec.model).graph
@@ -75,6 +77,7 @@ class JobRun:
             self.jobs.set_status(self.job_id, PREPARING)
         self.check_cancel()
         self.prepare()
+        self.wait_for_resources()
         if self.jobs.get_job(self.job_id).status == PREPARING:
             self.jobs.set_status(self.job_id, RUNNING)
         last = self.jobs.last_round(self.job_id)
@@ -131,6 +134,19 @@ class JobRun:
                                                         "bytes": data.nbytes})
         self.names = data.names
         self.dataset = self.executor.put_dataset(data)
+
+    def wait_for_resources(self, poll_s: float = 1.0) -> None:
+        """Until some node of the cluster can hold one candidate (``resources``): at once on a
+        fixed cluster (the service refuses such jobs at submission), a while on an autoscaling one.
+        After ``resource_wait_s`` the job fails with what is missing, instead of waiting forever
+        with every later job queued behind it."""
+        deadline = time.monotonic() + self.resource_wait_s
+        while missing := self.executor.cluster().missing(self.resources):
+            if time.monotonic() >= deadline:
+                raise RuntimeError(f"no node of the cluster could hold a candidate within {self.resource_wait_s:g} s "
+                                   f"(NEUENH_RESOURCE_WAIT_S): {'; '.join(missing)}")
+            self.check_cancel()
+            time.sleep(min(poll_s, max(0.0, deadline - time.monotonic())))
 
     def _unfinished_preparations(self) -> int:
         """Preparations started since the last one that finished or was interrupted cleanly."""

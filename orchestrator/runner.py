@@ -43,9 +43,12 @@ class Orchestrator:
 
     def __init__(self, jobs: JobStore, artifacts: ArtifactStore, executor: Executor,
                  on_progress: Callable[[Progress], None] | None = None,
-                 should_stop: Callable[[], bool] = lambda: False):
+                 should_stop: Callable[[], bool] = lambda: False, resource_wait_s: float = 600.0):
         """``should_stop``: polled like cancellation; when it turns true the running job stops at
-        its next safe point without any change to its record (a service shutting down)."""
+        its next safe point without any change to its record (a service shutting down).
+        ``resource_wait_s``: how long a job waits for a node that can hold one of its candidates
+        (an autoscaling cluster growing) before it fails with the reason."""
+        self.resource_wait_s = resource_wait_s
         self.jobs = jobs
         self.artifacts = artifacts
         self.executor = executor
@@ -72,7 +75,7 @@ class Orchestrator:
         run = None
         try:
             run = JobRun(job_id, parse_spec(job.spec), self.jobs, self.artifacts, self.executor,
-                         self.on_progress, self.should_stop)
+                         self.on_progress, self.should_stop, self.resource_wait_s)
             run.execute()
         except Cancelled:
             run.emit(JobStatus.CANCELLED, message="cancelled")

@@ -366,3 +366,25 @@ def test_a_cancel_racing_a_commit_ends_cancelled_without_an_error_logged(tmp_pat
             job = o.run(o.submit(tiny_spec())[0].id)
     assert job.status is JobStatus.CANCELLED
     assert not [r for r in caplog.records if r.levelno >= logging.ERROR]
+
+
+def test_a_job_no_node_can_hold_fails_after_the_stated_wait(stores):
+    """On an autoscaling cluster the service accepts a job no current node can hold; if no such
+    node joins within resource_wait_s, the job fails saying what is missing (issue 17, case 6)
+    instead of RUNNING 0/n forever with every later job behind it."""
+    import dataclasses
+
+    jobs, artifacts = stores
+
+    class OneCpuCluster(InlineExecutor):
+        def cluster(self):
+            info = super().cluster()
+            return dataclasses.replace(info, nodes=(dataclasses.replace(info.nodes[0], cpus=1.0),))
+
+    o = Orchestrator(jobs, artifacts, OneCpuCluster(), resource_wait_s=0.3)
+    spec = tiny_spec()
+    spec.resources.cpus_per_candidate = 2
+    job = o.run(o.submit(spec)[0].id)
+    assert job.status is JobStatus.FAILED
+    assert "within 0.3 s" in job.error and "cpus_per_candidate: 2" in job.error and "has 1 CPUs" in job.error
+    assert jobs.last_round(job.id) is None
