@@ -32,7 +32,8 @@ from storage import ArtifactStore, LocalArtifactStore, OwnerLock, SQLiteJobStore
 from . import deps, errors
 from .auth import TokenTable
 from .middleware import AuthFirst, BodyLimit, HostCheck
-from .routes import cluster, dashboard, docs, fit, health, jobs
+from .metrics import ServiceMetrics
+from .routes import cluster, dashboard, docs, fit, health, jobs, metrics
 from .settings import Settings
 from .job_queue import JobQueue
 
@@ -85,6 +86,7 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
         app.state.tokens = TokenTable(s)  # a bad tokens file fails the start (serve checks it first)
         _reload_tokens_on_sighup(app.state.tokens)
         app.state.job_queue = job_queue
+        app.state.metrics = ServiceMetrics(store, job_queue, executor)
         # Fits share the CPUs with the candidates being trained: two at once would only slow each other.
         app.state.fit_lock = threading.Lock()
         job_queue.start()
@@ -113,6 +115,7 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
     for resource in (health, jobs, fit, cluster):
         v1.include_router(resource.router)
     app.include_router(v1)
+    app.include_router(metrics.router)
     app.include_router(dashboard.router)
     app.mount("/dashboard", dashboard.static_files(), name="dashboard")
     app.include_router(docs.router)

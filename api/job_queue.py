@@ -68,6 +68,11 @@ class JobQueue:
     def enqueue(self, job_id: str) -> None:
         self._queue.put(job_id)
 
+    @property
+    def queued(self) -> int:
+        """Jobs waiting to run (the one running not included)."""
+        return self._queue.qsize()
+
     def progress(self, job_id: str) -> Progress | None:
         return self._progress.get(job_id)
 

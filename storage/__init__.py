@@ -12,7 +12,7 @@ from .errors import (ConflictError, CorruptArtifactError, IllegalTransitionError
                      InvalidRecordError, NotFoundError, SchemaVersionError, StorageError)
 from .jobs import (EVENT_ROUND, EVENT_STATUS, TRANSITIONS, UNFINISHED, CandidateRecord, EventRecord,
                    HalvingRecord, JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord,
-                   WarmupRecord, start_val_loss, trained_epochs)
+                   StoreStatistics, WarmupRecord, start_val_loss, trained_epochs)
 from .local import LocalArtifactStore
 from .lock import OwnerLock, StoreLockedError
 from .sqlite import SQLiteJobStore
@@ -21,7 +21,7 @@ __all__ = [
     "ArtifactStore", "LocalArtifactStore", "S3ArtifactStore", "checkpoint_key", "content_digest", "content_key",
     "validate_key",
     "JobStore", "SQLiteJobStore", "JobStatus", "TRANSITIONS", "UNFINISHED", "EVENT_STATUS",
-    "EVENT_ROUND", "JobRecord", "JobPage", "RoundRecord", "RoundKind", "WarmupRecord", "HalvingRecord",
+    "EVENT_ROUND", "JobRecord", "StoreStatistics", "JobPage", "RoundRecord", "RoundKind", "WarmupRecord", "HalvingRecord",
     "CandidateRecord", "EventRecord", "start_val_loss", "trained_epochs",
     "StorageError", "NotFoundError", "ConflictError", "IllegalTransitionError", "InvalidRecordError",
     "SchemaVersionError", "InvalidKeyError", "CorruptArtifactError",

@@ -117,6 +117,17 @@ class JobRecord:
 
 
 @dataclass(frozen=True)
+class StoreStatistics:
+    """What ``/metrics`` reports from the store: durable across restarts, so counters never reset."""
+
+    jobs_by_status: dict[JobStatus, int]
+    candidates: int             # committed candidates, all jobs
+    failed_candidates: int      # of which training failed (diverged, crashed)
+    candidate_seconds: tuple[float, ...]  # each committed candidate's training wall time
+    round_seconds: tuple[float, ...]      # each committed round's wall time
+
+
+@dataclass(frozen=True)
 class JobPage:
     jobs: tuple[JobRecord, ...]
     next_cursor: str | None  # pass to ``list_jobs(cursor=...)``; None on the last page
@@ -315,6 +326,10 @@ class JobStore(ABC):
         """Jobs newest first, optionally only those with the given status(es) and ``owner``.
         ``cursor`` is the ``next_cursor`` of the previous page (opaque); pages are stable while
         jobs are added."""
+
+    @abstractmethod
+    def statistics(self) -> StoreStatistics:
+        """Counts and durations over every job (``StoreStatistics``)."""
 
     @abstractmethod
     def unfinished_jobs(self) -> list[JobRecord]:

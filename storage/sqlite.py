@@ -28,7 +28,7 @@ from typing import Any
 
 from .errors import ConflictError, InvalidRecordError, NotFoundError, StorageError
 from .jobs import (EVENT_ROUND, EVENT_STATUS, UNFINISHED, CandidateRecord, EventRecord, HalvingRecord,
-                   JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord, WarmupRecord,
+                   JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord, StoreStatistics, WarmupRecord,
                    canonical_json, check_transition, round_payload, status_filter, validate_error)
 from .migrations import migrate
 
@@ -159,6 +159,14 @@ class SQLiteJobStore(JobStore):
                     {"status": JobStatus.QUEUED.value, "previous": None, "error": None})
         return JobRecord(id=job_id, spec=json.loads(spec_json), status=JobStatus.QUEUED,
                          created_at=now, updated_at=now, idempotency_key=idempotency_key, owner=owner), True
+
+    def statistics(self) -> StoreStatistics:
+        with self._read("statistics") as c:
+            by_status = {JobStatus(r[0]): r[1] for r in c.execute("SELECT status, COUNT(*) FROM jobs GROUP BY status")}
+            total, failed = c.execute("SELECT COUNT(*), COALESCE(SUM(error IS NOT NULL), 0) FROM candidates").fetchone()
+            candidate_s = tuple(r[0] for r in c.execute("SELECT wall_s FROM candidates"))
+            round_s = tuple(r[0] for r in c.execute("SELECT finished_at - started_at FROM rounds"))
+        return StoreStatistics(by_status, int(total), int(failed), candidate_s, round_s)
 
     def get_job(self, job_id: str) -> JobRecord:
         with self._read(f"get job {job_id}") as c:

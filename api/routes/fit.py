@@ -14,7 +14,7 @@ import tempfile
 from pathlib import Path, PurePath
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, File, Form, HTTPException, UploadFile, status
+from fastapi import APIRouter, File, Form, HTTPException, Request, UploadFile, status
 
 from neuenh.checkpoint import Bundle
 from neuenh.data.errors import DataError
@@ -34,7 +34,7 @@ router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized], res
     413: "upload over NEUENH_MAX_UPLOAD_BYTES",
     422: "a table that cannot be read, or a request over the service's limits"}))
 def fit_job(
-    job: ChangeableJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep, fit_lock: FitLockDep,
+    request: Request, job: ChangeableJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep, fit_lock: FitLockDep,
     files: Annotated[list[UploadFile], File(description="one measurement table per material (.npz or CSV)")],
     method: Annotated[Literal["fast", "paper"], Form()] = "fast",
     epochs: Annotated[int, Form(ge=0, description="0: the method's default, 300 (fast) or 1000 (paper); "
@@ -54,6 +54,7 @@ def fit_job(
         samples = _read_uploads(files, settings.max_samples)
         result = fit_materials(model, samples, FitConfig(method=method, epochs=epochs or None),
                                trained=bundle.materials)
+    request.app.state.metrics.fits.inc()
     return FitPublic(job_id=job_id, round=last.index, **result.report(model, method, samples))
 
 

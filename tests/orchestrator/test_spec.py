@@ -46,3 +46,15 @@ def test_spec_files_report_their_path(tmp_path):
         load_spec(bad)
     with pytest.raises(SpecError, match="nope.yaml: no such file"):
         load_spec(tmp_path / "nope.yaml")
+
+
+def test_the_paper_scale_spec_is_valid_and_has_the_papers_sizes():
+    """examples/paper.yaml (issue 18) is for clusters with GPUs: validated here, not run."""
+    from neuenh.train import TrainConfig
+
+    spec = load_spec("examples/paper.yaml")
+    assert (spec.search.epochs_per_round, spec.train.batch_size, spec.train.lr) == (30, 100_000, 1e-3)
+    assert spec.resources.gpus_per_candidate == 1 and spec.module.hidden == [16, 32, 16] and spec.latent_dim == 27
+    nbrdf, ggx = spec.data
+    assert 100 * nbrdf.samples + ggx.materials * ggx.samples == 28_000_000  # the MERL 100 plus the synthetic 100
+    assert isinstance(spec.train_config(), TrainConfig)
