@@ -6,14 +6,14 @@ the paper's initial values; the loss is the training loss, ``train.log_l1``):
 * ``paper`` — the paper's Sec. 5.1: RMSProp (alpha 0.9), learning rate 1e-3, 1000 epochs, batches
   of 100K samples.
 * ``fast`` (default) — a plain analytical model (all-zero state) by row-wise L-BFGS
-  (``neuenh.lbfgs``) on a Charbonnier surrogate of the log-L1 (``SURROGATE_EPS``): it converges in
-  tens of iterations and, measured on the 8 RGL materials (docs/BENCHMARKS.md), ends at a lower loss
-  than 300 Adam epochs did, several times sooner; GGX's Adam fit got stuck far from the optimum on
-  glossy materials (chm_orange 0.142 against 0.051). An enhanced model by Adam, learning rate 0.05
-  with cosine decay to 1e-3 of it, 300 epochs: its landscape is rough (L-BFGS stopped in poorer
-  minima on 4 of 4 materials tried, 3-9 % above Adam), and Adam reaches the paper protocol's final
-  loss tens of times sooner (bench/bench_core.py). Every start of a fit runs *together*: the starts
-  are stacked as extra rows of one material table (``fit_starts``), so one batch serves them all.
+  (``neuenh.lbfgs``) on a Charbonnier surrogate of the log-L1 (``SURROGATE_EPS``), from two starts
+  (``fit_plain``): measured on the 8 RGL materials (docs/BENCHMARKS.md), GGX ends lower than 300 Adam
+  epochs did on 7 and within 0.2 % on the eighth (chm_orange 0.142 -> 0.051: Adam had stalled). An enhanced
+  model by Adam, learning rate 0.05 with cosine decay to 1e-3 of it, 300 epochs: its landscape is
+  rough (L-BFGS stopped in poorer minima on 4 of 4 materials tried, 3-9 % above Adam). Every start
+  of a fit runs *together*: the starts are stacked as extra rows of one material table
+  (``fit_starts``, ``fit_best_start``), so one batch serves them all, and a multi-start Adam fit
+  narrows to each material's best start after ``NARROW_AT`` of its epochs.
 
 Works for plain analytical models (all-zero state) as well as enhanced ones.
 
