@@ -54,7 +54,10 @@ def test_serve_runs_jobs_on_ray_owns_its_store_and_shuts_down_cleanly(tmp_path):
 
 
 def test_crash_mid_job_then_restart_resumes_and_loses_nothing(tmp_path):
-    spec = tiny_spec(max_rounds=4, epochs_per_round=3).model_dump(mode="json")
+    # Long enough that three rounds (~5 s on a quiet machine) follow the first commit: the tiny job
+    # converges one round after its first commit, which a fast machine finishes between two polls.
+    spec = tiny_spec(max_rounds=4, epochs_per_round=10).model_dump(mode="json")
+    spec["data"][0]["samples"] = 4000
     first = ServeProcess(tmp_path / "data").wait_ready()
     try:
         with first.client() as c:
