@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import signal
 import threading
 from contextlib import asynccontextmanager
@@ -81,7 +82,8 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
         owned = lock if lock is not None and lock.held else owner_lock(s).acquire()
         store = SQLiteJobStore(s.data_dir / "jobs.sqlite")
         executor = (executor_factory or ray_executor)(s)
-        job_queue = JobQueue(store, artifacts, executor, resource_wait_s=s.resource_wait_s)
+        job_queue = JobQueue(store, artifacts, executor, resource_wait_s=s.resource_wait_s,
+                             max_running=s.max_running_jobs or max(2, math.ceil(executor.cluster().cpus / 12)))
         app.state.settings, app.state.jobs, app.state.artifacts = s, store, artifacts
         app.state.tokens = TokenTable(s)  # a bad tokens file fails the start (serve checks it first)
         _reload_tokens_on_sighup(app.state.tokens)

@@ -72,6 +72,11 @@ class JobPublic(BaseModel):
     status: JobStatus
     terminal: bool
     error: str | None
+    reason: str | None = Field(description="why a job that did not fail ended where it did: 'budget' when its "
+                                           "budget ran out")
+    priority: int
+    used_wall_s: float = Field(description="wall time its runs took so far, over restarts")
+    used_cpu_s: float = Field(description="CPU time its candidates held so far (wall x CPUs asked)")
     created_at: datetime
     updated_at: datetime
     last_round: int | None = Field(description="index of the last committed round; null before round 0")
@@ -92,7 +97,8 @@ class JobPublic(BaseModel):
         return cls(
             id=job.id, name=spec.get("name"), model=model, positions=list(get_model(model).positions),
             status=job.status,
-            terminal=job.terminal, error=job.error, created_at=_time(job.created_at),
+            terminal=job.terminal, error=job.error, reason=job.reason, priority=int(spec.get("priority", 0)),
+            used_wall_s=job.used_wall_s, used_cpu_s=job.used_cpu_s, created_at=_time(job.created_at),
             updated_at=_time(job.updated_at), last_round=job.last_round,
             current_state=job.current_state, spec=spec,
             progress=ProgressPublic.from_progress(progress) if progress and not job.terminal else None,
@@ -153,6 +159,8 @@ class RoundPublic(BaseModel):
     converged: bool = Field(description="the stay candidate won a search round: the search stopped here")
     outcome: JobStatus | None = Field(description="a polish round: how the search had ended")
     warmup: WarmupPublic | None = Field(description="round 0 of a search that trained its start state first")
+    recovered: int = Field(description="candidates that had finished before a restart and were read back, "
+                                       "not trained again")
     started_at: datetime
     finished_at: datetime
     wall_s: float
@@ -165,7 +173,7 @@ class RoundPublic(BaseModel):
                    change=describe_change(r.parent_state, r.winner_state, positions),
                    winner_val_loss=r.winner_val_loss, gain_over_start=_gain(r.winner_val_loss, start),
                    converged=r.converged, outcome=r.outcome,
-                   warmup=WarmupPublic.from_record(r.warmup) if r.warmup else None,
+                   warmup=WarmupPublic.from_record(r.warmup) if r.warmup else None, recovered=r.recovered,
                    started_at=_time(r.started_at), finished_at=_time(r.finished_at),
                    wall_s=r.finished_at - r.started_at,
                    candidates=[CandidatePublic.from_record(c, r, positions) for c in r.candidates],
@@ -178,6 +186,7 @@ class HistoryPublic(BaseModel):
     job_id: str
     status: JobStatus
     terminal: bool
+    reason: str | None = Field(description="as the job's: 'budget' when its budget ran out")
     current_state: str | None
     start_val_loss: float | None = Field(description="round 0's stay candidate: the starting state (plain "
                                                      "analytical by default) trained like every candidate")
@@ -197,7 +206,8 @@ class HistoryPublic(BaseModel):
         round0 = round0 or (rounds[0] if rounds and rounds[0].index == 0 else None)
         last = last or (rounds[-1] if rounds else None)
         start = start_val_loss(round0)
-        return cls(job_id=job.id, status=job.status, terminal=job.terminal, current_state=job.current_state,
+        return cls(job_id=job.id, status=job.status, terminal=job.terminal, reason=job.reason,
+                   current_state=job.current_state,
                    start_val_loss=start, gain_over_start=_gain(last.winner_val_loss, start) if last else None,
                    rounds=[RoundPublic.from_record(r, positions, start) for r in rounds],
                    next_since_round=rounds[-1].index + 1 if rounds else since_round)
@@ -212,6 +222,13 @@ class NodePublic(BaseModel):
     memory_bytes: int | None
 
 
+class SlotHolderPublic(BaseModel):
+    job_id: str
+    candidates: int
+    cpus: float
+    gpus: float
+
+
 class ClusterPublic(BaseModel):
     """Where candidates train: the executor's nodes and what is free now."""
 
@@ -223,7 +240,10 @@ class ClusterPublic(BaseModel):
     cpus_available: float
     gpus_available: float
     busy_candidates: int = Field(description="candidates training right now")
-    running_job: str | None = Field(description="the job the service is running, if any")
+    running_jobs: list[str] = Field(description="the jobs the service is running now")
+    max_running_jobs: int = Field(description="how many jobs run at once (NEUENH_MAX_RUNNING_JOBS)")
+    holders: list[SlotHolderPublic] = Field(description="per running job, its candidates in flight and what "
+                                                        "they hold of the cluster")
 
 
 class FittedMaterial(BaseModel):

@@ -61,6 +61,13 @@ class Settings(BaseSettings):
         "the cluster grows on demand: accept jobs whose candidates no current node can hold"))
     resource_wait_s: float = Field(600.0, ge=0.0, description=(
         "how long a job waits for a node that can hold one of its candidates before it fails"))
+    max_running_jobs: int | None = Field(None, ge=1, description=(
+        "jobs run at once, sharing the cluster fairly (unset: enough to fill it, at least 2: one per 12 "
+        "CPUs, a radius-1 GGX round)"))
+    default_budget_wall_s: float | None = Field(None, gt=0.0, description=(
+        "budget.wall_s of a job whose spec sets none (stored in the spec at submission)"))
+    default_budget_cpu_s: float | None = Field(None, gt=0.0, description=(
+        "budget.cpu_s of a job whose spec sets none (stored in the spec at submission)"))
     max_materials: int = Field(10_000, ge=1, description="most materials of a job's dataset")
     max_job_memory_bytes: int = Field(8_000_000_000, ge=1, description=(
         "largest estimated memory of preparing and training a job (api/limits.py, estimated_bytes)"))

@@ -40,7 +40,8 @@ QUICKSTART = {
 }
 # flag -> where it goes in the spec
 OVERRIDES = {"name": ("name",), "model": ("model",), "epochs": ("search", "epochs_per_round"),
-             "max_rounds": ("search", "max_rounds"), "radius": ("search", "radius")}
+             "max_rounds": ("search", "max_rounds"), "radius": ("search", "radius"), "priority": ("priority",)}
+DURATION_UNITS = {"s": 1.0, "m": 60.0, "h": 3600.0, "d": 86400.0}
 DOWNLOAD_TIMEOUT_S = 300.0
 FIT_TIMEOUT_S = 3600.0
 
@@ -82,6 +83,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--epochs", type=int, help="search.epochs_per_round")
     p.add_argument("--max-rounds", type=int, help="search.max_rounds")
     p.add_argument("--radius", type=int, help="search.radius (candidates differ in up to this many positions)")
+    p.add_argument("--priority", type=int, help="queued jobs start highest priority first (default 0)")
+    p.add_argument("--budget", type=budget, metavar="wall=DURATION,cpu=DURATION",
+                   help="stop the job at its last committed round once it has run this long (wall) or its "
+                        "candidates have held this much CPU time (cpu); e.g. wall=2h,cpu=20h or 90m (wall)")
     p.add_argument("--idempotency-key", metavar="KEY", help="submitting again with the same key returns the same job")
     p.add_argument("--wait", action="store_true",
                    help="follow the job until it ends; exit 0 if it converged or stopped, 1 if it failed or was cancelled")
@@ -169,8 +174,11 @@ def status(args, api: Api) -> int:
     if cluster is not None:
         print(f"cluster: {cluster['backend']}{' at ' + cluster['address'] if cluster.get('address') else ''}, "
               f"{len(cluster['nodes'])} node(s), {cluster['cpus']:g} CPUs ({cluster['cpus_available']:g} free), "
-              f"{cluster['gpus']:g} GPUs, {cluster['busy_candidates']} candidate(s) training"
-              + (f" for job {cluster['running_job']}" if cluster.get("running_job") else ""))
+              f"{cluster['gpus']:g} GPUs, {cluster['busy_candidates']} candidate(s) training; "
+              f"{len(cluster['running_jobs'])} of at most {cluster['max_running_jobs']} job(s) running")
+        for holder in cluster["holders"]:
+            print(f"  job {holder['job_id']}: {holder['candidates']} candidate(s), {holder['cpus']:g} CPUs"
+                  + (f", {holder['gpus']:g} GPUs" if holder["gpus"] else ""))
     print(_jobs_table(recent) if recent else "no jobs yet")
     return 0
 
@@ -247,6 +255,32 @@ def fit(args, api: Api) -> int:
 
 
 # -- helpers ----------------------------------------------------------------------------------
+def duration(text: str) -> float:
+    """Seconds from "90", "90s", "15m", "2h" or "1d"."""
+    number, unit = (text[:-1], text[-1]) if text and text[-1] in DURATION_UNITS else (text, "s")
+    try:
+        seconds = float(number) * DURATION_UNITS[unit]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a duration (e.g. 90, 90s, 15m, 2h, 1d)") from None
+    if not 0 < seconds < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r}: a budget must be a positive duration")
+    return seconds
+
+
+def budget(text: str) -> dict[str, float]:
+    """``--budget``: "wall=2h,cpu=20h" (either or both), or one duration meaning the wall time."""
+    keys = {"wall": "wall_s", "wall_s": "wall_s", "cpu": "cpu_s", "cpu_s": "cpu_s"}
+    out: dict[str, float] = {}
+    for part in text.split(","):
+        key, sep, value = part.partition("=")
+        if not sep:
+            key, value = "wall", key
+        if key.strip() not in keys:
+            raise argparse.ArgumentTypeError(f"unknown budget {key.strip()!r}; use wall=DURATION and/or cpu=DURATION")
+        out[keys[key.strip()]] = duration(value.strip())
+    return out
+
+
 def _spec(args) -> dict:
     """The spec to send: the file's (or the quickstart's) with the flags applied, validated here so
     a bad one is a usage error before the service is contacted."""
@@ -260,6 +294,8 @@ def _spec(args) -> dict:
             for key in path[:-1]:
                 node = node.setdefault(key, {})
             node[path[-1]] = value
+    if args.budget:
+        data.setdefault("budget", {}).update(args.budget)
     return parse_spec(data).model_dump(mode="json")
 
 
@@ -281,19 +317,20 @@ def _history_table(rounds: list[dict]) -> str:
     """One row per round with the change and the gain the service describes (as the dashboard)."""
     rows = [("round", "parent -> winner", "changed", "val loss", "vs start", "ok/total", "wall")]
     for r in rounds:
-        ok = sum(c["ok"] for c in r["candidates"])
+        ok = f"{sum(c['ok'] for c in r['candidates'])}/{len(r['candidates'])}"
+        ok += f" ({r['recovered']} recovered)" if r.get("recovered") else ""
         gain = "-" if r["gain_over_start"] is None else f"{-100 * r['gain_over_start']:+.1f}%"
         rows.append((str(r["round"]) + (" polish" if r["kind"] == "polish" else ""),
                      f"{r['parent_state']} -> {r['winner_state']}",
                      r["change"] + (" converged" if r["converged"] else ""),
-                     f"{r['winner_val_loss']:.5f}", gain, f"{ok}/{len(r['candidates'])}", f"{r['wall_s']:.1f}s"))
+                     f"{r['winner_val_loss']:.5f}", gain, ok, f"{r['wall_s']:.1f}s"))
     return _table(rows, right=(0, 3, 4, 5, 6))
 
 
 def _jobs_table(found: list[dict]) -> str:
     rows = [("id", "status", "rounds", "state", "model", "name", "created")]
     for j in found:
-        rows.append((j["id"], j["status"], str(0 if j["last_round"] is None else j["last_round"] + 1),
+        rows.append((j["id"], _status(j), str(0 if j["last_round"] is None else j["last_round"] + 1),
                      j["current_state"] or "-", j["model"], j["name"] or "-", _local(j["created_at"])))
     return _table(rows, right=(2,))
 
@@ -301,7 +338,7 @@ def _jobs_table(found: list[dict]) -> str:
 def _job_text(job: dict) -> str:
     rounds = 0 if job["last_round"] is None else job["last_round"] + 1
     lines = [f"job {job['id']}" + (f" ({job['name']})" if job["name"] else ""),
-             f"  status     {job['status']}", f"  model      {job['model']}",
+             f"  status     {_status(job)}", f"  model      {job['model']}",
              f"  rounds     {rounds} committed" + (f", state {job['current_state']}" if job["current_state"] else "")]
     p = job.get("progress")
     if p:
@@ -310,8 +347,16 @@ def _job_text(job: dict) -> str:
                      f"{p['message']}".rstrip())
     if job["error"]:
         lines.append(f"  error      {job['error']}")
+    limits = job["spec"].get("budget") or {}
+    for what, used, key in (("wall", job["used_wall_s"], "wall_s"), ("cpu", job["used_cpu_s"], "cpu_s")):
+        of = f" of a {limits[key]:g} s budget" if limits.get(key) else ""
+        lines.append(f"  used {what:<5} {used:.1f} s{of}")
     lines += [f"  created    {_local(job['created_at'])}", f"  updated    {_local(job['updated_at'])}"]
     return "\n".join(lines)
+
+
+def _status(job: dict) -> str:
+    return job["status"] + (f" ({job['reason']})" if job.get("reason") else "")
 
 
 def _table(rows: list[tuple[str, ...]], right=()) -> str:

@@ -98,7 +98,8 @@ def outcome(job: dict) -> tuple[int, str]:
     """The exit code of a finished job (0 converged or stopped, 1 failed or cancelled) and a line
     saying how it ended."""
     rounds = 0 if job["last_round"] is None else job["last_round"] + 1
-    line = f"job {job['id']}: {job['status']} after {rounds} round(s)"
+    line = f"job {job['id']}: {job['status']}" + (f" ({job['reason']})" if job.get("reason") else "") + \
+        f" after {rounds} round(s)"
     if job.get("current_state"):
         line += f", state {job['current_state']}"
     if job.get("error"):

@@ -7,12 +7,17 @@ loss is not finite comes back as a report with ``error`` set (the round goes on)
 retries a task whose worker died. When ``cancelled()`` turns true the executor stops the tasks
 still running and stops yielding.
 
+Several jobs may call ``train`` at once from their own threads. Each call names its ``owner`` (the
+job) and keeps at most ``limit(unfinished)`` of its tasks in flight, asking again as tasks finish
+(``orchestrator.shares.FairShare`` answers); ``cluster().holders`` says which job holds what.
+
 Implementations: ``workers.ray_executor.RayExecutor`` (the real one) and
 ``workers.inline.InlineExecutor`` (in-process, for fast unit tests).
 """
 
 from __future__ import annotations
 
+import threading
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Callable, Iterator, Sequence
@@ -65,6 +70,46 @@ class NodeInfo:
 
 
 @dataclass(frozen=True)
+class SlotHolder:
+    """One job's candidates in flight on the cluster, and the resources they hold."""
+
+    job_id: str
+    candidates: int
+    cpus: float
+    gpus: float
+
+
+class InFlight:
+    """What each job has in flight, kept by an executor for ``ClusterInfo`` (thread-safe)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._jobs: dict[str, tuple[int, Resources]] = {}
+
+    def set(self, owner: str, candidates: int, resources: Resources) -> None:
+        with self._lock:
+            if candidates:
+                self._jobs[owner] = (candidates, resources)
+            else:
+                self._jobs.pop(owner, None)
+
+    @property
+    def candidates(self) -> int:
+        with self._lock:
+            return sum(n for n, _ in self._jobs.values())
+
+    def holders(self) -> tuple[SlotHolder, ...]:
+        with self._lock:
+            return tuple(SlotHolder(job, n, n * r.cpus, n * r.gpus) for job, (n, r) in sorted(self._jobs.items()))
+
+
+
+def unlimited(unfinished: int) -> int:
+    """The default ``limit`` of ``Executor.train``: every task in flight at once."""
+    return unfinished
+
+
+@dataclass(frozen=True)
 class ClusterInfo:
     """Where candidates train, as an executor sees it now (``GET /v1/cluster``)."""
 
@@ -76,6 +121,7 @@ class ClusterInfo:
     cpus_available: float
     gpus_available: float
     busy_candidates: int  # tasks submitted and not yet reported
+    holders: tuple[SlotHolder, ...] = ()  # per job, what its in-flight candidates hold
 
     def missing(self, resources: "Resources") -> list[str]:
         """What one candidate asks that no alive node has (empty when some node could run it)."""
@@ -106,8 +152,11 @@ class Executor(ABC):
         config: TrainConfig,
         resources: Resources = Resources(),
         cancelled: Callable[[], bool] = lambda: False,
+        owner: str = "",
+        limit: Callable[[int], int] = unlimited,
     ) -> Iterator[CandidateReport]:
-        """Train every task (``config.epochs`` is replaced by each task's ``epochs``)."""
+        """Train every task (``config.epochs`` is replaced by each task's ``epochs``), at most
+        ``limit(n)`` in flight while ``n`` are unfinished, on behalf of the job ``owner``."""
 
     @abstractmethod
     def cluster(self) -> ClusterInfo:

@@ -17,12 +17,13 @@ from typing import Callable
 
 from neuenh.models import get_model
 from neuenh.search import Outcome, candidate_seed, hamming_ball, initial_state, keep_better_half, select, weight_cost
-from storage import (ArtifactStore, CandidateRecord, HalvingRecord, JobStatus, JobStore, RoundKind, RoundRecord,
-                     WarmupRecord)
+from storage import (ArtifactStore, CandidateRecord, FinishedCandidate, HalvingRecord, JobStatus, JobStore, RoundKind,
+                     RoundRecord, WarmupRecord)
 
 from .dataset import prepare_dataset
-from .executor import CandidateReport, CandidateTask, Executor, Resources
+from .executor import CandidateReport, CandidateTask, Executor, Resources, unlimited
 from .progress import Progress
+from .shares import FairShare
 from .spec import JobSpec, neural_weights
 
 log = logging.getLogger("neuenh.orchestrator")
@@ -53,11 +54,16 @@ class Interrupted(Exception):
     """This process is stopping: the job is left as it is and resumes on the next start."""
 
 
+class BudgetSpent(Exception):
+    """The job's budget ran out: it stops at its last committed round (STOPPED, reason "budget")."""
+
+
 class JobRun:
     def __init__(self, job_id: str, spec: JobSpec, jobs: JobStore, artifacts: ArtifactStore, executor: Executor,
                  on_progress: Callable[[Progress], None], should_stop: Callable[[], bool],
-                 resource_wait_s: float = 600.0):
+                 resource_wait_s: float = 600.0, share: FairShare | None = None):
         self.job_id, self.spec = job_id, spec
+        self.share = share
         self.resource_wait_s = resource_wait_s
         self.jobs, self.artifacts, self.executor = jobs, artifacts, executor
         self.on_progress, self.should_stop = on_progress, should_stop
@@ -69,6 +75,11 @@ class JobRun:
         self.clock = time.perf_counter()  # progress reports count from here
         self.names: list[str] = []  # the dataset's materials, once prepared
         self.dataset: object | None = None  # the executor's handle, once prepared
+        self.recovered: dict[int, int] = {}  # round -> candidates read back instead of trained
+        job = jobs.get_job(job_id)
+        self.used_wall_s, self.used_cpu_s = job.used_wall_s, job.used_cpu_s  # as stored, over restarts
+        self.charged_at = time.monotonic()  # wall time since then is not yet charged
+        self.enforce_budget = False  # from RUNNING on (a STOPPED job must have been RUNNING)
 
     # -- the state machine ---------------------------------------------------------------------
     def execute(self) -> None:
@@ -80,6 +91,8 @@ class JobRun:
         self.wait_for_resources()
         if self.jobs.get_job(self.job_id).status == PREPARING:
             self.jobs.set_status(self.job_id, RUNNING)
+        self.enforce_budget = True
+        self.check_cancel()
         last = self.jobs.last_round(self.job_id)
         if last is not None and last.kind is RoundKind.POLISH:  # crashed after the polish commit
             self.jobs.set_status(self.job_id, last.outcome)
@@ -102,6 +115,7 @@ class JobRun:
             winner = result.winner
             self.commit(k, state, winner, result.reports, started, warmup=warmup if k == 0 else None,
                         halving=result.halving, pruned=result.pruned)
+            self.charge()
             finished = winner.task.state == self.format(state)
             state, parent = self.parse(winner.task.state), winner.bundle
             self.emit(RUNNING, round=k, done=len(result.reports), total=len(result.reports), best=winner.val_loss,
@@ -225,23 +239,60 @@ class JobRun:
     # -- steps ---------------------------------------------------------------------------------
     def train(self, k: int, parents: list[bytes], tasks: list[CandidateTask], config,
               phase: str = "train") -> list[CandidateReport]:
-        """Every task trained by the executor; reports in the tasks' order."""
-        reports: list[CandidateReport] = []
-        best = None
-        self.emit(RUNNING, round=k, total=len(tasks), message=phase)
-        cancelled = lambda: self.should_stop() or self.cancel_requested()  # noqa: E731
-        for report in self.executor.train(self.dataset, parents, tasks, config, self.resources, cancelled=cancelled):
-            reports.append(report)
-            if report.ok and (best is None or report.val_loss < best):
-                best = report.val_loss
-            self.jobs.append_event(self.job_id, "candidate", {"round": k, "phase": phase, **_candidate_row(report)})
-            self.emit(RUNNING, round=k, done=len(reports), total=len(tasks), best=best, state=report.task.state,
-                      message=phase)
+        """Every task trained; reports in the tasks' order. Tasks that finished before a restart
+        are read back from the store (``recover``); the others go to the executor, and each report
+        is persisted as it arrives, so a crash loses only the candidates still in flight."""
+        reports = self.recover(k, phase, tasks)
+        todo = [t for t in tasks if t.state not in {r.task.state for r in reports}]
+        best = min((r.val_loss for r in reports if r.ok), default=None)
+        self.emit(RUNNING, round=k, done=len(reports), total=len(tasks), best=best, message=phase)
+        cancelled = lambda: self.should_stop() or self.cancel_requested() or self.budget_spent() is not None  # noqa: E731
+        limit = (lambda unfinished: self.share.limit(self.job_id, self.resources, unfinished)) if self.share else unlimited
+        try:
+            for report in self.executor.train(self.dataset, parents, todo, config, self.resources, cancelled=cancelled,
+                                              owner=self.job_id, limit=limit):
+                self.persist(k, phase, report)
+                reports.append(report)
+                if report.ok and (best is None or report.val_loss < best):
+                    best = report.val_loss
+                self.jobs.append_event(self.job_id, "candidate", {"round": k, "phase": phase, **_candidate_row(report)})
+                self.emit(RUNNING, round=k, done=len(reports), total=len(tasks), best=best, state=report.task.state,
+                          message=phase)
+        finally:
+            if self.share:
+                self.share.leave(self.job_id)
         if len(reports) < len(tasks):
             self.check_cancel()
             raise RuntimeError(f"round {k}: the executor returned {len(reports)} of {len(tasks)} candidates")
         order = {t.state: i for i, t in enumerate(tasks)}
         return sorted(reports, key=lambda r: order[r.task.state])  # ball order, not completion order
+
+    def recover(self, k: int, phase: str, tasks: list[CandidateTask]) -> list[CandidateReport]:
+        """The reports of ``tasks`` that finished in an earlier run of round ``k`` (same state, seed
+        and epochs), their bundles read back (and verified) from the ArtifactStore."""
+        wanted = {(t.state, t.seed, t.epochs): t for t in tasks}
+        reports = []
+        for finished in self.jobs.finished_candidates(self.job_id, k):
+            c = finished.candidate
+            task = wanted.get((c.state, c.seed, c.epochs)) if finished.phase == phase else None
+            if task is None:
+                continue
+            bundle = self.artifacts.get(finished.artifact_key) if finished.artifact_key else None
+            nan = float("nan")
+            reports.append(CandidateReport(task, nan if c.train_loss is None else c.train_loss,
+                                           nan if c.val_loss is None else c.val_loss, c.epochs, c.wall_s,
+                                           c.node or "unknown", error=c.error, bundle=bundle))
+        if reports:
+            self.recovered[k] = self.recovered.get(k, 0) + len(reports)
+            log.info("job %s: round %d (%s): %d of %d candidates recovered from before the restart",
+                     self.job_id, k, phase, len(reports), len(tasks))
+        return reports
+
+    def persist(self, k: int, phase: str, report: CandidateReport) -> None:
+        """A finished candidate, durably (its bundle first, content-addressed), and what it cost."""
+        key = self.artifacts.put_content(report.bundle) if report.ok else None
+        self.jobs.record_candidate(self.job_id, FinishedCandidate(k, phase, _candidate_record(report, False), key))
+        self.charge(cpu_s=report.wall_s * self.resources.cpus)
 
     def outcomes(self, reports: list[CandidateReport]) -> list[Outcome]:
         """What the selection rule compares: each state's loss, cost and failure."""
@@ -263,10 +314,10 @@ class JobRun:
             index=k, parent_state=self.format(state), winner_state=winner.task.state,
             candidates=tuple(_candidate_record(r, r.task.state in pruned) for r in reports),
             started_at=started, finished_at=time.time(), artifact_key=key,
-            kind=kind, outcome=outcome, warmup=warmup, halving=halving,
+            kind=kind, outcome=outcome, warmup=warmup, halving=halving, recovered=self.recovered.get(k, 0),
         ))
 
-    # -- cancellation and progress -------------------------------------------------------------
+    # -- cancellation, budget and progress ---------------------------------------------------------
     def cancel_requested(self) -> bool:
         return self.jobs.get_job(self.job_id).status == CANCELLED
 
@@ -275,6 +326,26 @@ class JobRun:
             raise Interrupted()
         if self.cancel_requested():
             raise Cancelled()
+        if (spent := self.budget_spent()) is not None:
+            raise BudgetSpent(spent)
+
+    def charge(self, cpu_s: float = 0.0) -> None:
+        """Add the wall time since the last charge, and ``cpu_s``, to the job's stored usage."""
+        now = time.monotonic()
+        job = self.jobs.charge(self.job_id, wall_s=now - self.charged_at, cpu_s=cpu_s)
+        self.charged_at, self.used_wall_s, self.used_cpu_s = now, job.used_wall_s, job.used_cpu_s
+
+    def budget_spent(self) -> str | None:
+        """What of the budget ran out (None while it lasts); the wall time counts live."""
+        budget = self.spec.budget
+        if not self.enforce_budget:
+            return None
+        wall = self.used_wall_s + time.monotonic() - self.charged_at
+        if budget.wall_s is not None and wall >= budget.wall_s:
+            return f"wall time {wall:.1f} s of budget.wall_s {budget.wall_s:g} s"
+        if budget.cpu_s is not None and self.used_cpu_s >= budget.cpu_s:
+            return f"CPU time {self.used_cpu_s:.1f} s of budget.cpu_s {budget.cpu_s:g} s"
+        return None
 
     def emit(self, status: JobStatus, *, round: int = -1, done: int = 0, total: int = 0,
              best: float | None = None, state: str = "", message: str = "") -> None:

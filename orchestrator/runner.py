@@ -11,7 +11,10 @@ round is visible only once both are durable. "Stay" winning ends the job as CONV
 kind POLISH, which records the search's outcome, before the status is set.
 
 After a crash ``run`` picks a job up from its last committed round; the interrupted round is
-re-run with the same seeds, so the outcome equals an uninterrupted run. Cancellation (the job's
+re-run with the same seeds, so the outcome equals an uninterrupted run. Candidates of that round
+that had finished before the crash were persisted as they arrived and are read back, not re-run.
+A job's usage (wall time, CPU time of its candidates) is stored as it grows; when its ``budget``
+runs out it stops at its last committed round, STOPPED with reason "budget". Cancellation (the job's
 status set to CANCELLED in the store, from any process) stops the running candidates and leaves
 the job at its last committed round.
 
@@ -29,8 +32,9 @@ from neuenh.train import CandidateResult, train_candidate
 from storage import ArtifactStore, JobStatus, JobStore
 
 from .executor import Executor
-from .job_run import Cancelled, Interrupted, JobRun
+from .job_run import BudgetSpent, Cancelled, Interrupted, JobRun
 from .progress import Progress
+from .shares import FairShare
 from .spec import JobSpec, parse_spec
 
 log = logging.getLogger("neuenh.orchestrator")
@@ -43,12 +47,15 @@ class Orchestrator:
 
     def __init__(self, jobs: JobStore, artifacts: ArtifactStore, executor: Executor,
                  on_progress: Callable[[Progress], None] | None = None,
-                 should_stop: Callable[[], bool] = lambda: False, resource_wait_s: float = 600.0):
+                 should_stop: Callable[[], bool] = lambda: False, resource_wait_s: float = 600.0,
+                 share: FairShare | None = None):
         """``should_stop``: polled like cancellation; when it turns true the running job stops at
         its next safe point without any change to its record (a service shutting down).
         ``resource_wait_s``: how long a job waits for a node that can hold one of its candidates
-        (an autoscaling cluster growing) before it fails with the reason."""
+        (an autoscaling cluster growing) before it fails with the reason. ``share``: divides the
+        cluster between jobs that ``run`` at once (from several threads); None: no cap."""
         self.resource_wait_s = resource_wait_s
+        self.share = share
         self.jobs = jobs
         self.artifacts = artifacts
         self.executor = executor
@@ -75,12 +82,20 @@ class Orchestrator:
         run = None
         try:
             run = JobRun(job_id, parse_spec(job.spec), self.jobs, self.artifacts, self.executor,
-                         self.on_progress, self.should_stop, self.resource_wait_s)
-            run.execute()
+                         self.on_progress, self.should_stop, self.resource_wait_s, self.share)
+            try:
+                run.execute()
+            finally:
+                run.charge()
         except Cancelled:
             run.emit(JobStatus.CANCELLED, message="cancelled")
         except Interrupted:
             run.emit(self.jobs.get_job(job_id).status, message="interrupted")
+        except BudgetSpent as spent:
+            log.info("job %s: budget spent (%s); stopped at its last committed round", job_id, spent)
+            self.jobs.append_event(job_id, "budget_spent", {"detail": str(spent)})
+            self.jobs.set_status(job_id, JobStatus.STOPPED, reason="budget")
+            run.emit(JobStatus.STOPPED, message=f"budget: {spent}")
         except Exception as exc:  # any failure ends the job FAILED with its reason, never silently
             if self.jobs.get_job(job_id).status is JobStatus.CANCELLED:
                 # a cancel that raced a step (e.g. a commit refused by the CANCELLED status): the

@@ -112,8 +112,21 @@ class ResourcesSpec(_Strict):
     gpus_per_candidate: float = Field(0.0, ge=0.0)
 
 
+class BudgetSpec(_Strict):
+    """What a job may spend, summed over restarts; when either runs out the job stops at its last
+    committed round (STOPPED, reason "budget"). Checked as each candidate finishes, and the wall
+    time also while candidates run."""
+
+    wall_s: float | None = Field(None, gt=0.0, description="seconds the job may run (wall clock, all its runs)")
+    cpu_s: float | None = Field(None, gt=0.0, description=(
+        "CPU-seconds its candidates may hold: each finished candidate's wall time x cpus_per_candidate"))
+
+
 class JobSpec(_Strict):
     name: str | None = None
+    priority: int = Field(0, ge=-1000, le=1000, description=(
+        "queued jobs start highest priority first, in submission order within a priority"))
+    budget: BudgetSpec = Field(default_factory=BudgetSpec)
     model: str = "ggx"
     search: SearchSpec = Field(default_factory=SearchSpec)
     module: ModuleSpec = Field(default_factory=ModuleSpec)

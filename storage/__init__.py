@@ -11,7 +11,7 @@ from .artifacts import ArtifactStore, checkpoint_key, content_digest, content_ke
 from .errors import (ConflictError, CorruptArtifactError, IllegalTransitionError, InvalidKeyError,
                      InvalidRecordError, NotFoundError, SchemaVersionError, StorageError)
 from .jobs import (EVENT_ROUND, EVENT_STATUS, TRANSITIONS, UNFINISHED, CandidateRecord, EventRecord,
-                   HalvingRecord, JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord,
+                   FinishedCandidate, HalvingRecord, JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord,
                    StoreStatistics, WarmupRecord, start_val_loss, trained_epochs)
 from .local import LocalArtifactStore
 from .lock import OwnerLock, StoreLockedError
@@ -22,7 +22,7 @@ __all__ = [
     "validate_key",
     "JobStore", "SQLiteJobStore", "JobStatus", "TRANSITIONS", "UNFINISHED", "EVENT_STATUS",
     "EVENT_ROUND", "JobRecord", "StoreStatistics", "JobPage", "RoundRecord", "RoundKind", "WarmupRecord", "HalvingRecord",
-    "CandidateRecord", "EventRecord", "start_val_loss", "trained_epochs",
+    "CandidateRecord", "FinishedCandidate", "EventRecord", "start_val_loss", "trained_epochs",
     "StorageError", "NotFoundError", "ConflictError", "IllegalTransitionError", "InvalidRecordError",
     "SchemaVersionError", "InvalidKeyError", "CorruptArtifactError",
     "OwnerLock", "StoreLockedError",

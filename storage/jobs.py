@@ -105,6 +105,9 @@ class JobRecord:
     last_round: int | None = None      # index of the last committed round; None before round 0
     current_state: str | None = None   # B_c: winner of ``last_round``; None before round 0
     owner: str | None = None           # the name of the token that submitted it (None: no named tokens)
+    reason: str | None = None          # why a job that did not fail ended where it did, e.g. "budget"
+    used_wall_s: float = 0.0           # wall time its runs took so far, summed over restarts
+    used_cpu_s: float = 0.0            # CPU time its candidates held (wall x CPUs asked), over restarts
 
     @property
     def terminal(self) -> bool:
@@ -216,10 +219,12 @@ class RoundRecord:
     outcome: JobStatus | None = None      # a polish round: how the search ended (CONVERGED or STOPPED)
     warmup: WarmupRecord | None = None    # round 0 of a search that warmed up first
     halving: HalvingRecord | None = None  # a round pruned by successive halving
+    recovered: int = 0                    # candidates trained before a restart and read back, not re-run
     extra: dict[str, Any] = field(default_factory=dict)  # free-form
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "index", int(self.index))
+        object.__setattr__(self, "recovered", int(self.recovered))
         object.__setattr__(self, "candidates", tuple(self.candidates))
         object.__setattr__(self, "started_at", float(self.started_at))
         object.__setattr__(self, "finished_at", float(self.finished_at))
@@ -255,6 +260,31 @@ class RoundRecord:
     def converged(self) -> bool:
         """The stay candidate won a search round: the search stopped here."""
         return self.kind is RoundKind.SEARCH and self.winner_state == self.parent_state
+
+
+@dataclass(frozen=True)
+class FinishedCandidate:
+    """A candidate whose training finished, persisted as it arrived, before its round commits: a
+    restart re-runs only the candidates of the interrupted round that have none. ``phase`` tells a
+    round's trainings apart ("train", "warmup", "halving", "continue", "polish"); the trained bundle
+    is in the ArtifactStore under ``artifact_key`` (content-addressed; None when training failed)."""
+
+    round_index: int
+    phase: str
+    candidate: CandidateRecord
+    artifact_key: str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "round_index", int(self.round_index))
+        if self.round_index < 0:
+            raise InvalidRecordError(f"round index must be >= 0, got {self.round_index}")
+        if not isinstance(self.phase, str) or not self.phase:
+            raise InvalidRecordError(f"a candidate's phase must be a non-empty string, got {self.phase!r}")
+        if not isinstance(self.candidate, CandidateRecord):
+            raise InvalidRecordError(f"candidate must be a CandidateRecord, got {type(self.candidate).__name__}")
+        if (self.artifact_key is None) == self.candidate.ok:
+            raise InvalidRecordError(f"candidate {self.candidate.state}: a trained bundle is stored exactly "
+                                     "when training succeeded")
 
 
 def start_val_loss(round0: RoundRecord | None) -> float | None:
@@ -304,6 +334,11 @@ class JobStore(ABC):
       only while the job is RUNNING. Re-committing a stored index is idempotent by content: the
       identical record returns the stored one and writes nothing; a different one raises
       ``ConflictError``. Committed rounds never change.
+    * **Finished candidates** (``record_candidate``) are kept per job, round, phase and state as
+      they arrive, before their round commits; recording the same one again is idempotent by
+      content (a different one raises ``ConflictError``). ``finished_candidates`` reads a round's.
+    * **Usage** (``charge``) adds wall and CPU seconds to the job's totals in one write, so what a
+      budget counts survives restarts; totals only grow.
     * **Events** are numbered 1, 2, 3, ... per job without gaps, in commit order, also when
       appended from many threads.
     * **Threads and processes.** One store object may be used from many threads at once; several
@@ -336,8 +371,23 @@ class JobStore(ABC):
         """Every job that is not terminal, oldest first: what to resume after a restart."""
 
     @abstractmethod
-    def set_status(self, job_id: str, status: JobStatus, *, error: str | None = None) -> JobRecord:
-        """Move the job to ``status`` (see the state machine); returns the updated job."""
+    def set_status(self, job_id: str, status: JobStatus, *, error: str | None = None,
+                   reason: str | None = None) -> JobRecord:
+        """Move the job to ``status`` (see the state machine); returns the updated job. ``error``
+        (why it failed) and ``reason`` (why it ended where it did, e.g. "budget") are only
+        recorded with a terminal status."""
+
+    @abstractmethod
+    def record_candidate(self, job_id: str, finished: FinishedCandidate) -> None:
+        """Persist one finished candidate of the job's next round (see the class docstring)."""
+
+    @abstractmethod
+    def finished_candidates(self, job_id: str, round_index: int) -> list[FinishedCandidate]:
+        """The finished candidates recorded for ``round_index``, in the order they were recorded."""
+
+    @abstractmethod
+    def charge(self, job_id: str, *, wall_s: float = 0.0, cpu_s: float = 0.0) -> JobRecord:
+        """Add non-negative seconds to the job's ``used_wall_s`` and ``used_cpu_s``; returns the job."""
 
     @abstractmethod
     def commit_round(self, job_id: str, record: RoundRecord) -> RoundRecord:
@@ -380,10 +430,18 @@ def status_filter(status: JobStatus | Iterable[JobStatus] | None) -> list[JobSta
     return [JobStatus(s) for s in status]
 
 
-def validate_error(job_id: str, status: JobStatus, error: str | None) -> None:
-    if error is not None and not status.terminal:
+def validate_error(job_id: str, status: JobStatus, error: str | None, reason: str | None = None) -> None:
+    if (error is not None or reason is not None) and not status.terminal:
         raise InvalidRecordError(
-            f"job {job_id}: an error reason is only recorded with a terminal status, not {status.value}")
+            f"job {job_id}: an error or reason is only recorded with a terminal status, not {status.value}")
+
+
+def validate_charge(job_id: str, wall_s: float, cpu_s: float) -> tuple[float, float]:
+    wall_s, cpu_s = float(wall_s), float(cpu_s)
+    if not (math.isfinite(wall_s) and math.isfinite(cpu_s) and wall_s >= 0 and cpu_s >= 0):
+        raise InvalidRecordError(f"job {job_id}: usage is charged in finite, non-negative seconds, "
+                                 f"got wall {wall_s!r}, cpu {cpu_s!r}")
+    return wall_s, cpu_s
 
 
 def round_payload(record: RoundRecord) -> dict[str, Any]:
@@ -393,6 +451,7 @@ def round_payload(record: RoundRecord) -> dict[str, Any]:
 
 __all__ = [
     "JobStatus", "TRANSITIONS", "UNFINISHED", "EVENT_STATUS", "EVENT_ROUND", "JobRecord", "JobPage",
-    "CandidateRecord", "RoundRecord", "RoundKind", "WarmupRecord", "HalvingRecord", "EventRecord", "JobStore",
+    "CandidateRecord", "FinishedCandidate", "RoundRecord", "RoundKind", "WarmupRecord", "HalvingRecord",
+    "EventRecord", "JobStore",
     "check_transition", "trained_epochs",
 ]

@@ -104,6 +104,22 @@ MIGRATIONS: tuple[Migration, ...] = (
         "ALTER TABLE jobs ADD COLUMN owner TEXT",  # NULL: submitted without named tokens
         "CREATE INDEX jobs_by_owner ON jobs(owner, seq)",
     )),
+    Migration(5, "finished candidates before their round commits; usage and reason of a job; recovered count", (
+        """CREATE TABLE finished_candidates (
+            job_id          TEXT    NOT NULL REFERENCES jobs(id) ON DELETE CASCADE,
+            round_index     INTEGER NOT NULL CHECK (round_index >= 0),
+            phase           TEXT    NOT NULL CHECK (length(phase) > 0),
+            state           TEXT    NOT NULL CHECK (length(state) > 0),
+            recorded        INTEGER NOT NULL,                   -- arrival order within the job
+            record          TEXT    NOT NULL,                   -- canonical JSON CandidateRecord
+            artifact_key    TEXT,                               -- its trained bundle; NULL: failed
+            PRIMARY KEY (job_id, round_index, phase, state)
+        )""",
+        "ALTER TABLE jobs ADD COLUMN reason TEXT",  # why a job that did not fail ended, e.g. 'budget'
+        "ALTER TABLE jobs ADD COLUMN used_wall_s REAL NOT NULL DEFAULT 0 CHECK (used_wall_s >= 0)",
+        "ALTER TABLE jobs ADD COLUMN used_cpu_s REAL NOT NULL DEFAULT 0 CHECK (used_cpu_s >= 0)",
+        "ALTER TABLE rounds ADD COLUMN recovered INTEGER NOT NULL DEFAULT 0 CHECK (recovered >= 0)",
+    )),
 )
 
 SCHEMA_VERSION = MIGRATIONS[-1].version

@@ -27,9 +27,10 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ConflictError, InvalidRecordError, NotFoundError, StorageError
-from .jobs import (EVENT_ROUND, EVENT_STATUS, UNFINISHED, CandidateRecord, EventRecord, HalvingRecord,
-                   JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord, StoreStatistics, WarmupRecord,
-                   canonical_json, check_transition, round_payload, status_filter, validate_error)
+from .jobs import (EVENT_ROUND, EVENT_STATUS, UNFINISHED, CandidateRecord, EventRecord, FinishedCandidate,
+                   HalvingRecord, JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord, StoreStatistics,
+                   WarmupRecord, canonical_json, check_transition, round_payload, status_filter, validate_charge,
+                   validate_error)
 from .migrations import migrate
 
 
@@ -209,21 +210,63 @@ class SQLiteJobStore(JobStore):
                              "ORDER BY seq", names).fetchall()
         return [_job(r) for r in rows]
 
-    def set_status(self, job_id: str, status: JobStatus, *, error: str | None = None) -> JobRecord:
+    def set_status(self, job_id: str, status: JobStatus, *, error: str | None = None,
+                   reason: str | None = None) -> JobRecord:
         try:
             status = JobStatus(status)
         except ValueError:
             raise InvalidRecordError(f"unknown job status {status!r}") from None
-        validate_error(job_id, status, error)
+        validate_error(job_id, status, error, reason)
         now = time.time()
         with self._write(f"set status of job {job_id}") as c:
             old = JobStatus(_require(c, job_id)["status"])
             check_transition(job_id, old, status)
-            c.execute("UPDATE jobs SET status = ?, error = ?, updated_at = ? WHERE id = ?",
-                      (status.value, error, now, job_id))
+            c.execute("UPDATE jobs SET status = ?, error = ?, reason = ?, updated_at = ? WHERE id = ?",
+                      (status.value, error, reason, now, job_id))
             _append(c, job_id, now, EVENT_STATUS,
-                    {"status": status.value, "previous": old.value, "error": error})
+                    {"status": status.value, "previous": old.value, "error": error,
+                     **({"reason": reason} if reason is not None else {})})
             return _job(_require(c, job_id))
+
+    def charge(self, job_id: str, *, wall_s: float = 0.0, cpu_s: float = 0.0) -> JobRecord:
+        wall_s, cpu_s = validate_charge(job_id, wall_s, cpu_s)
+        with self._write(f"charge job {job_id}") as c:
+            _require(c, job_id)
+            c.execute("UPDATE jobs SET used_wall_s = used_wall_s + ?, used_cpu_s = used_cpu_s + ? WHERE id = ?",
+                      (wall_s, cpu_s, job_id))
+            return _job(_require(c, job_id))
+
+    # ---------------------------------------------------------------------- finished candidates
+
+    def record_candidate(self, job_id: str, finished: FinishedCandidate) -> None:
+        if not isinstance(finished, FinishedCandidate):
+            raise TypeError(f"record_candidate takes a FinishedCandidate, got {type(finished).__name__}")
+        record = canonical_json(dataclasses.asdict(finished.candidate), "finished candidate")
+        state, i = finished.candidate.state, finished.round_index
+        with self._write(f"record candidate {state} of round {i} of job {job_id}") as c:
+            _require(c, job_id)
+            stored = c.execute("SELECT record, artifact_key FROM finished_candidates WHERE job_id = ? AND "
+                               "round_index = ? AND phase = ? AND state = ?",
+                               (job_id, i, finished.phase, state)).fetchone()
+            if stored is not None:
+                if (stored["record"], stored["artifact_key"]) != (record, finished.artifact_key):
+                    raise ConflictError(f"job {job_id}: candidate {state} ({finished.phase}) of round {i} is "
+                                        "already recorded with different content")
+                return
+            order = c.execute("SELECT COALESCE(MAX(recorded), 0) + 1 FROM finished_candidates WHERE job_id = ?",
+                              (job_id,)).fetchone()[0]
+            c.execute("INSERT INTO finished_candidates (job_id, round_index, phase, state, recorded, record, "
+                      "artifact_key) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                      (job_id, i, finished.phase, state, order, record, finished.artifact_key))
+
+    def finished_candidates(self, job_id: str, round_index: int) -> list[FinishedCandidate]:
+        with self._read(f"read finished candidates of job {job_id}") as c:
+            _require(c, job_id)
+            rows = c.execute("SELECT * FROM finished_candidates WHERE job_id = ? AND round_index = ? "
+                             "ORDER BY recorded", (job_id, int(round_index))).fetchall()
+        return [FinishedCandidate(round_index=r["round_index"], phase=r["phase"],
+                                  candidate=CandidateRecord(**json.loads(r["record"])),
+                                  artifact_key=r["artifact_key"]) for r in rows]
 
     # --------------------------------------------------------------------------------- rounds
 
@@ -249,12 +292,12 @@ class SQLiteJobStore(JobStore):
                                     f"current state is {job.current_state}")
             c.execute("INSERT INTO rounds (job_id, round_index, parent_state, winner_state, "
                       "winner_val_loss, started_at, finished_at, artifact_key, kind, outcome, warmup, "
-                      "halving, extra) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                      "halving, recovered, extra) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                       (job_id, i, record.parent_state, record.winner_state, record.winner_val_loss,
                        record.started_at, record.finished_at, record.artifact_key, record.kind.value,
                        record.outcome.value if record.outcome else None,
                        _json_or_null(record.warmup, "round warmup"), _json_or_null(record.halving, "round halving"),
-                       canonical_json(record.extra, "round extra")))
+                       record.recovered, canonical_json(record.extra, "round extra")))
             for position, cand in enumerate(record.candidates):
                 c.execute("INSERT INTO candidates (job_id, round_index, position, state, train_loss, "
                           "val_loss, epochs, wall_s, node, error, seed, pruned, extra) "
@@ -318,7 +361,8 @@ def _job(row: sqlite3.Row) -> JobRecord:
     return JobRecord(id=row["id"], spec=json.loads(row["spec"]), status=JobStatus(row["status"]),
                      created_at=row["created_at"], updated_at=row["updated_at"], error=row["error"],
                      idempotency_key=row["idempotency_key"], last_round=row["last_round"],
-                     current_state=row["current_state"], owner=row["owner"])
+                     current_state=row["current_state"], owner=row["owner"], reason=row["reason"],
+                     used_wall_s=row["used_wall_s"], used_cpu_s=row["used_cpu_s"])
 
 
 def _append(c: sqlite3.Connection, job_id: str, now: float, kind: str, payload: Any) -> int:
@@ -350,7 +394,7 @@ def _load_rounds(c: sqlite3.Connection, job_id: str, since: int,
                         outcome=JobStatus(r["outcome"]) if r["outcome"] else None,
                         warmup=WarmupRecord(**json.loads(r["warmup"])) if r["warmup"] else None,
                         halving=HalvingRecord(**json.loads(r["halving"])) if r["halving"] else None,
-                        extra=json.loads(r["extra"]))
+                        recovered=r["recovered"], extra=json.loads(r["extra"]))
             for r in rounds]
 
 

@@ -12,13 +12,15 @@ from typing import Callable, Iterator, Sequence
 from neuenh.train import TrainConfig
 
 from neuenh.data.samples import TrainingData
-from orchestrator.executor import CandidateReport, CandidateTask, ClusterInfo, Executor, NodeInfo, Resources
+from orchestrator.executor import (CandidateReport, CandidateTask, ClusterInfo, Executor, InFlight, NodeInfo, Resources,
+                                   unlimited)
 
 from .candidate import run_candidate
 
 
 class InlineExecutor(Executor):
-    busy = 0  # the candidate training in the calling thread, if any
+    def __init__(self) -> None:
+        self._in_flight = InFlight()  # the candidate training in a calling thread, per job
 
     def put_dataset(self, data: TrainingData) -> TrainingData:
         return data
@@ -31,19 +33,25 @@ class InlineExecutor(Executor):
         config: TrainConfig,
         resources: Resources = Resources(),
         cancelled: Callable[[], bool] = lambda: False,
+        owner: str = "",
+        limit: Callable[[int], int] = unlimited,
     ) -> Iterator[CandidateReport]:
-        for task in tasks:
+        for i, task in enumerate(tasks):  # one at a time: within any limit (which is at least 1)
             if cancelled():
                 return
-            self.busy = 1
+            limit(len(tasks) - i)
+            self._in_flight.set(owner, 1, resources)
             try:
                 report = run_candidate(parents[task.parent], dataset, task, config, node="inline")
             finally:
-                self.busy = 0
+                self._in_flight.set(owner, 0, resources)
             yield report
 
     def cluster(self) -> ClusterInfo:
         cpus = float(os.cpu_count() or 1)
         node = NodeInfo(id="inline", address=socket.gethostname(), alive=True, cpus=cpus, gpus=0.0)
+        holders = self._in_flight.holders()
+        busy = sum(h.cpus for h in holders)
         return ClusterInfo(backend="inline", address=None, nodes=(node,), cpus=cpus, gpus=0.0,
-                           cpus_available=cpus - self.busy, gpus_available=0.0, busy_candidates=self.busy)
+                           cpus_available=cpus - busy, gpus_available=0.0,
+                           busy_candidates=self._in_flight.candidates, holders=holders)

@@ -4,8 +4,9 @@
   round; tasks receive references, so nothing is copied per candidate on a node.
 * Each task asks for the job's ``cpus_per_candidate`` (and fractional ``gpus_per_candidate``) and
   runs torch with that many threads. Before a round the executor asks the cluster for the round's
-  parallelism (``ray.autoscaler.sdk.request_resources``), so a larger radius runs on more workers
-  where the cluster can grow; what does not fit is queued by Ray.
+  parallelism (``ray.autoscaler.sdk.request_resources``, summed over the jobs training at once), so
+  a larger radius runs on more workers where the cluster can grow; what does not fit is queued by
+  Ray. Each job keeps at most its ``limit`` of candidates in flight (its fair share).
 * A worker process or node that dies is retried (``max_retries``); a task that raises or diverges
   comes back as a failed report and the round goes on.
 * Embedded default: a local Ray with bounded object-store memory and no dashboard. With
@@ -18,6 +19,7 @@ import contextlib
 import os
 import signal
 import threading
+import time
 from typing import Callable, Iterator, Sequence
 
 import ray
@@ -27,7 +29,8 @@ from ray.exceptions import RayError
 from neuenh.train import TrainConfig
 
 from neuenh.data.samples import TrainingData
-from orchestrator.executor import CandidateReport, CandidateTask, ClusterInfo, Executor, NodeInfo, Resources
+from orchestrator.executor import (CandidateReport, CandidateTask, ClusterInfo, Executor, InFlight, NodeInfo, Resources,
+                                   unlimited)
 
 from .candidate import run_candidate
 
@@ -71,7 +74,9 @@ class RayExecutor(Executor):
         self.max_retries = max_retries
         self.poll_s = poll_s
         self._owns_ray = False
-        self._busy = 0
+        self._in_flight = InFlight()
+        self._demand: dict[str, list[dict[str, float]]] = {}  # per job: the bundles its round asks for
+        self._demand_lock = threading.Lock()
         self.address = address or os.environ.get("RAY_ADDRESS") or None
         if not ray.is_initialized():
             with _keeping_signal_handlers():
@@ -93,32 +98,46 @@ class RayExecutor(Executor):
         config: TrainConfig,
         resources: Resources = Resources(),
         cancelled: Callable[[], bool] = lambda: False,
+        owner: str = "",
+        limit: Callable[[int], int] = unlimited,
     ) -> Iterator[CandidateReport]:
         bundle = {"CPU": resources.cpus, **({"GPU": resources.gpus} if resources.gpus else {})}
-        request_resources(bundles=[bundle] * len(tasks))
+        with self._demand_lock:
+            self._demand[owner] = [bundle] * len(tasks)
+            request_resources(bundles=[b for job in self._demand.values() for b in job])
         parent_refs = [ray.put(p) for p in parents]
         threads = max(1, int(resources.cpus))
         remote = _train_candidate.options(num_cpus=resources.cpus, num_gpus=resources.gpus,
                                           max_retries=self.max_retries)
-        pending = {remote.remote(parent_refs[t.parent], dataset, t, config, threads): t for t in tasks}
+        waiting, pending = list(tasks), {}
         try:
-            while pending:
-                self._busy = len(pending)
+            while waiting or pending:
                 if cancelled():
                     for ref in pending:
                         ray.cancel(ref, force=True)
                     return
+                allowed = limit(len(waiting) + len(pending))
+                while waiting and len(pending) < allowed:
+                    t = waiting.pop(0)
+                    pending[remote.remote(parent_refs[t.parent], dataset, t, config, threads)] = t
+                self._in_flight.set(owner, len(pending), resources)
+                if not pending:  # over its share: wait for another job's candidates to finish
+                    time.sleep(self.poll_s)
+                    continue
                 ready, _ = ray.wait(list(pending), num_returns=1, timeout=self.poll_s)
                 for ref in ready:
                     task = pending.pop(ref)
+                    self._in_flight.set(owner, len(pending), resources)
                     try:
                         yield ray.get(ref)
                     except RayError as exc:  # the worker or its node died beyond retries
                         yield CandidateReport(task, float("nan"), float("nan"), 0, 0.0, "unknown",
                                               error=f"worker lost: {type(exc).__name__}: {exc}".splitlines()[0])
         finally:
-            self._busy = 0
-            request_resources(bundles=[])
+            self._in_flight.set(owner, 0, resources)
+            with self._demand_lock:
+                self._demand.pop(owner, None)
+                request_resources(bundles=[b for job in self._demand.values() for b in job])
 
     def cluster(self) -> ClusterInfo:
         nodes = tuple(
@@ -131,7 +150,7 @@ class RayExecutor(Executor):
         return ClusterInfo(backend="ray", address=self.address, nodes=nodes,
                            cpus=total.get("CPU", 0.0), gpus=total.get("GPU", 0.0),
                            cpus_available=free.get("CPU", 0.0), gpus_available=free.get("GPU", 0.0),
-                           busy_candidates=self._busy)
+                           busy_candidates=self._in_flight.candidates, holders=self._in_flight.holders())
 
     def close(self) -> None:
         if self._owns_ray and ray.is_initialized():

@@ -1,4 +1,5 @@
-"""``GET /v1/cluster``: the nodes candidates train on, their CPUs and GPUs, and what is busy."""
+"""``GET /v1/cluster``: the nodes candidates train on, their CPUs and GPUs, what is busy, and which
+running job holds which share of it."""
 
 from __future__ import annotations
 
@@ -16,4 +17,5 @@ router = APIRouter(tags=["cluster"], dependencies=[Authorized], responses=COMMON
 @router.get("/cluster", response_model=ClusterPublic)
 def cluster(job_queue: JobQueueDep) -> ClusterPublic:
     info = job_queue.orchestrator.executor.cluster()
-    return ClusterPublic.model_validate({**dataclasses.asdict(info), "running_job": job_queue.current})
+    return ClusterPublic.model_validate({**dataclasses.asdict(info), "running_jobs": job_queue.running,
+                                         "max_running_jobs": job_queue.max_running})

@@ -40,11 +40,14 @@ def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, job_q
     if "gpus_per_candidate" not in spec.resources.model_fields_set and settings.default_gpus_per_candidate:
         # stored explicitly, so the job runs the same wherever and whenever it resumes
         spec.resources.gpus_per_candidate = settings.default_gpus_per_candidate
+    for field, default in (("wall_s", settings.default_budget_wall_s), ("cpu_s", settings.default_budget_cpu_s)):
+        if default is not None and field not in spec.budget.model_fields_set:  # stored: it survives restarts
+            setattr(spec.budget, field, default)
     check_limits(spec, settings, job_queue.orchestrator.executor.cluster())
     owner = None if principal is LOCAL else principal.name
     job, created = job_queue.orchestrator.submit(spec, idempotency_key=idempotency_key, owner=owner)
     if created:
-        job_queue.enqueue(job.id)
+        job_queue.enqueue(job)
     else:
         response.status_code = status.HTTP_200_OK
     public = JobPublic.from_record(job, progress=job_queue.progress(job.id))

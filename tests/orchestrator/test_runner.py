@@ -2,7 +2,9 @@
 
 import pytest
 
-from neuenh.checkpoint import Bundle
+from safetensors.torch import load
+
+from neuenh.checkpoint import Bundle, blob_metadata
 from orchestrator.runner import Orchestrator
 from storage import JobStatus
 from workers.inline import InlineExecutor
@@ -51,7 +53,8 @@ class _Crash(BaseException):
 
 
 class CrashingExecutor(InlineExecutor):
-    def __init__(self, after: int):
+    def __init__(self, after: int = 10**9):
+        super().__init__()
         self.after = after
         self.seen = 0
 
@@ -63,31 +66,48 @@ class CrashingExecutor(InlineExecutor):
             yield report
 
 
-def test_resume_after_a_crash_equals_an_uninterrupted_run(stores):
+@pytest.mark.parametrize("finished", [5, 11])
+def test_resume_after_a_crash_trains_only_the_unfinished_candidates(stores, finished):
     jobs, artifacts = stores
     reference = Orchestrator(jobs, artifacts, InlineExecutor())
-    expected = _path(jobs, reference.run(reference.submit(tiny_spec(), idempotency_key="ref")[0].id).id)
+    ref_id = reference.run(reference.submit(tiny_spec(), idempotency_key="ref")[0].id).id
+    expected = _path(jobs, ref_id)
+    assert len(expected) >= 2, "the crash must fall in round 1"
 
-    crashing = Orchestrator(jobs, artifacts, CrashingExecutor(after=12 + 5))  # mid round 1
+    crashing = Orchestrator(jobs, artifacts, CrashingExecutor(after=12 + finished))  # mid round 1
     job, _ = crashing.submit(tiny_spec())
     with pytest.raises(_Crash):
         crashing.run(job.id)
     assert jobs.get_job(job.id).status == JobStatus.RUNNING and jobs.get_job(job.id).last_round == 0
+    assert len(jobs.finished_candidates(job.id, 1)) == finished
 
-    resumed = Orchestrator(jobs, artifacts, InlineExecutor())
+    counting = CrashingExecutor()  # never crashes: counts what the restart trains
+    resumed = Orchestrator(jobs, artifacts, counting)
     assert resumed.resume_all() == [job.id]
-    assert _path(jobs, job.id) == expected
+    assert _path(jobs, job.id) == expected  # the same states and losses as without the crash
+    assert counting.seen == 12 * len(expected) - (12 + finished)
+    assert [r.recovered for r in jobs.rounds(job.id)] == [0, finished] + [0] * (len(expected) - 2)
+    for a, b in zip(jobs.rounds(job.id), jobs.rounds(ref_id)):
+        assert _contents(artifacts.get(a.artifact_key)) == _contents(artifacts.get(b.artifact_key))
+
+
+def _contents(blob: bytes) -> tuple[dict, dict]:
+    """A bundle's metadata and tensors, bit for bit (safetensors writes its metadata map in no fixed
+    order, so equal bundles need not be equal bytes)."""
+    tensors = {k: (v.dtype, tuple(v.shape), v.numpy().tobytes()) for k, v in load(blob).items()}
+    return blob_metadata(blob), tensors
 
 
 class CancellingExecutor(InlineExecutor):
     """Cancels the job (as the API would, through the store) in the middle of round 1."""
 
     def __init__(self, jobs):
+        super().__init__()
         self.jobs = jobs
         self.seen = 0
 
-    def train(self, dataset, parents, tasks, config, resources=None, cancelled=lambda: False):
-        for report in super().train(dataset, parents, tasks, config, cancelled=cancelled):
+    def train(self, *args, **kwargs):
+        for report in super().train(*args, **kwargs):
             self.seen += 1
             if self.seen == 15:
                 self.jobs.set_status(report_job_id(self.jobs), JobStatus.CANCELLED)
@@ -111,6 +131,7 @@ class FailingExecutor(InlineExecutor):
     """Candidates whose state is in ``fail`` come back failed, as a crashed task would."""
 
     def __init__(self, fail):
+        super().__init__()
         self.fail = fail
 
     def train(self, *args, **kwargs):

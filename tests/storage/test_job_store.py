@@ -12,7 +12,7 @@ import pytest
 from storage_kit import INITIAL, N_POSITIONS, commit_rounds, flip, hamming_round, running_job
 
 from storage import (EVENT_ROUND, EVENT_STATUS, TRANSITIONS, UNFINISHED, CandidateRecord,
-                     ConflictError, IllegalTransitionError, InvalidRecordError, JobStatus,
+                     ConflictError, FinishedCandidate, IllegalTransitionError, InvalidRecordError, JobStatus,
                      HalvingRecord, NotFoundError, RoundKind, RoundRecord, StorageError, WarmupRecord)
 
 S = JobStatus
@@ -340,6 +340,69 @@ class TestJobStoreContract:
         r = chain[5]
         assert r.extra == {"radius": 1} and r.candidates[1].extra["epoch_losses"][0] == 0.9
         assert [c.seed for c in r.candidates] == [5000 + k for k in range(N_POSITIONS + 1)]
+
+    # ------------------------------------------------------------------ finished candidates
+
+    def test_finished_candidates_are_kept_per_round_and_phase_in_arrival_order(self, job_store):
+        job_id = running_job(job_store)
+        commit_rounds(job_store, job_id, 1)
+        round1 = hamming_round(1, job_store.get_job(job_id).current_state, 2).candidates
+        failed = dataclasses.replace(round1[4], val_loss=math.nan, error="diverged")
+        arrived = [FinishedCandidate(1, "train", round1[3], "sha256/" + "3" * 64),
+                   FinishedCandidate(1, "train", failed, None),
+                   FinishedCandidate(1, "halving", round1[3], "sha256/" + "a" * 64),
+                   FinishedCandidate(1, "train", round1[0], "sha256/" + "0" * 64)]
+        for finished in arrived:
+            job_store.record_candidate(job_id, finished)
+        job_store.record_candidate(job_id, arrived[0])  # recorded again after a retry: nothing changes
+        assert job_store.finished_candidates(job_id, 1) == arrived
+        assert job_store.finished_candidates(job_id, 1)[1].candidate.val_loss is None
+        assert job_store.finished_candidates(job_id, 2) == []
+        with pytest.raises(ConflictError, match="already recorded with different content"):
+            job_store.record_candidate(job_id, dataclasses.replace(arrived[0], artifact_key="sha256/" + "9" * 64))
+        other = running_job(job_store)
+        assert job_store.finished_candidates(other, 1) == []  # per job
+        with pytest.raises(NotFoundError):
+            job_store.record_candidate("nope", arrived[0])
+
+    def test_a_finished_candidate_has_a_bundle_exactly_when_it_trained(self):
+        ok = hamming_round(0, INITIAL, 1).candidates[0]
+        with pytest.raises(InvalidRecordError, match="exactly when training succeeded"):
+            FinishedCandidate(0, "train", ok, None)
+        with pytest.raises(InvalidRecordError, match="exactly when training succeeded"):
+            FinishedCandidate(0, "train", dataclasses.replace(ok, error="boom"), "sha256/" + "1" * 64)
+        with pytest.raises(InvalidRecordError, match="phase"):
+            FinishedCandidate(0, "", ok, "sha256/" + "1" * 64)
+
+    def test_recovered_count_round_trips(self, job_store):
+        job_id = running_job(job_store)
+        record = dataclasses.replace(hamming_round(0, INITIAL, 1), recovered=4)
+        job_store.commit_round(job_id, record)
+        assert job_store.last_round(job_id).recovered == 4
+
+    # ------------------------------------------------------------------------ usage, reason
+
+    def test_usage_adds_up_and_survives_reopening(self, job_backend):
+        store = job_backend.open()
+        job_id = running_job(store)
+        assert (store.get_job(job_id).used_wall_s, store.get_job(job_id).used_cpu_s) == (0.0, 0.0)
+        store.charge(job_id, wall_s=1.5, cpu_s=3.0)
+        job = store.charge(job_id, wall_s=0.25)
+        assert (job.used_wall_s, job.used_cpu_s) == (1.75, 3.0)
+        reopened = job_backend.open().get_job(job_id)
+        assert (reopened.used_wall_s, reopened.used_cpu_s) == (1.75, 3.0)
+        for bad in ({"wall_s": -1.0}, {"cpu_s": math.nan}, {"wall_s": math.inf}):
+            with pytest.raises(InvalidRecordError, match="non-negative"):
+                store.charge(job_id, **bad)
+        assert store.get_job(job_id).used_wall_s == 1.75
+
+    def test_a_reason_is_recorded_with_a_terminal_status(self, job_store):
+        job_id = running_job(job_store)
+        with pytest.raises(InvalidRecordError, match="terminal"):
+            job_store.set_status(job_in(job_store, S.QUEUED), S.PREPARING, reason="budget")
+        job = job_store.set_status(job_id, S.STOPPED, reason="budget")
+        assert (job.status, job.reason, job.error) == (S.STOPPED, "budget", None)
+        assert job_store.events(job_id)[-1].payload["reason"] == "budget"
 
     # ----------------------------------------------------------------------------- events
 
