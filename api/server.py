@@ -31,13 +31,27 @@ def serve(settings: Settings, announce: Callable[[str], None] = print) -> None:
         with SQLiteJobStore(settings.data_dir / "jobs.sqlite") as store:
             store.check_integrity()
         sock = _listen(settings.host, settings.port)
-        logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+        configure_logging(settings.log_format)
         host, port = sock.getsockname()[:2]
         url = f"http://{'[' + host + ']' if ':' in host else host}:{port}"
         announce(f"neuenh serve: dashboard {url}/  API {url}/v1  docs {url}/docs  data {settings.data_dir}")
         uvicorn.Server(uvicorn_config(create_app(settings, lock=lock), settings)).run(sockets=[sock])
     finally:
         lock.release()
+
+
+def configure_logging(log_format: str) -> None:
+    """The service's log lines on stderr: text, or with "json" one JSON object per line
+    (python-json-logger), uvicorn's own loggers included (they then propagate to the root)."""
+    handler = logging.StreamHandler()
+    if log_format == "json":
+        from pythonjsonlogger.json import JsonFormatter
+
+        handler.setFormatter(JsonFormatter("%(asctime)s %(levelname)s %(name)s %(message)s",
+                                           rename_fields={"asctime": "time", "levelname": "level", "name": "logger"}))
+    else:
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    logging.basicConfig(level=logging.INFO, handlers=[handler])
 
 
 def uvicorn_config(app, settings: Settings, log_level: str = "info"):
@@ -53,7 +67,9 @@ def uvicorn_config(app, settings: Settings, log_level: str = "info"):
                           timeout_graceful_shutdown=10, log_level=log_level,
                           # pollers keep connections open: closing idle ones after uvicorn's
                           # 5 s races with a client reusing them (a reset seen under load)
-                          timeout_keep_alive=75, access_log=settings.access_log)
+                          timeout_keep_alive=75, access_log=settings.access_log,
+                          # JSON: uvicorn's loggers keep no handlers of their own and reach the root's
+                          log_config=None if settings.log_format == "json" else uvicorn.config.LOGGING_CONFIG)
 
 
 def _listen(host: str, port: int) -> socket.socket:

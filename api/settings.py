@@ -11,6 +11,7 @@ from __future__ import annotations
 import ipaddress
 import socket
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -33,6 +34,8 @@ class Settings(BaseSettings):
         "named tokens with roles (admin, submit, read), hashed, as JSON (api/auth.py); re-read on SIGHUP"))
     ray_address: str | None = Field(None, description="join this Ray cluster; embedded Ray when unset")
     access_log: bool = Field(False, description="log every request (uvicorn's access log)")
+    log_format: Literal["text", "json"] = Field("text", description=(
+        "'json': one JSON object per log line (time, level, logger, message), for log collectors"))
     allowed_hosts: list[str] = Field(default_factory=list, description=(
         "Host header values (names, without the port) requests may carry (JSON list in NEUENH_ALLOWED_HOSTS); "
         "empty: any when a token is set, else loopback names only (a DNS-rebinding page gets 421)"))

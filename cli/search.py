@@ -79,7 +79,8 @@ def _search(spec, args) -> int:
 
 def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
     rounds = jobs.rounds(job.id)
-    summary: dict = {"job": job.id, "status": job.status.value, "error": job.error, "rounds": len(rounds)}
+    summary: dict = {"job": job.id, "status": job.status.value, "reason": job.reason, "error": job.error,
+                     "rounds": len(rounds)}
     if not rounds:
         return summary
     out = args.out or args.data_dir / "results" / job.id
@@ -116,7 +117,8 @@ def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
 
 
 def format_summary(s: dict) -> str:
-    lines = [f"job {s['job']}: {s['status']} after {s['rounds']} round(s)"]
+    reason = f" ({s['reason']})" if s.get("reason") else ""
+    lines = [f"job {s['job']}: {s['status']}{reason} after {s['rounds']} round(s)"]
     if s.get("error"):
         lines.append(f"  error: {s['error']}")
     if "state" in s:

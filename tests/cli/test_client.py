@@ -68,7 +68,7 @@ def long_job() -> dict:
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    """One service with a token, shared by the module (jobs run one at a time on it)."""
+    """One service with a token, shared by the module."""
     with running_server(tmp_path_factory.mktemp("client") / "data", api_token=TOKEN) as s:
         yield s
 
@@ -122,6 +122,23 @@ def test_submit_from_flags_only_and_again_with_the_same_key(live_server):
     assert json.loads(again.stdout)["id"] == job["id"] and "already submitted with this key" in again.stderr
 
 
+def test_a_budget_stops_the_job_and_every_view_says_so(server, tmp_path):
+    spec = tmp_path / "long.yaml"
+    spec.write_text(yaml.safe_dump(long_job()))
+    out = client("submit", spec, "--budget", "wall=1.5s,cpu=1h", "--priority", "3", "--wait", "--interval", "0.1",
+                 url=server.url)
+    assert out.returncode == 0, out.stderr  # STOPPED is a success: the model so far is usable
+    job_id = out.stdout.strip()
+    assert re.search(rf"job {job_id}: STOPPED \(budget\) after \d+ round\(s\)", out.stderr), out.stderr
+    shown = json.loads(client("status", job_id, "--json", url=server.url).stdout)
+    assert shown["spec"]["budget"] == {"wall_s": 1.5, "cpu_s": 3600.0} and shown["priority"] == 3
+    assert shown["reason"] == "budget" and shown["used_wall_s"] >= 1.5
+    text = client("status", job_id, url=server.url).stdout
+    assert "status     STOPPED (budget)" in text and re.search(r"used wall  [\d.]+ s of a 1.5 s budget", text), text
+    listed = client("status", url=server.url).stdout
+    assert re.search(rf"^{job_id}\s+STOPPED \(budget\)\s", listed, re.M), listed
+
+
 def test_submit_over_a_service_limit_exits_2_naming_it(live_server, tmp_path):
     s = live_server(max_epochs=1)
     out = client("submit", write_spec(tmp_path / "spec.yaml", epochs_per_round=2), url=s.url, token=None)
@@ -147,6 +164,17 @@ def test_usage_errors_exit_2_before_contacting_the_service(tmp_path, closed_url,
     assert out.returncode == 2  # 3 would mean it tried the (closed) service
     one_line_error(out, message)
     assert (tmp_path / "full" / "keep.txt").read_text() == "mine"
+
+
+@pytest.mark.parametrize("budget,message", [
+    ("cpu=-1h", "'-1h': a budget must be a positive duration"),
+    ("memory=1h", "unknown budget 'memory'; use wall=DURATION and/or cpu=DURATION"),
+    ("wall=soon", "'soon' is not a duration (e.g. 90, 90s, 15m, 2h, 1d)"),
+])
+def test_a_bad_budget_is_a_usage_error(closed_url, budget, message):
+    out = client("submit", "--budget", budget, url=closed_url)
+    assert out.returncode == 2 and "Traceback" not in out.stderr  # argparse: the usage, then the error
+    assert out.stderr.strip().splitlines()[-1] == f"neuenh-client submit: error: argument --budget: {message}"
 
 
 # -- reaching the service -----------------------------------------------------------------------

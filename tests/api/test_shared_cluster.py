@@ -1,0 +1,130 @@
+"""One service, many searches, on the real embedded Ray through ``neuenh serve``: jobs run at once
+and share the cluster, queued ones start by priority, and a crash mid-round costs only the
+candidates that were still training."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+
+import pytest
+import torch
+
+from orchestrator.runner import Orchestrator
+from orchestrator.spec import parse_spec
+from storage import LocalArtifactStore, SQLiteJobStore
+from workers.inline import InlineExecutor
+
+from jobspecs import tiny_spec
+from live_api import TERMINAL, wait_for
+from serve_process import ServeProcess
+
+
+def alone(tmp_path, spec: dict) -> list[tuple]:
+    """The spec's rounds (states, every candidate's losses) when run alone, in this process, with
+    one thread per candidate like the Ray tasks: the reference a shared or interrupted run must equal."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with SQLiteJobStore(tmp_path / "alone.sqlite") as jobs:
+            o = Orchestrator(jobs, LocalArtifactStore(tmp_path / "alone"), InlineExecutor())
+            job = o.run(o.submit(parse_spec(spec))[0].id)
+            return [(r.parent_state, r.winner_state, tuple((c.state, c.val_loss) for c in r.candidates))
+                    for r in jobs.rounds(job.id)]
+    finally:
+        torch.set_num_threads(threads)
+
+
+def path(history: dict) -> list[tuple]:
+    return [(r["parent_state"], r["winner_state"], tuple((c["state"], c["val_loss"]) for c in r["candidates"]))
+            for r in history["rounds"]]
+
+
+def status_times(store: SQLiteJobStore, job_id: str) -> dict[str, float]:
+    return {e.payload["status"]: e.time for e in store.events(job_id) if e.kind == "status"}
+
+
+def test_jobs_run_at_once_share_the_cluster_and_start_by_priority(tmp_path):
+    specs = []
+    for seed in range(5):
+        spec = tiny_spec(max_rounds=2, epochs_per_round=2).model_dump(mode="json")
+        spec["train"]["seed"], spec["name"] = seed, f"job-{seed}"
+        specs.append(spec)
+    specs[4]["priority"] = 5  # submitted last, it must start before job-3, queued before it
+    server = ServeProcess(tmp_path / "data", env={"NEUENH_MAX_RUNNING_JOBS": "3", "NEUENH_LOG_FORMAT": "json"}).wait_ready()
+    try:
+        with server.client() as c:
+            ids = [c.post("/jobs", json=spec).json()["id"] for spec in specs]
+            holders_seen, cluster = 0, None
+            while not all(c.get(f"/jobs/{i}").json()["terminal"] for i in ids):
+                cluster = c.get("/cluster").json()
+                holders_seen = max(holders_seen, len(cluster["holders"]))
+                assert len(cluster["running_jobs"]) <= 3 == cluster["max_running_jobs"]
+                time.sleep(0.1)
+            finals = [wait_for(c, i) for i in ids]
+            histories = [c.get(f"/jobs/{i}/history").json() for i in ids]
+    finally:
+        server.stop()
+    assert all(j["status"] in ("CONVERGED", "STOPPED") and j["error"] is None for j in finals), finals
+    logged = [json.loads(line) for line in server.lines if line.startswith("{")]  # NEUENH_LOG_FORMAT=json
+    ours = [entry for entry in logged if entry["logger"].startswith("neuenh")]
+    assert {f"job {i}: {j['status']}" for i, j in zip(ids, finals)} <= {entry["message"] for entry in ours}
+    assert all({"time", "level", "logger", "message"} <= set(entry) for entry in logged)
+    assert not [line for line in server.lines if " INFO neuenh" in line], "a text log line"
+    assert holders_seen >= 2, "two jobs never trained candidates at the same time"
+    with SQLiteJobStore(tmp_path / "data" / "jobs.sqlite") as store:
+        times = [status_times(store, i) for i in ids]
+    end = lambda t: t.get("CONVERGED", t.get("STOPPED"))  # noqa: E731
+    first_three = times[:3]
+    assert max(t["RUNNING"] for t in first_three) < min(end(t) for t in first_three), "the three did not overlap"
+    assert times[4]["PREPARING"] < times[3]["PREPARING"], "the high-priority job did not start first"
+    for spec, history in zip(specs, histories):
+        assert path(history) == alone(tmp_path / spec["name"], spec), spec["name"]
+
+
+LONG = tiny_spec(max_rounds=4, epochs_per_round=10).model_dump(mode="json")
+LONG["data"][0]["samples"] = 4000  # ~1.5 s a round: time to kill the service mid-round
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    return alone(tmp_path_factory.mktemp("alone"), LONG)
+
+
+@pytest.mark.parametrize("k", [3, 8])
+def test_a_crash_after_k_finished_candidates_retrains_only_the_rest(tmp_path, k, uninterrupted):
+    assert len(uninterrupted) >= 3, "the job must reach round 1 and go on"
+    server = ServeProcess(tmp_path / "data").wait_ready()
+    store = SQLiteJobStore(tmp_path / "data" / "jobs.sqlite")
+    try:
+        with server.client() as c:
+            job_id = c.post("/jobs", json=LONG).json()["id"]
+            deadline = time.monotonic() + 120
+            while len(store.finished_candidates(job_id, 1)) < k:  # persisted as they finish
+                assert time.monotonic() < deadline and not store.get_job(job_id).terminal, server.output
+                time.sleep(0.02)
+            before = c.get(f"/jobs/{job_id}/history").json()
+    finally:
+        server.stop(signal.SIGKILL)  # a crash: no shutdown, no chance to tidy up
+    interrupted = store.get_job(job_id).next_round
+    finished = len(store.finished_candidates(job_id, interrupted))  # what the store holds after the crash
+    last_seq = store.events(job_id)[-1].seq
+    assert not store.get_job(job_id).terminal and finished >= 1
+
+    again = ServeProcess(tmp_path / "data").wait_ready()
+    try:
+        with again.client() as c:
+            job = wait_for(c, job_id, timeout=240)
+            after = c.get(f"/jobs/{job_id}/history").json()
+    finally:
+        assert again.stop() in (0, -signal.SIGTERM), again.output
+    assert job["status"] in ("CONVERGED", "STOPPED") and job["error"] is None, job
+    assert f"resuming 1 unfinished job(s): {job_id}" in again.output
+    retrained = [e for e in store.events(job_id, after_seq=last_seq)
+                 if e.kind == "candidate" and e.payload["round"] == interrupted]
+    assert len(retrained) == 12 - finished
+    assert after["rounds"][interrupted]["recovered"] == finished
+    assert after["rounds"][: len(before["rounds"])] == before["rounds"], "a committed round changed"
+    assert path(after) == uninterrupted  # the same states and losses as a run that never crashed
+    store.close()
