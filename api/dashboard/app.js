@@ -1,10 +1,11 @@
 // @ts-check
-/* neuenh dashboard: the jobs of this service and, for the job named in the URL hash (#job=<id>),
- * its trail through the hypercube, every candidate's validation loss, the running round's progress
- * and the model download. Native ES modules, no dependencies, no build step and no external URL:
- * it works offline.
+/* neuenh dashboard: the jobs of this service, the running ones side by side with their live
+ * progress and, for the job named in the URL hash (#job=<id>), its trail through the hypercube,
+ * every candidate's validation loss, the running round's progress and the model download. Native
+ * ES modules, no dependencies, no build step and no external URL: it works offline.
  *
- * Polling: the job list every LIST_MS; the selected job (GET /v1/jobs/{id}) and its history
+ * Polling: the job list and the cluster (which jobs run now, what they hold) every LIST_MS, every
+ * LIVE_MS while a job runs; the selected job (GET /v1/jobs/{id}) and its history
  * (GET .../history?since_round=k, appending the rounds it returns) every JOB_MS until the job is
  * terminal. A 401 shows the token form; the token is kept in localStorage and sent as a bearer
  * header, so the model download goes through fetch and a blob URL too.
@@ -13,18 +14,22 @@
 import { ApiError, getJSON, request, setToken, token } from "./api.js";
 import { lossChart } from "./chart.js";
 import { $, clear, el } from "./dom.js";
-import { renderFinal, renderHeader, renderJobs, renderProgress, renderTrail } from "./views.js";
+import { renderFinal, renderHeader, renderJobs, renderProgress, renderRunning, renderTrail } from "./views.js";
 
 /** @typedef {import("./types.js").Job} Job */
 /** @typedef {import("./types.js").Round} Round */
 /** @typedef {import("./types.js").History} History */
+/** @typedef {import("./types.js").Cluster} Cluster */
 
 const LIST_MS = 3000;
+const LIVE_MS = 2000;
 const JOB_MS = 2000;
 
 /** What the page shows, replaced by each poll; the views only read it. */
 class Page {
   /** @type {Job[]} */ jobs = [];
+  /** @type {Job[]} */ running = [];              // the jobs running now (that this token may see), oldest first
+  /** @type {Cluster | null} */ cluster = null;
   /** @type {string | null} */ selected = null;   // the job id from the hash
   /** @type {Job | null} */ job = null;
   /** @type {History | null} */ history = null;  // the last history answer (its start and gain)
@@ -96,6 +101,7 @@ function askToken(message) {
   stopTimers();
   $("auth").hidden = false;
   $("jobs-panel").hidden = true;
+  $("running-panel").hidden = true;
   $("job").hidden = true;
   setConn("needs a token", "bad");
   const had = Boolean(token());
@@ -111,18 +117,44 @@ function stopTimers() {
   S.listTimer = S.jobTimer = undefined;
 }
 
+/** GET /cluster; null when it cannot be read (the running jobs then come from the list alone). */
+async function getCluster() {
+  try {
+    return await getJSON("/cluster");
+  } catch (err) {
+    if (err instanceof ApiError && err.status === 401) throw err;
+    return null;
+  }
+}
+
+/** The running jobs, oldest first: those the cluster names, from the list or fetched when older
+ * than its page (one this token may not see is left out); without the cluster, the list's
+ * RUNNING and PREPARING jobs.
+ * @param {Job[]} jobs @param {Cluster | null} cluster @returns {Promise<Job[]>} */
+async function runningJobs(jobs, cluster) {
+  const listed = new Map(jobs.map((j) => [j.id, j]));
+  const found = cluster
+    ? await Promise.all(cluster.running_jobs.map((id) => listed.get(id) || getJSON("/jobs/" + encodeURIComponent(id)).catch(() => null)))
+    : jobs.filter((j) => j.status === "RUNNING" || j.status === "PREPARING");
+  const running = /** @type {Job[]} */ (found.filter((j) => j && !j.terminal));
+  return running.sort((a, b) => (a.created_at < b.created_at ? -1 : a.created_at > b.created_at ? 1 : 0));
+}
+
 async function pollList() {
   clearTimeout(S.listTimer);
   try {
-    const page = await getJSON("/jobs?limit=50");
+    const [page, cluster] = await Promise.all([getJSON("/jobs?limit=50"), getCluster()]);
     S.jobs = page.jobs;
+    S.cluster = cluster;
+    S.running = await runningJobs(page.jobs, cluster);
     showError("");
     setConn("live", "ok");
     renderJobs(S.jobs, S.selected);
+    renderRunning(S.running, S.cluster, S.selected);
   } catch (err) {
     handleError(err);
   }
-  if (!S.needsToken) S.listTimer = setTimeout(pollList, LIST_MS);
+  if (!S.needsToken) S.listTimer = setTimeout(pollList, S.running.length ? LIVE_MS : LIST_MS);
 }
 
 /** @param {boolean} poll */
@@ -134,6 +166,7 @@ function selectFromHash(poll) {
   $("download-note").hidden = true;
   $("job-error").hidden = true;
   for (const tr of /** @type {HTMLTableElement} */ ($("jobs")).tBodies[0].rows) tr.classList.toggle("selected", tr.dataset.job === id);
+  for (const card of $("running").children) card.classList.toggle("selected", /** @type {HTMLElement} */ (card).dataset.job === id);
   if (!id) {
     $("job").hidden = true;
     return;

@@ -9,14 +9,53 @@ export function fmtLoss(x) {
   return x.toPrecision(4);
 }
 
-/** "4.2 s", "42 s", "3 min 5 s", "2 h 7 min".
+/** "4.2 s", "42 s", "3 min 5 s", "2 h 7 min" ("1 min", "2 h" when the rest is 0).
  * @param {number} s */
 export function fmtSeconds(s) {
   if (!Number.isFinite(s)) return "–";
   if (s < 60) return s.toFixed(s < 10 ? 1 : 0) + " s";
   const m = Math.floor(s / 60), r = Math.round(s % 60);
-  if (m < 60) return `${m} min ${r} s`;
-  return `${Math.floor(m / 60)} h ${m % 60} min`;
+  if (m < 60) return r ? `${m} min ${r} s` : `${m} min`;
+  return m % 60 ? `${Math.floor(m / 60)} h ${m % 60} min` : `${Math.floor(m / 60)} h`;
+}
+
+/** A status with the reason a job that did not fail ended there: "STOPPED (budget)".
+ * @param {string} status @param {string | null | undefined} reason */
+export function fmtStatus(status, reason) {
+  return reason ? `${status} (${reason})` : status;
+}
+
+/** What a job spent of its budget, one part per limit set: ["wall 12 s of 1 min", "CPU 40 s of 2 min"];
+ * empty without a budget.
+ * @param {{wall_s?: number | null, cpu_s?: number | null} | null | undefined} budget
+ * @param {number} usedWall @param {number} usedCpu @returns {string[]} */
+export function fmtBudget(budget, usedWall, usedCpu) {
+  const out = [];
+  if (budget && budget.wall_s) out.push(`wall ${fmtSeconds(usedWall)} of ${fmtSeconds(budget.wall_s)}`);
+  if (budget && budget.cpu_s) out.push(`CPU ${fmtSeconds(usedCpu)} of ${fmtSeconds(budget.cpu_s)}`);
+  return out;
+}
+
+/** "1 candidate", "3 CPUs", "0.5 GPU": a count with its unit, plural for 0 and above 1.
+ * @param {number} n @param {string} unit */
+export function fmtCount(n, unit) {
+  const text = Number.isInteger(n) ? String(n) : String(Number(n.toFixed(2)));
+  return `${text} ${unit}${n > 1 || n === 0 ? "s" : ""}`;
+}
+
+/** What a running job's candidates in flight hold: "3 candidates · 3 CPUs" (GPUs when any).
+ * @param {{candidates: number, cpus: number, gpus: number} | null | undefined} holder */
+export function fmtSlots(holder) {
+  if (!holder || !holder.candidates) return "no candidate in flight";
+  const parts = [fmtCount(holder.candidates, "candidate"), fmtCount(holder.cpus, "CPU")];
+  if (holder.gpus > 0) parts.push(fmtCount(holder.gpus, "GPU"));
+  return parts.join(" · ");
+}
+
+/** The running jobs against the service's limit: "2 of at most 4 running".
+ * @param {number} running @param {number | null | undefined} max */
+export function fmtRunning(running, max) {
+  return max ? `${running} of at most ${max} running` : `${running} running`;
 }
 
 /** An ISO time in the browser's zone as "YYYY-MM-DD hh:mm:ss"; the input as is when unparseable.

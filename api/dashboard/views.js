@@ -2,16 +2,24 @@
 /* The page's views: each fills its part of index.html from the API's answers and nothing else. */
 
 import { $, breakable, clear, el } from "./dom.js";
-import { diff, digitClass, digitMeaning, fmtDelta, fmtGain, fmtLoss, fmtSeconds, fmtTime, isOperator, neuralNames } from "./format.js";
+import {
+  diff, digitClass, digitMeaning, fmtBudget, fmtDelta, fmtGain, fmtLoss, fmtRunning, fmtSeconds, fmtSlots, fmtStatus, fmtTime,
+  isOperator, neuralNames,
+} from "./format.js";
 
 /** @typedef {import("./types.js").Job} Job */
 /** @typedef {import("./types.js").Round} Round */
 /** @typedef {import("./types.js").History} History */
+/** @typedef {import("./types.js").Cluster} Cluster */
+/** @typedef {import("./types.js").Holder} Holder */
 
-/** @param {string} status */
-function badge(status) {
-  return el("span", { class: "badge s-" + String(status).toLowerCase(), text: status });
+/** @param {Job} job */
+function badge(job) {
+  return el("span", { class: "badge s-" + String(job.status).toLowerCase(), text: fmtStatus(job.status, job.reason) });
 }
+
+/** The hash that opens a job. @param {string} id */
+const jobHref = (id) => "#job=" + encodeURIComponent(id);
 
 /** @param {Job} job */
 function miniProgress(job) {
@@ -26,7 +34,8 @@ function miniProgress(job) {
   if (job.status === "PREPARING") return el("span", { class: "muted", text: "preparing data" });
   /** @type {Record<string, string>} */
   const ends = { CONVERGED: "converged", STOPPED: "finished", CANCELLED: "cancelled", FAILED: "failed" };
-  return el("span", { class: "muted", text: ends[job.status] || "–" });
+  const end = job.reason === "budget" ? "budget spent" : ends[job.status];
+  return el("span", { class: "muted", text: end || "–" });
 }
 
 /** The jobs table; a click on a row selects its job through the URL hash.
@@ -37,12 +46,12 @@ export function renderJobs(jobs, selected) {
   const table = /** @type {HTMLTableElement} */ ($("jobs"));
   const body = clear(table.tBodies[0]);
   for (const job of jobs) {
-    const href = "#job=" + encodeURIComponent(job.id);
+    const href = jobHref(job.id);
     const tr = el("tr", { "data-job": job.id, class: job.id === selected ? "selected" : null },
       el("td", {}, el("a", { href, title: job.id, text: job.name || job.id.slice(0, 8) }),
         job.name ? el("span", { class: "muted id", text: " " + job.id.slice(0, 8) }) : null),
       el("td", { text: job.model }),
-      el("td", {}, badge(job.status)),
+      el("td", {}, badge(job)),
       el("td", { class: "num", text: job.last_round === null ? "0" : String(job.last_round + 1) }),
       el("td", { class: "mono", text: job.current_state || "–" }),
       el("td", {}, miniProgress(job)),
@@ -58,6 +67,46 @@ export function renderJobs(jobs, selected) {
   $("jobs-count").textContent = jobs.length ? `${jobs.length} job${jobs.length > 1 ? "s" : ""}, newest first` : "";
 }
 
+/** The "Running now" panel: a card per running job, side by side, with its live progress and what
+ * its candidates in flight hold of the cluster; hidden while nothing runs. A click opens the job.
+ * @param {Job[]} running the running jobs this caller may see, in display order
+ * @param {Cluster | null} cluster null when it could not be read @param {string | null} selected */
+export function renderRunning(running, cluster, selected) {
+  const count = cluster ? cluster.running_jobs.length : running.length;
+  $("running-panel").hidden = count === 0;
+  $("running-count").textContent = fmtRunning(count, cluster ? cluster.max_running_jobs : null);
+  const holders = new Map((cluster ? cluster.holders : []).map((h) => [h.job_id, h]));
+  const box = clear($("running"));
+  for (const job of running) box.appendChild(runCard(job, holders.get(job.id), job.id === selected));
+}
+
+/** One running job's card. @param {Job} job @param {Holder | undefined} holder @param {boolean} selected */
+function runCard(job, holder, selected) {
+  const p = job.progress;
+  const href = jobHref(job.id);
+  const counting = Boolean(p && p.total > 0);
+  const pct = p && counting ? (100 * p.done) / p.total : 0;
+  const doing = p && counting ? `round ${p.round} · ${p.done}/${p.total} candidates`
+    : p && p.message ? p.message : job.status === "RUNNING" ? "starting a round" : "preparing data";
+  const spent = fmtBudget((job.spec || {}).budget, job.used_wall_s, job.used_cpu_s);
+  const card = el("article", { class: "run-card" + (selected ? " selected" : ""), "data-job": job.id },
+    el("div", { class: "run-head" },
+      el("a", { href, title: job.id, class: "run-name", text: job.name || job.id.slice(0, 8) }),
+      job.status !== "RUNNING" ? badge(job) : null),
+    el("div", { class: "muted run-sub", text: `${job.model} · ${job.id.slice(0, 8)}` }),
+    el("div", { class: "run-progress", text: doing }),
+    el("div", { class: "mini-bar run-bar" + (counting ? "" : " waiting") }, el("div", { class: "mini-fill", style: `width:${pct.toFixed(1)}%` })),
+    el("div", { class: "run-facts" },
+      el("span", { class: "run-best", text: "best " + fmtLoss(p ? p.best_val_loss : null) }),
+      el("span", { class: "run-slots muted", text: fmtSlots(holder) })),
+    spent.length ? el("div", { class: "run-budget muted", text: spent.join(" · ") }) : null);
+  card.addEventListener("click", (ev) => {
+    if (ev.target instanceof Element && ev.target.closest("a")) return;
+    location.hash = href;
+  });
+  return card;
+}
+
 /** The selected job's title, facts, status, buttons and summary cards.
  * @param {Job} job @param {Round[]} rounds @param {History | null} history @param {string[]} positions @param {boolean} cancelArmed */
 export function renderHeader(job, rounds, history, positions, cancelArmed) {
@@ -69,9 +118,11 @@ export function renderHeader(job, rounds, history, positions, cancelArmed) {
   if (search.epochs_per_round !== undefined) bits.push(`${search.epochs_per_round} epochs/round`);
   if (search.max_rounds !== undefined) bits.push(`max ${search.max_rounds} rounds`);
   if (Array.isArray(spec.data)) bits.push(spec.data.map((/** @type {{source: string}} */ d) => d.source).join(" + "));
+  if (job.priority) bits.push(`priority ${job.priority}`);
+  bits.push(...fmtBudget(spec.budget, job.used_wall_s, job.used_cpu_s));
   $("job-meta").textContent = bits.join(" · ");
   const status = $("job-status");
-  status.textContent = job.status;
+  status.textContent = fmtStatus(job.status, job.reason);
   status.className = "badge s-" + job.status.toLowerCase();
 
   const err = $("job-error");
@@ -175,7 +226,8 @@ export function renderTrail(rounds, positions, job) {
       el("td", { class: "change" + (changed.size ? "" : " stay") }, changeText(r)),
       el("td", { class: "num mono" }, fmtLoss(r.winner_val_loss),
         delta ? el("span", { class: "delta " + (delta.down ? "down" : "up"), text: delta.text }) : null),
-      el("td", { class: "num muted", text: fmtSeconds(r.wall_s) })));
+      el("td", { class: "num muted" }, fmtSeconds(r.wall_s),
+        r.recovered > 0 ? el("span", { class: "recovered", title: "candidates that had finished before a service restart, read back instead of trained again", text: `${r.recovered} recovered` }) : null)));
   }
   const p = job && !job.terminal ? job.progress : null;
   if (p && p.total > 0 && !rounds.some((r) => r.round === p.round)) {
@@ -194,7 +246,8 @@ export function renderFinal(job, state, rounds, positions) {
   const strip = clear($("final-state"));
   const text = $("final-text");
   if (!state) {
-    text.textContent = "No model yet: it is available once round 0 is committed.";
+    text.textContent = !job.terminal ? "No model yet: it is available once round 0 is committed."
+      : job.reason === "budget" ? "No model: its budget ran out before round 0 was committed." : "No model: no round was committed.";
     return;
   }
   strip.appendChild(el("span", { class: "mono state-code", text: state }));
@@ -208,6 +261,6 @@ export function renderFinal(job, state, rounds, positions) {
   const parts = [neural.length ? `neural at ${neural.join(", ")}` : "all terms analytical"];
   if (last) parts.push(`validation loss ${fmtLoss(last.winner_val_loss)} after round ${last.round}`);
   if (job.status === "CONVERGED") parts.push("converged: no single change improved it further");
-  else if (job.status === "STOPPED") parts.push("stopped at max_rounds");
+  else if (job.status === "STOPPED") parts.push(job.reason === "budget" ? "stopped: its budget ran out" : "stopped at max_rounds");
   text.textContent = parts.join(" · ");
 }

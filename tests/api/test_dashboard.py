@@ -1,6 +1,7 @@
 """The dashboard at ``/`` in a real headless Chromium (Debian's package, driven by Playwright)
-against a live server: the jobs table, a job's trail through the hypercube, the loss chart, the
-model download, live polling of a running job, the token form, and a screenshot that is not blank
+against a live server: the jobs table, the running jobs side by side, a job's trail through the
+hypercube, the loss chart, the model download, live polling of a running job, a job stopped by its
+budget, the token form, and a screenshot that is not blank
 (``NEUENH_UPDATE_SCREENSHOT=1`` also saves it to ``docs/img/dashboard.png`` for the README; tests
 never write into the repository otherwise).
 
@@ -10,6 +11,7 @@ each test asserts there was none: the page works offline."""
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import threading
 import zipfile
@@ -104,9 +106,12 @@ def page(browser):
     assert errors == [], f"script errors: {errors}"
 
 
+MAX_RUNNING = 3  # jobs the module's server runs at once, whatever the machine's CPUs
+
+
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
-    with running_server(tmp_path_factory.mktemp("dashboard") / "data") as s:
+    with running_server(tmp_path_factory.mktemp("dashboard") / "data", max_running_jobs=MAX_RUNNING) as s:
         yield s
 
 
@@ -175,6 +180,17 @@ def demo_job(server, gate):
         r = c.post("/jobs", json=demo_body())
         assert r.status_code == 202, r.text
         return r.json()
+
+
+def submit(client, spec: dict) -> str:
+    r = client.post("/jobs", json=spec)
+    assert r.status_code == 202, r.text
+    return r.json()["id"]
+
+
+def training(job: dict) -> bool:
+    """Whether the job's round has started (its progress counts candidates)."""
+    return bool((job["progress"] or {}).get("total"))
 
 
 def open_job(page, server, job_id: str, rounds: int) -> None:
@@ -281,14 +297,15 @@ def fake_job(positions: list[str], rounds: int, per_round: int = 12) -> tuple[di
                         "change": winner["change"], "gain_over_start": None,
                         "winner_val_loss": winner["val_loss"], "converged": winner["state"] == state,
                         "started_at": "2026-01-01T00:00:00Z", "finished_at": "2026-01-01T00:01:00Z",
-                        "wall_s": 60.0, "candidates": candidates, "extra": {}})
+                        "recovered": 5 if k == 1 else 0, "wall_s": 60.0, "candidates": candidates, "extra": {}})
         state = winner["state"]
     url = "/v1/jobs/fake"
     job = {"id": "fake", "name": "synthetic <history>", "model": "ggx", "status": "STOPPED", "terminal": True,
-           "error": None, "created_at": "2026-01-01T00:00:00Z", "updated_at": "2026-01-01T00:30:00Z",
+           "error": None, "reason": None, "priority": 0, "used_wall_s": 1800.0, "used_cpu_s": 1800.0,
+           "created_at": "2026-01-01T00:00:00Z", "updated_at": "2026-01-01T00:30:00Z",
            "last_round": rounds - 1, "current_state": state, "spec": {}, "progress": None, "positions": positions,
            "links": {"self": url, "history": url + "/history", "model": url + "/model", "cancel": url + "/cancel"}}
-    return job, {"job_id": "fake", "status": "STOPPED", "terminal": True, "current_state": state,
+    return job, {"job_id": "fake", "status": "STOPPED", "terminal": True, "reason": None, "current_state": state,
                  "start_val_loss": None, "gain_over_start": None,
                  "rounds": history, "next_since_round": rounds}
 
@@ -309,6 +326,10 @@ def test_many_rounds_failed_candidates_and_other_digits_are_drawn(page, server, 
     digits = page.locator("#trail tbody tr").last.locator("td.digit").all_text_contents()
     assert "".join(digits) == job["current_state"]
     assert page.locator("#trail tbody td.digit.d2").count() > 0  # another module choice, its own colour
+    # Round 1 read 5 finished candidates back after a restart; the others read none.
+    recovered = page.locator("#trail tbody tr .recovered")
+    assert recovered.all_text_contents() == ["5 recovered"]
+    assert page.locator("#trail tbody tr[data-round='1'] .recovered").count() == 1
 
 
 def test_download_button_yields_the_model_zip(page, server, finished, tmp_path):
@@ -398,6 +419,75 @@ def test_cancel_button_cancels_a_running_job(page, server, gate, client):
     finally:
         gate.open()
     wait_for(client, job_id)
+
+
+def test_running_jobs_are_shown_side_by_side_with_their_live_progress(page, server, gate, client):
+    """Two jobs at once: a card each in "Running now", side by side, with its round's progress and
+    what its candidate in flight holds; updated by polling, gone when the jobs end."""
+    gate.hold()  # each job's candidates wait for permits
+    try:
+        first = submit(client, body("first", max_rounds=1))
+        wait_for(client, first, until=training)
+        gate.release(2)  # before the second job starts: 2 of the first's candidates, none of its
+        wait_for(client, first, until=lambda j: j["progress"]["done"] == 2)
+        second = submit(client, body("second", max_rounds=1))
+        wait_for(client, second, until=training)
+        page.goto(server.url + "/")
+        page.evaluate("window.__samePage = true")
+        page.wait_for_function("document.querySelectorAll('#running .run-card').length === 2")
+        assert page.locator("#running-count").inner_text() == f"2 of at most {MAX_RUNNING} running"
+        cards = page.locator("#running .run-card")
+        assert [cards.nth(i).get_attribute("data-job") for i in (0, 1)] == [first, second]  # oldest first
+        a, b = (cards.nth(i).bounding_box() for i in (0, 1))
+        assert a["y"] == b["y"] and a["x"] + a["width"] <= b["x"]  # side by side
+        progress = client.get(f"/jobs/{first}").json()["progress"]
+        card = cards.nth(0)
+        assert card.locator(".run-name").inner_text() == "first"
+        assert card.locator(".run-progress").inner_text() == "round 0 · 2/12 candidates"
+        assert card.locator(".mini-fill").evaluate("e => e.style.width") == f"{100 * 2 / 12:.1f}%"
+        assert f"{progress['best_val_loss']:.4g}"[:5] in card.locator(".run-best").inner_text()
+        assert card.locator(".run-slots").inner_text() == "1 candidate · 1 CPU"  # the inline executor trains one
+        assert cards.nth(1).locator(".run-progress").inner_text() == "round 0 · 0/12 candidates"
+        assert cards.nth(1).locator(".run-best").inner_text() == "best –"
+
+        gate.release(1)  # to either job: the cards follow the API by polling
+        def done() -> list[int]:
+            return [client.get(f"/jobs/{j}").json()["progress"]["done"] for j in (first, second)]
+
+        wait_for(client, first, until=lambda _: sum(done()) == 3)
+        expected = [f"round 0 · {n}/12 candidates" for n in done()]
+        page.wait_for_function("want => [...document.querySelectorAll('#running .run-progress')]"
+                               ".map(e => e.textContent).join() === want.join()", arg=expected)
+
+        cards.nth(1).locator(".run-progress").click()  # a click on a card opens its job
+        page.wait_for_url(f"**/#job={second}")
+        page.wait_for_function("document.getElementById('job-title').textContent === 'second'")
+        assert "selected" in (cards.nth(1).get_attribute("class") or "")
+    finally:
+        gate.open()
+    for job_id in (first, second):
+        assert wait_for(client, job_id)["status"] in ("STOPPED", "CONVERGED")
+    page.locator("#running-panel").wait_for(state="hidden")
+    assert page.locator("#running .run-card").count() == 0
+    assert page.evaluate("window.__samePage") is True
+
+
+def test_a_job_stopped_by_its_budget_says_so(page, server, client):
+    """STOPPED with reason "budget": the badge, the jobs table and the model text say so, and the
+    job's facts show what it spent of its budget."""
+    spec = body("budgeted", max_rounds=20)
+    spec["budget"] = {"wall_s": 0.2}
+    job = wait_for(client, submit(client, spec))
+    assert (job["status"], job["reason"]) == ("STOPPED", "budget")
+    assert job["used_wall_s"] >= 0.2
+    page.goto(f"{server.url}/#job={job['id']}")
+    page.wait_for_function("document.getElementById('job-status').textContent === 'STOPPED (budget)'")
+    assert re.search(r"(^| · )wall [0-9.]+ s of 0\.2 s( · |$)", page.locator("#job-meta").inner_text())
+    assert "its budget ran out" in page.locator("#final-text").inner_text()
+    row = page.locator(f"#jobs tbody tr[data-job='{job['id']}']")
+    row.wait_for()
+    assert row.locator(".badge").inner_text() == "STOPPED (budget)"
+    assert "budget spent" in row.inner_text()
 
 
 def test_token_protected_server_asks_for_the_token_then_works(page, live_server):
