@@ -1,6 +1,14 @@
-"""Small job specs for fast orchestrator tests."""
+"""Small job specs for fast orchestrator tests, and the reference a shared, crashed or distributed
+run of one must equal: the spec run alone, in this process."""
 
+from pathlib import Path
+
+import torch
+
+from orchestrator.runner import Orchestrator
 from orchestrator.spec import parse_spec
+from storage import LocalArtifactStore, SQLiteJobStore
+from workers.inline import InlineExecutor
 
 
 def tiny_spec(**search):
@@ -9,3 +17,24 @@ def tiny_spec(**search):
         "train": {"batch_size": 1000, "lr": 5e-3},
         "data": [{"source": "synthetic_zoo", "materials": 2, "samples": 300, "seed": 1}],
     })
+
+
+def run_alone(where: Path, spec: dict) -> list[tuple]:
+    """The spec's rounds (parent, winner, every candidate's state and validation loss) when run
+    alone in this process with one thread per candidate, as a Ray task with one CPU trains it."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        with SQLiteJobStore(where / "alone.sqlite") as jobs:
+            o = Orchestrator(jobs, LocalArtifactStore(where / "alone"), InlineExecutor())
+            job = o.run(o.submit(parse_spec(spec))[0].id)
+            return [(r.parent_state, r.winner_state, tuple((c.state, c.val_loss) for c in r.candidates))
+                    for r in jobs.rounds(job.id)]
+    finally:
+        torch.set_num_threads(threads)
+
+
+def served_path(history: dict) -> list[tuple]:
+    """``run_alone``'s tuples from a served history (``GET /v1/jobs/{id}/history``)."""
+    return [(r["parent_state"], r["winner_state"], tuple((c["state"], c["val_loss"]) for c in r["candidates"]))
+            for r in history["rounds"]]

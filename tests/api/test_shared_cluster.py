@@ -9,36 +9,12 @@ import signal
 import time
 
 import pytest
-import torch
 
-from orchestrator.runner import Orchestrator
-from orchestrator.spec import parse_spec
-from storage import LocalArtifactStore, SQLiteJobStore
-from workers.inline import InlineExecutor
+from storage import SQLiteJobStore
 
-from jobspecs import tiny_spec
+from jobspecs import run_alone, served_path, tiny_spec
 from live_api import TERMINAL, wait_for
 from serve_process import ServeProcess
-
-
-def alone(tmp_path, spec: dict) -> list[tuple]:
-    """The spec's rounds (states, every candidate's losses) when run alone, in this process, with
-    one thread per candidate like the Ray tasks: the reference a shared or interrupted run must equal."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        with SQLiteJobStore(tmp_path / "alone.sqlite") as jobs:
-            o = Orchestrator(jobs, LocalArtifactStore(tmp_path / "alone"), InlineExecutor())
-            job = o.run(o.submit(parse_spec(spec))[0].id)
-            return [(r.parent_state, r.winner_state, tuple((c.state, c.val_loss) for c in r.candidates))
-                    for r in jobs.rounds(job.id)]
-    finally:
-        torch.set_num_threads(threads)
-
-
-def path(history: dict) -> list[tuple]:
-    return [(r["parent_state"], r["winner_state"], tuple((c["state"], c["val_loss"]) for c in r["candidates"]))
-            for r in history["rounds"]]
 
 
 def status_times(store: SQLiteJobStore, job_id: str) -> dict[str, float]:
@@ -80,7 +56,7 @@ def test_jobs_run_at_once_share_the_cluster_and_start_by_priority(tmp_path):
     assert max(t["RUNNING"] for t in first_three) < min(end(t) for t in first_three), "the three did not overlap"
     assert times[4]["PREPARING"] < times[3]["PREPARING"], "the high-priority job did not start first"
     for spec, history in zip(specs, histories):
-        assert path(history) == alone(tmp_path / spec["name"], spec), spec["name"]
+        assert served_path(history) == run_alone(tmp_path, spec), spec["name"]
 
 
 LONG = tiny_spec(max_rounds=4, epochs_per_round=10).model_dump(mode="json")
@@ -89,7 +65,7 @@ LONG["data"][0]["samples"] = 4000  # ~1.5 s a round: time to kill the service mi
 
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
-    return alone(tmp_path_factory.mktemp("alone"), LONG)
+    return run_alone(tmp_path_factory.mktemp("alone"), LONG)
 
 
 @pytest.mark.parametrize("k", [3, 8])
@@ -126,5 +102,5 @@ def test_a_crash_after_k_finished_candidates_retrains_only_the_rest(tmp_path, k,
     assert len(retrained) == 12 - finished
     assert after["rounds"][interrupted]["recovered"] == finished
     assert after["rounds"][: len(before["rounds"])] == before["rounds"], "a committed round changed"
-    assert path(after) == uninterrupted  # the same states and losses as a run that never crashed
+    assert served_path(after) == uninterrupted  # the same states and losses as a run that never crashed
     store.close()

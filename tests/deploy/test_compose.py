@@ -1,8 +1,10 @@
 """docker-compose.yml, exercised without Docker: its services' commands and environments run as
 local processes (``compose_local``): a Ray head, two Ray worker nodes, the S3 server, the bucket's
 one-shot and the api. A radius-2 job submitted with ``neuenh-client`` trains on both worker nodes,
-its checkpoints land in the bucket, ``GET /v1/cluster`` lists the nodes; one worker node is killed
-mid-round, the round completes on the other and nothing committed changes.
+its checkpoints land in the bucket, ``GET /v1/cluster`` lists the nodes; one worker node and the api
+are killed mid-round: the restarted api reads back the candidates that had finished, the round
+completes on the surviving node, nothing committed changes and the job ends where an
+uninterrupted run does.
 
 The one service not run as written is the object store: the MinIO image is replaced by moto's S3
 server (``moto_server``) on a loopback port; everything else is the compose file's own command."""
@@ -20,8 +22,10 @@ import pytest
 import yaml
 
 from compose_local import InterpolationError, LocalCompose, interpolate
+from jobspecs import run_alone, served_path
 from s3_server import MOTO_SERVER
-from serve_process import REPO
+from serve_process import REPO, clean_env
+from storage import SQLiteJobStore
 
 COMPOSE = REPO / "docker-compose.yml"
 NEUENH_CLIENT = str(Path(MOTO_SERVER).parent / "neuenh-client")
@@ -75,7 +79,7 @@ def stack():
         compose.close()
 
 
-def test_the_stack_runs_a_radius_2_job_on_two_worker_nodes_and_survives_losing_one(stack):
+def test_the_stack_runs_a_radius_2_job_on_two_worker_nodes_and_survives_losing_one_and_the_api(stack):
     start = time.monotonic()
     stack.replace("object-store", [MOTO_SERVER, "-H", "127.0.0.1", "-p", str(stack.port("object-store", 9000))])
     stack.start("object-store")
@@ -110,7 +114,7 @@ def test_the_stack_runs_a_radius_2_job_on_two_worker_nodes_and_survives_losing_o
         spec_file.write_text(yaml.safe_dump(SPEC))
         client = subprocess.Popen([NEUENH_CLIENT, "submit", str(spec_file), "--wait"],
                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                  env={**stack.environment("api"), "NEUENH_URL": url})
+                                  env={**clean_env(), "NEUENH_URL": url, "NEUENH_API_TOKEN": token})
         try:
             job_id, before, killed_in = None, None, None
             deadline = time.monotonic() + 120
@@ -125,7 +129,14 @@ def test_the_stack_runs_a_radius_2_job_on_two_worker_nodes_and_survives_losing_o
                     stack.kill_node("ray-worker-1")
                     killed_in = progress
                 time.sleep(0.1)
-            out, err = client.communicate(timeout=150)
+            # ... and the api with it, mid-round: what had finished is in its store; the rest re-trains
+            stack.kill_node("api-0")
+            with SQLiteJobStore(data_dir / "jobs.sqlite") as store:
+                finished = len(store.finished_candidates(job_id, 1))
+            stack.start("api", paths={"/var/lib/neuenh": data_dir})
+            stack.healthy("api", timeout=90)
+            assert f"resuming 1 unfinished job(s): {job_id}" in stack.log("api-0")
+            out, err = client.communicate(timeout=150)  # the client waited out the lost service
         finally:
             client.kill()
         assert client.returncode == 0, err
@@ -141,6 +152,8 @@ def test_the_stack_runs_a_radius_2_job_on_two_worker_nodes_and_survives_losing_o
             time.sleep(1)
 
     assert job["status"] in ("STOPPED", "CONVERGED") and job["error"] is None, job
+    assert after["rounds"][1]["recovered"] == finished >= 5
+    assert served_path(after) == run_alone(stack.root, SPEC), "not what an uninterrupted run reaches"
     rounds = after["rounds"]
     assert len(rounds) >= 2 and all(len(r["candidates"]) == 67 for r in rounds)  # 1 + 11 + 55
     assert all(c["error"] is None for r in rounds for c in r["candidates"]), "a candidate failed"
@@ -162,4 +175,5 @@ def test_the_stack_runs_a_radius_2_job_on_two_worker_nodes_and_survives_losing_o
     assert not (data_dir / "artifacts").exists()  # the api keeps only the job store on its volume
     assert (data_dir / "jobs.sqlite").exists()
     print(f"stack up in {started:.0f} s; killed mid-round {killed_in['round']} at "
-          f"{killed_in['done']}/{killed_in['total']}; total {time.monotonic() - start:.0f} s")
+          f"{killed_in['done']}/{killed_in['total']} with the api, {finished} recovered; "
+          f"total {time.monotonic() - start:.0f} s")
