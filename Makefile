@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install browser compiler demo test bench report clean
+.PHONY: install browser compiler gl demo test bench report clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -34,9 +34,17 @@ compiler:
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends g++ >/dev/null; } || \
 	  echo "note: g++ is not installed and this is not root; the compiled-training test will skip"
 
+# The GLSL export is compiled by Khronos' glslangValidator and run on Mesa's llvmpipe through
+# headless EGL (moderngl). Installed when missing and root; else those tests skip.
+gl:
+	@{ command -v glslangValidator >/dev/null && ls /usr/lib/x86_64-linux-gnu/libEGL_mesa.so.0 >/dev/null 2>&1; } || \
+	  { [ "$$(id -u)" = 0 ] && apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+	    --no-install-recommends glslang-tools libegl1 libegl-mesa0 libgl1-mesa-dri >/dev/null; } || \
+	  echo "note: glslang-tools or Mesa's EGL is not installed and this is not root; the GLSL export tests will skip"
+
 # The dashboard's pure modules under Node's own test runner, then every Python test with the 25
 # slowest listed (make them cheaper before adding more).
-test: $(STAMP) browser compiler
+test: $(STAMP) browser compiler gl
 	@if command -v node >/dev/null; then node --test tests/dashboard/; \
 	  else echo "note: node is not installed; the dashboard's unit tests (tests/dashboard) skip"; fi
 	$(PY) -m pytest -q --durations=25
