@@ -12,7 +12,7 @@ import sys
 
 from storage import StorageError
 
-from . import data, fit, render, report, search, serve
+from . import data, export, fit, render, report, search, serve
 
 
 class UsageError(Exception):
@@ -31,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     serve.add_parser(commands)
     render.add_parser(commands)
     report.add_parser(commands)
+    export.add_parser(commands)
     return parser
 
 

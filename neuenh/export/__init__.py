@@ -10,12 +10,64 @@ returns their paths. What is exported is the specialized evaluator (``neuenh.spe
 material's parameters and the modules' weights folded in, f_r without the cosine factor, zero below
 either horizon. Every format is checked by running the artifact in its real runtime (tests):
 
-* ``glsl``   (``neuenh.export.glsl``):    GLSL 4.50 functions, run on Mesa's llvmpipe;
-* ``onnx``   (``neuenh.export.onnx``):    ONNX graphs, run with onnxruntime;
-* ``mitsuba``(``neuenh.export.mitsuba``): a Mitsuba 3 BSDF plugin.
+* ``glsl`` (``neuenh.export.glsl``): GLSL 4.50 functions, run on Mesa's llvmpipe;
+* ``onnx`` (``neuenh.export.onnx``): ONNX graphs, run with onnxruntime.
+
+(A Mitsuba 3 plugin is the third format the design names; it is not written yet.)
 
 The runtimes are the optional extra ``neuenh[export]``; this package imports them only inside the
 format that needs them. Imports neither Ray, FastAPI nor SQL.
 """
 
-FORMATS = ("glsl", "onnx", "mitsuba")
+from __future__ import annotations
+
+import importlib
+import os
+import re
+import tempfile
+from pathlib import Path
+from typing import Any, Mapping
+
+FORMATS = ("glsl", "onnx")
+
+
+def export(model, materials: Mapping[str, Mapping[str, Any]], fmt: str, out_dir: Path) -> list[Path]:
+    """Write ``materials`` of ``model`` in format ``fmt`` into ``out_dir``; returns the files."""
+    if fmt not in FORMATS:
+        raise ValueError(f"unknown export format {fmt!r}; choose one of {', '.join(FORMATS)}")
+    if not materials:
+        raise ValueError("nothing to export: no materials")
+    return importlib.import_module(f"{__name__}.{fmt}").write(model, materials, Path(out_dir))
+
+
+def file_names(materials, suffix: str) -> dict[str, str]:
+    """Each material's file name stem (``identifier``), refusing two that collide."""
+    names: dict[str, str] = {}
+    for material in materials:
+        name = identifier(material)
+        if name in names:
+            raise ValueError(f"materials {names[name]!r} and {material!r} both export as {name}{suffix}; rename one")
+        names[name] = material
+    return names
+
+
+def identifier(material: str) -> str:
+    """A material name as an identifier (file names, GLSL symbols): other characters become ``_``,
+    runs of ``_`` one (GLSL reserves ``__``), a leading digit gets ``m`` before it."""
+    name = re.sub(r"_+", "_", re.sub(r"[^A-Za-z0-9_]", "_", material)).strip("_") or "material"
+    return f"m{name}" if name[0].isdigit() else name
+
+
+def atomic_write(path: Path, data: str | bytes) -> Path:
+    """``data`` to ``path`` through a temporary file in the same folder (readable by all, 0644):
+    a reader sees the old file or the whole new one, never a part."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data.encode() if isinstance(data, str) else data)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path

@@ -22,9 +22,7 @@ be included in one shader (a scene) and called by their own names.
 from __future__ import annotations
 
 import math
-import os
 import re
-import tempfile
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -34,6 +32,7 @@ from ..graph import Term
 from ..ops import _is_const
 from ..shading import shade
 from ..specialize import FoldedModule, SpecializedBRDF
+from . import atomic_write, file_names
 
 VERSION = 450  # the GLSL version the source is written for (core profile)
 
@@ -200,10 +199,11 @@ class GlslOps:
 
 # -- one material ----------------------------------------------------------------------------------
 def material_source(brdf: SpecializedBRDF, name: str) -> str:
-    """The GLSL of one specialized material (see the module docstring); ``name`` must be a GLSL
-    identifier part (``glsl_name``)."""
-    if not re.fullmatch(r"[A-Za-z0-9_]+", name):
-        raise ValueError(f"{name!r}: a GLSL material name is letters, digits and underscores (see glsl_name)")
+    """The GLSL of one specialized material (see the module docstring); ``name`` must be an
+    identifier part (``neuenh.export.identifier``)."""
+    if not re.fullmatch(r"[A-Za-z0-9_]+", name) or "__" in name:
+        raise ValueError(f"{name!r}: a GLSL material name is letters, digits and single underscores "
+                         "(neuenh.export.identifier)")
     prefix = f"neuenh_{name}_"
     folded = brdf.folded.to(torch.float64)  # constants at full precision; GLSL rounds each once
     code = Code(prefix)
@@ -326,39 +326,10 @@ def _ident(position: str) -> str:
     return re.sub(r"[^A-Za-z0-9_]", "_", position.replace("*", "_x_").replace("+", "_p_"))
 
 
-def glsl_name(material: str) -> str:
-    """A material name as a GLSL identifier part: other characters become ``_``; a leading digit
-    gets ``m`` before it; GLSL's reserved double underscore is collapsed."""
-    name = re.sub(r"_+", "_", re.sub(r"[^A-Za-z0-9_]", "_", material)).strip("_") or "material"
-    return f"m{name}" if name[0].isdigit() else name
-
-
 # -- files ---------------------------------------------------------------------------------------------
 def write(model, materials: Mapping[str, Mapping[str, Any]], out_dir: Path) -> list[Path]:
-    """``NAME.glsl`` per material (``NAME`` = ``glsl_name``), written atomically."""
-    names: dict[str, str] = {}
-    for material in materials:
-        name = glsl_name(material)
-        if name in names:
-            raise ValueError(f"materials {names[name]!r} and {material!r} both export as {name}.glsl; rename one")
-        names[name] = material
-    out_dir = Path(out_dir)
+    """``NAME.glsl`` per material (``NAME``: ``neuenh.export.identifier``), written atomically."""
+    names = file_names(materials, ".glsl")
     out_dir.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, material in names.items():
-        source = material_source(model.specialize(materials[material]), name)
-        written.append(_atomic_write(out_dir / f"{name}.glsl", source))
-    return written
-
-
-def _atomic_write(path: Path, text: str) -> Path:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return [atomic_write(out_dir / f"{name}.glsl", material_source(model.specialize(materials[material]), name))
+            for name, material in names.items()]

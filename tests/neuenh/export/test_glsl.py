@@ -11,7 +11,8 @@ import reference_brdfs as ref
 import torch
 
 from gl_runtime import gl_context, run_brdf, shade_sphere, validate
-from neuenh.export.glsl import glsl_name, literal, material_source, write
+from neuenh.export import identifier
+from neuenh.export.glsl import literal, material_source, write
 from neuenh.checkpoint import Bundle
 from neuenh.models import available_models, get_model
 from neuenh.pretrained import bundle_path
@@ -142,8 +143,8 @@ def test_literals(value, text):
 
 
 @pytest.mark.parametrize("material, name", [("chm orange", "chm_orange"), ("__x__", "x"), ("3d", "m3d"), ("", "material")])
-def test_glsl_names(material, name):
-    assert glsl_name(material) == name
+def test_identifiers(material, name):
+    assert identifier(material) == name
 
 
 @pytest.mark.parametrize("state", ["00000000000", PAPER_STATE])

@@ -1,0 +1,71 @@
+"""``neuenh export``: fitted materials of a model, in a renderer's own format.
+
+    neuenh export MODEL --format glsl|onnx -o DIR [--params FIT.json] [--material NAME ...]
+
+``MODEL`` is a bundle folder (e.g. one written by ``neuenh fit -o DIR``, which holds the fitted
+materials), a shipped model or an analytical model. The materials exported are the bundle's own, or
+with ``--params`` those of a fit report (``neuenh fit --json``, or the answer of ``POST
+/v1/jobs/{id}/fit``), which must be a fit of this very model; ``--material`` picks some by name.
+Each format's files are described in docs/EXPORT.md and ``neuenh.export``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+
+from neuenh.export import FORMATS, export
+from neuenh.pretrained import load_model
+
+
+def add_parser(commands) -> None:
+    p = commands.add_parser("export", help="write fitted materials as GLSL functions or ONNX graphs",
+                            description=__doc__.split("\n\n", 1)[1].split("\n\n", 1)[1])
+    p.add_argument("model", metavar="MODEL", help="a bundle folder, a shipped model or an analytical model")
+    p.add_argument("--format", required=True, choices=FORMATS, help="what to write")
+    p.add_argument("-o", "--output", required=True, type=Path, metavar="DIR", help="folder to write into")
+    p.add_argument("--params", type=Path, metavar="FIT.json",
+                   help="a fit report of this model (neuenh fit --json); default: the bundle's own materials")
+    p.add_argument("--material", action="append", metavar="NAME", help="only this material (repeat for more)")
+    p.set_defaults(run=run)
+
+
+def run(args) -> int:
+    model, trained = load_model(args.model, "MODEL")
+    materials = fit_report_materials(args.params, model) if args.params else bundle_materials(trained, args.model)
+    if args.material:
+        missing = [m for m in args.material if m not in materials]
+        if missing:
+            raise ValueError(f"no material {', '.join(map(repr, missing))}; there are: {', '.join(materials)}")
+        materials = {m: materials[m] for m in args.material}
+    for path in export(model, materials, args.format, args.output):
+        print(path)
+    return 0
+
+
+def bundle_materials(table, model_arg: str) -> dict[str, dict[str, torch.Tensor]]:
+    if table is None or not len(table):
+        raise ValueError(f"{model_arg} holds no materials; fit some first (neuenh fit --model {model_arg} ... -o DIR) "
+                         "and export that folder, or pass --params FIT.json")
+    return {name: table.as_params(i) for i, name in enumerate(table.names)}
+
+
+def fit_report_materials(path: Path, model) -> dict[str, dict[str, torch.Tensor]]:
+    """The materials of a fit report, checked to be a fit of ``model`` (its name and state)."""
+    try:
+        report = json.loads(path.read_text())
+        fitted = {m["name"]: {k: torch.tensor(v, dtype=torch.float32) for k, v in m["params"].items()}
+                  for m in report["materials"]}
+        of = (report["model"], report["state"])
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such file") from None
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a fit report (neuenh fit --json): {type(exc).__name__}: {exc}") from None
+    if of != (model.name, model.state):
+        raise ValueError(f"{path} is a fit of {of[0]} in state {of[1]}, but the model is {model.name} in state "
+                         f"{model.state}; export the model it was fitted with")
+    if model.uses_latent and any("latent" not in p for p in fitted.values()):
+        raise ValueError(f"{path}: a material has no latent code, which this model needs")
+    return fitted
