@@ -15,6 +15,10 @@ batches of 4096 and 100,000 samples: the reference path (``forward`` on per-samp
 parameters, what training ran before issue 13) against ``forward_indexed`` (per-material work once
 per material). ``--compile`` adds ``torch.compile`` of the indexed step (its compile time reported
 apart; the pinned torch on this CPU).
+
+ONNX (issue 16): the same materials' ``neuenh.export.onnx.material_graph`` run by onnxruntime (one
+intra-op thread, all graph optimizations), measured in the same interleaved run as the torch rows,
+reported in their own section at the end (left out when onnxruntime is not installed).
 """
 
 from __future__ import annotations
@@ -53,14 +57,51 @@ def cases() -> tuple[dict, dict, dict]:
     for name, (model, params) in models.items():
         special = model.specialize(params)
         flops[name] = special.flops_per_evaluation
+        session = onnx_session(special)
         for n, table in ((BATCH, batch), (SMALL, small)):
             wi, wo = pairs[n]
             table[f"{name}, evaluate"] = lambda m=model, p=params, wi=wi, wo=wo: m.evaluate(wi, wo, p)
             table[f"{name}, specialized"] = lambda s=special, wi=wi, wo=wo: s(wi, wo)
+            if session is not None:
+                feed = {"wi": wi.numpy(), "wo": wo.numpy()}
+                table[f"{name}, {ONNX}"] = lambda s=session, feed=feed: s.run(None, feed)
     nbrdf = NBRDFNetwork()
     for n, table in ((BATCH, batch), (SMALL, small)):
         table["NBRDF (per material)"] = lambda wi=pairs[n][0], wo=pairs[n][1]: nbrdf.evaluate(wi, wo)
     return batch, small, flops
+
+
+ONNX = "onnxruntime"  # the path name of the ONNX rows
+
+
+def onnx_session(special):
+    """An onnxruntime session (one thread) of ``special``'s ONNX graph, or None without onnxruntime."""
+    try:
+        import onnxruntime as ort
+
+        from neuenh.export.onnx import material_graph
+    except ImportError:
+        return None
+    options = ort.SessionOptions()
+    options.intra_op_num_threads, options.inter_op_num_threads = 1, 1
+    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    return ort.InferenceSession(material_graph(special), options, providers=["CPUExecutionProvider"])
+
+
+def onnx_section(batch: dict, small: dict) -> list[str]:
+    models = [row.partition(", ")[0] for row in batch if row.endswith(f", {ONNX}")]
+    if not models:
+        return []
+    lines = ["", "**ONNX** (`neuenh.export.onnx.material_graph` in onnxruntime, one thread) beside the torch "
+             "specialized evaluator, same materials and pairs:", "",
+             "| model | torch evaluations/s, batch 1e5 | onnxruntime | × torch | torch, 300 pairs | onnxruntime "
+             "| × torch |", "|---|---:|---:|---:|---:|---:|---:|"]
+    for model in models:
+        t_b, o_b = batch[f"{model}, specialized"].seconds, batch[f"{model}, {ONNX}"].seconds
+        t_s, o_s = small[f"{model}, specialized"].seconds, small[f"{model}, {ONNX}"].seconds
+        lines.append(f"| {model} | {fmt_rate(BATCH / t_b)} | {fmt_rate(BATCH / o_b)} | {t_b / o_b:.2f} | "
+                     f"{1e3 * t_s:.3f} ms | {1e3 * o_s:.3f} ms | {t_s / o_s:.2f} |")
+    return lines
 
 
 TRAIN_BATCHES = (4096, 100_000)
@@ -121,6 +162,8 @@ def markdown_section(env: dict, timer: Timer, batch: dict, small: dict, flops: d
              "|---|---|---:|---:|---:|---:|"]
     for row, t in batch.items():
         model, _, path = row.partition(", ")
+        if path == ONNX:
+            continue  # onnx_section
         cost = f"{flops[model]:,}" if path == "specialized" else "—"
         lines.append(f"| {model} | {path or 'network'} | {fmt_rate(BATCH / t.seconds)} | {ggx / t.seconds:.2f} | "
                      f"{1e3 * small[row].seconds:.3f} ms | {cost} |")
@@ -133,7 +176,8 @@ def markdown_section(env: dict, timer: Timer, batch: dict, small: dict, flops: d
 
 def document(env: dict, timer: Timer, batch: dict, small: dict, flops: dict, training: dict, compile_s: dict,
              command: str) -> str:
-    lines = markdown_section(env, timer, batch, small, flops, command) + training_section(training, compile_s)
+    lines = markdown_section(env, timer, batch, small, flops, command) + training_section(training, compile_s) \
+        + onnx_section(batch, small)
     return "\n".join(lines) + "\n"
 
 
