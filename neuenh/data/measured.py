@@ -15,7 +15,8 @@ measurement table (CSV)    UTF-8 text whose header names         ``TableMaterial
 The file name and extension play no part. (Image-based captures — a folder of EXR images — hold
 one material per texel and have their own reader, ``neuenh.data.capture.read_capture``.) Every material has ``.name``, ``.isotropic``,
 ``.metadata`` and ``.samples(n, seed)``; continuous ones also ``.evaluate(wi, wo)`` -> f_r (n, 3)
-without the cosine, and their samples are Rusinkiewicz-uniform. ``name`` renames an RGL, MERL or
+without the cosine, and their samples are Rusinkiewicz-uniform unless ``.samples(n, seed, sampling)``
+asks for more (``neuenh.data.directions.Sampling``: near-mirror pairs, every azimuth). ``name`` renames an RGL, MERL or
 table material (default: the file's stem) and *selects* the network of an NBRDF file, where it is
 required unless the file holds a single network. Anything else is a ``DataError`` naming the file.
 """

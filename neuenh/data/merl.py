@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import os
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -39,7 +39,7 @@ import numpy as np
 import torch
 
 from .errors import DataError, read_bytes
-from .directions import from_rusinkiewicz, sample_directions, to_rusinkiewicz
+from .directions import Sampling, from_rusinkiewicz, to_rusinkiewicz
 
 N_THETA_H, N_THETA_D, N_PHI_D = 90, 90, 180
 DIMS = (N_THETA_H, N_THETA_D, N_PHI_D)
@@ -185,21 +185,30 @@ class MERLMaterial:
         f[~above] = 0.0
         return torch.from_numpy(f)
 
-    def samples(self, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``n`` Rusinkiewicz-uniform pairs (phi_h = 0) that fall into valid bins, and their f_r."""
+    def samples(self, n: int, seed: int, sampling: Sampling = Sampling()
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``n`` pairs drawn as ``sampling`` says (by default Rusinkiewicz-uniform at phi_h = 0)
+        that fall into valid bins, and their f_r."""
         if n == 0 or self._valid.all():
-            wi, wo = sample_directions(n, seed=seed, anisotropic=False)
+            wi, wo = sampling.directions(n, seed, True)
             return wi, wo, self.evaluate(wi, wo)
         if not self._valid.any():
             raise ValueError(f"MERL material {self.name!r} has no valid bin to sample")
+        # Valid pairs of each kind apart, so rejecting invalid bins keeps the near-mirror share.
+        near = int(round(n * sampling.near_mirror))
+        wi, wo = (torch.cat(parts) for parts in zip(
+            self._valid_pairs(n - near, seed, replace(sampling, near_mirror=0.0)),
+            self._valid_pairs(near, seed ^ 0x4D4952, replace(sampling, near_mirror=1.0))))
+        return wi, wo, self.evaluate(wi, wo)
+
+    def _valid_pairs(self, n: int, seed: int, sampling: Sampling) -> tuple[torch.Tensor, torch.Tensor]:
         m = n
         while m < 1024 * n + 10_000_000:  # deterministic in (n, seed): draw more until enough are valid
             m = 2 * m
-            wi, wo = sample_directions(m, seed=seed, anisotropic=False)
+            wi, wo = sampling.directions(m, seed, True)
             keep = self.valid(wi, wo)
             if int(keep.sum()) >= n:
-                wi, wo = wi[keep][:n], wo[keep][:n]
-                return wi, wo, self.evaluate(wi, wo)
+                return wi[keep][:n], wo[keep][:n]
         raise ValueError(f"MERL material {self.name!r}: too few valid bins above the horizon to draw {n} samples")
 
 

@@ -32,7 +32,7 @@ import torch
 
 from .errors import DataError
 from .merl import as_directions as _as_directions
-from .directions import sample_directions, to_rusinkiewicz
+from .directions import Sampling, to_rusinkiewicz
 
 LAYERS = ("W1", "b1", "W2", "b2", "W3", "b3")
 
@@ -82,9 +82,11 @@ class NBRDFMaterial:
         f = self.forward(network_input(wi, wo))
         return torch.where(above, f, torch.zeros_like(f))
 
-    def samples(self, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``n`` Rusinkiewicz-uniform pairs (phi_h = 0) and their f_r."""
-        wi, wo = sample_directions(n, seed=seed, anisotropic=False)
+    def samples(self, n: int, seed: int, sampling: Sampling = Sampling()
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``n`` pairs drawn as ``sampling`` says (by default Rusinkiewicz-uniform at phi_h = 0)
+        and their f_r."""
+        wi, wo = sampling.directions(n, seed, self.isotropic)
         return wi, wo, self.evaluate(wi, wo)
 
 

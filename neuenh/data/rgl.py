@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from .errors import DataError, read_bytes
-from .directions import sample_directions
+from .directions import Sampling
 
 MAGIC = b"tensor_file\x00"
 VERSION = (1, 0)
@@ -380,8 +380,9 @@ class RGLMaterial:
         cos_o = torch.as_tensor(wo).detach().to("cpu", torch.float64)[:, 2:3]
         return torch.where(above, value / torch.where(above, cos_o, torch.ones_like(cos_o)), torch.zeros_like(value))
 
-    def samples(self, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        wi, wo = sample_directions(n, seed=seed, anisotropic=not self.isotropic)
+    def samples(self, n: int, seed: int, sampling: Sampling = Sampling()
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        wi, wo = sampling.directions(n, seed, self.isotropic)
         return wi, wo, self.evaluate(wi, wo)
 
     def _eval_chunk(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ from typing import Callable, Protocol, Sequence
 
 import torch
 
-from .directions import sample_directions
+from .directions import Sampling, sample_directions
 
 
 class Material(Protocol):
@@ -83,14 +83,16 @@ class Samples:
 
 
 def sample_materials(materials: Sequence[Material], n: int, seed: int,
-                     check: Callable[[], None] | None = None) -> Samples:
+                     check: Callable[[], None] | None = None, sampling: Sampling | None = None) -> Samples:
     """``n`` samples of each material, seeded per material so adding one changes no other;
-    ``check()`` runs before each material (it may raise to abandon the work)."""
+    ``check()`` runs before each material (it may raise to abandon the work). ``sampling``: how
+    continuous materials draw their pairs (tables have their rows; leave it None for them)."""
     wis, wos, fs, ids = [], [], [], []
+    extra = () if sampling is None else (sampling,)
     for i, material in enumerate(materials):
         if check is not None:
             check()
-        wi, wo, f = material.samples(n, seed=seed * 100_003 + i)
+        wi, wo, f = material.samples(n, seed * 100_003 + i, *extra)
         wis.append(wi)
         wos.append(wo)
         fs.append(f)

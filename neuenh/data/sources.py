@@ -44,6 +44,7 @@ from .errors import DataError
 from .capture import read_capture
 from .measured import detect_format, load_measured
 from .nbrdf import load_nbrdf, nbrdf_material
+from .directions import MIRROR_DEG, Sampling
 from .samples import Samples, sample_materials
 from .synthetic import ZOO_FAMILIES, synthetic_ggx, synthetic_zoo
 
@@ -66,7 +67,21 @@ class _Source(BaseModel):
         return materials
 
 
-class SyntheticZoo(_Source):
+class _Continuous(_Source):
+    """A source of continuous materials, which can draw its pairs anywhere (``Sampling``)."""
+
+    near_mirror: float = Field(0.0, ge=0.0, le=1.0, description=(
+        "share of each material's pairs drawn near the mirror direction (half vector within "
+        f"{MIRROR_DEG:g} degrees of the normal); the rest Rusinkiewicz-uniform"))
+    every_azimuth: bool = Field(False, description=(
+        "isotropic materials over every azimuth phi_h too, not only phi_h = 0"))
+
+    @property
+    def sampling(self) -> Sampling:
+        return Sampling(self.near_mirror, self.every_azimuth)
+
+
+class SyntheticZoo(_Continuous):
     """Materials plain GGX cannot represent (neuenh.data.synthetic.synthetic_zoo)."""
 
     source: Literal["synthetic_zoo"]
@@ -81,10 +96,10 @@ class SyntheticZoo(_Source):
     def build(self, check: Callable[[], None] | None = None) -> Samples:
         families = tuple(self.families) if self.families else None
         return sample_materials(self._named(synthetic_zoo(self.materials, self.seed, families)), self.samples,
-                                self.seed, check=check)
+                                self.seed, check=check, sampling=self.sampling)
 
 
-class SyntheticGGX(_Source):
+class SyntheticGGX(_Continuous):
     """The paper's anisotropic GGX materials with multiplicative N(1, noise) noise."""
 
     source: Literal["synthetic_ggx"]
@@ -93,7 +108,7 @@ class SyntheticGGX(_Source):
 
     def build(self, check: Callable[[], None] | None = None) -> Samples:
         return sample_materials(self._named(synthetic_ggx(self.materials, self.seed, self.noise)), self.samples,
-                                self.seed, check=check)
+                                self.seed, check=check, sampling=self.sampling)
 
 
 # -- measured files --------------------------------------------------------------------------
@@ -126,7 +141,7 @@ def _load(path: str, kind: str):
     return load_measured(path)
 
 
-class NBRDFSource(_Files):
+class NBRDFSource(_Files, _Continuous):
     """Networks of an NBRDF weights file (Sztrajman et al. 2021; a stand-in for MERL)."""
 
     source: Literal["nbrdf"]
@@ -147,7 +162,8 @@ class NBRDFSource(_Files):
             materials = list(load_nbrdf(self.path).values())
         else:
             materials = [nbrdf_material(self.path, name) for name in self.materials]
-        return sample_materials(self._named(materials), self.samples, self.seed, check=check)
+        return sample_materials(self._named(materials), self.samples, self.seed, check=check,
+                                sampling=self.sampling)
 
 
 class _PathsSource(_Files):
@@ -159,19 +175,21 @@ class _PathsSource(_Files):
     def _no_duplicates(cls, v):
         return _unique(v, "paths")
 
+
+class _MeasuredPaths(_PathsSource, _Continuous):
     def build(self, check: Callable[[], None] | None = None) -> Samples:
         materials = self._named([_load(p, self._kind) for p in self.paths])
-        return sample_materials(materials, self.samples, self.seed, check=check)
+        return sample_materials(materials, self.samples, self.seed, check=check, sampling=self.sampling)
 
 
-class MERLSource(_PathsSource):
+class MERLSource(_MeasuredPaths):
     """MERL ``.binary`` tables (nearest-bin lookup, invalid bins never sampled)."""
 
     source: Literal["merl"]
     _kind = "merl"
 
 
-class RGLSource(_PathsSource):
+class RGLSource(_MeasuredPaths):
     """EPFL RGL ``.bsdf`` measurements (the paper's validation set)."""
 
     source: Literal["rgl"]

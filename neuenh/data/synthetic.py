@@ -19,7 +19,7 @@ import torch
 
 from ..models.ggx import ggx_distribution, ggx_shadowing
 from ..shading import COS_EPS, Shading, make_shading
-from .directions import sample_directions
+from .directions import Sampling
 
 Evaluate = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
@@ -41,9 +41,10 @@ class AnalyticMaterial:
         f = self.evaluate_fn(wi, wo)
         return torch.where(above, f, torch.zeros_like(f))
 
-    def samples(self, n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``n`` Rusinkiewicz-uniform measurements (wi, wo, f_r), noisy if ``noise_sigma``."""
-        wi, wo = sample_directions(n, seed=seed, anisotropic=not self.isotropic)
+    def samples(self, n: int, seed: int, sampling: Sampling = Sampling()
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``n`` measurements (wi, wo, f_r) drawn as ``sampling`` says, noisy if ``noise_sigma``."""
+        wi, wo = sampling.directions(n, seed, self.isotropic)
         f = self.evaluate(wi, wo)
         if self.noise_sigma:
             generator = torch.Generator().manual_seed(seed ^ 0x5EED)

@@ -150,3 +150,24 @@ def test_sources_round_trip_through_json(files):
     for fields in kinds(files).values():
         s = source(**fields)
         assert source(**json.loads(s.model_dump_json())) == s
+
+
+@pytest.mark.parametrize("kind", ["nbrdf", "merl", "synthetic_zoo"])
+def test_continuous_sources_draw_near_mirror_pairs_and_every_azimuth_when_asked(files, kind):
+    fields = kinds(files).get(kind, dict(source="synthetic_zoo", materials=2, samples=40, seed=1))
+    plain = source(**fields).build()
+    aimed = source(**fields, near_mirror=0.5, every_azimuth=True).build()
+    assert aimed.names == plain.names and len(aimed) == len(plain)
+    h = aimed.wi + aimed.wo
+    cos_h = h[:, 2] / torch.linalg.vector_norm(h, dim=1)
+    for i in range(len(aimed.names)):
+        rows = aimed.material == i
+        assert int((cos_h[rows] >= np.cos(np.radians(10))).sum()) >= 20  # at least the half asked for
+    assert h[:, 1].abs().max() > 0.1  # off phi_h = 0 (the isotropic ones were all at phi_h = 0 before)
+    assert torch.isfinite(aimed.f_r).all() and (aimed.f_r >= 0).all()
+
+
+@pytest.mark.parametrize("kind", ["table", "exr_capture"])
+def test_stored_rows_cannot_be_drawn_near_the_mirror(files, kind):
+    with pytest.raises(ValidationError, match="near_mirror"):
+        source(**kinds(files)[kind], near_mirror=0.5)
