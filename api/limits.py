@@ -75,7 +75,7 @@ def estimated_bytes(spec: JobSpec) -> int:
 def module_weights(spec: JobSpec, hidden: list[int]) -> int:
     """Weights of the largest module of that hidden shape: the widest input is a term module's
     (all parameters, the latent and both directions), the widest output 3 (RGB)."""
-    widths = [get_model(spec.model).specs.total_width + spec.latent_dim + 6, *hidden, 3]
+    widths = [spec.model_instance().module_specs.total_width + spec.latent_dim + 6, *hidden, 3]
     return sum(a * b + b for a, b in zip(widths[:-1], widths[1:]))
 
 

@@ -4,6 +4,8 @@ response is one of these ``*Public`` models, built from a record by its ``from_r
 from __future__ import annotations
 
 import dataclasses
+import functools
+import json
 
 from datetime import datetime, timezone
 from typing import Any
@@ -65,6 +67,34 @@ def valid_text(value: Any) -> Any:
     return value
 
 
+@dataclasses.dataclass(frozen=True)
+class Naming:
+    """How a job's states read: its model's positions and, by digit, each position's choices."""
+
+    positions: tuple[str, ...]
+    choices: dict[str, tuple[str, ...]]
+    names: dict[tuple[str, int], str]  # (position, digit) -> choice name, empty for binary states
+
+    @staticmethod
+    def of(spec: dict) -> "Naming":
+        return _naming(json.dumps(spec, sort_keys=True))
+
+    def change(self, parent: str, state: str) -> str:
+        return describe_change(parent, state, self.positions, self.names)
+
+
+@functools.lru_cache(maxsize=256)
+def _naming(spec_json: str) -> Naming:
+    spec = json.loads(spec_json)
+    try:  # the spec's own model: its module choices and alternatives
+        model = JobSpec.model_validate(spec).model_instance()
+    except (ValueError, TypeError):  # a stored spec this version no longer accepts: the plain model
+        from neuenh.models import get_model
+
+        model = get_model(spec.get("model", "ggx"))
+    return Naming(model.positions, {p: model.choices(p) for p in model.positions}, model.choice_names())
+
+
 class JobPublic(BaseModel):
     id: str
     name: str | None
@@ -86,16 +116,19 @@ class JobPublic(BaseModel):
     links: Links
     positions: list[str] = Field(default_factory=list,
                                  description="the model's position names, one per digit of a state string")
+    choices: dict[str, list[str]] = Field(default_factory=dict, description=(
+        "each position's choices by digit: 0 the original term, then the neural modules (mlpW-W-W), then "
+        "alternative analytical terms when the spec offers them (e.g. D: ggx, mlp16-32-16, beckmann, ...)"))
 
     @classmethod
     def from_record(cls, job: JobRecord, base: str = "/v1", progress: Progress | None = None) -> "JobPublic":
-        from neuenh.models import get_model  # builds a small graph: ~50 us, no cache needed
-
         url = f"{base}/jobs/{job.id}"
         spec = valid_text(job.spec)  # a store written before specs were checked may hold lone surrogates
         model = spec.get("model", "ggx")
+        naming = Naming.of(spec)
         return cls(
-            id=job.id, name=spec.get("name"), model=model, positions=list(get_model(model).positions),
+            id=job.id, name=spec.get("name"), model=model, positions=list(naming.positions),
+            choices={p: list(c) for p, c in naming.choices.items()},
             status=job.status,
             terminal=job.terminal, error=job.error, reason=job.reason, priority=int(spec.get("priority", 0)),
             used_wall_s=job.used_wall_s, used_cpu_s=job.used_cpu_s, created_at=_time(job.created_at),
@@ -127,8 +160,8 @@ class CandidatePublic(BaseModel):
     seed: int | None
 
     @classmethod
-    def from_record(cls, c: CandidateRecord, r: RoundRecord, positions: list[str]) -> "CandidatePublic":
-        return cls(state=c.state, change=describe_change(r.parent_state, c.state, positions), ok=c.ok,
+    def from_record(cls, c: CandidateRecord, r: RoundRecord, naming: "Naming") -> "CandidatePublic":
+        return cls(state=c.state, change=naming.change(r.parent_state, c.state), ok=c.ok,
                    winner=c.state == r.winner_state, pruned=c.pruned, train_loss=c.train_loss,
                    val_loss=c.val_loss, epochs=c.epochs, wall_s=c.wall_s, node=c.node, error=c.error,
                    seed=c.seed)
@@ -168,15 +201,15 @@ class RoundPublic(BaseModel):
     extra: dict[str, Any]
 
     @classmethod
-    def from_record(cls, r: RoundRecord, positions: list[str], start: float | None) -> "RoundPublic":
+    def from_record(cls, r: RoundRecord, naming: "Naming", start: float | None) -> "RoundPublic":
         return cls(round=r.index, kind=r.kind, parent_state=r.parent_state, winner_state=r.winner_state,
-                   change=describe_change(r.parent_state, r.winner_state, positions),
+                   change=naming.change(r.parent_state, r.winner_state),
                    winner_val_loss=r.winner_val_loss, gain_over_start=_gain(r.winner_val_loss, start),
                    converged=r.converged, outcome=r.outcome,
                    warmup=WarmupPublic.from_record(r.warmup) if r.warmup else None, recovered=r.recovered,
                    started_at=_time(r.started_at), finished_at=_time(r.finished_at),
                    wall_s=r.finished_at - r.started_at,
-                   candidates=[CandidatePublic.from_record(c, r, positions) for c in r.candidates],
+                   candidates=[CandidatePublic.from_record(c, r, naming) for c in r.candidates],
                    extra=r.extra)
 
 
@@ -200,16 +233,14 @@ class HistoryPublic(BaseModel):
         """``rounds``: the job's committed rounds from ``since_round`` on. ``round0`` (the gain's
         reference) and ``last`` (the job's last committed round) default to ``rounds``' own first
         and last, so a caller passes them only when ``rounds`` does not hold them."""
-        from neuenh.models import get_model
-
-        positions = list(get_model(job.spec.get("model", "ggx")).positions)
+        naming = Naming.of(valid_text(job.spec))
         round0 = round0 or (rounds[0] if rounds and rounds[0].index == 0 else None)
         last = last or (rounds[-1] if rounds else None)
         start = start_val_loss(round0)
         return cls(job_id=job.id, status=job.status, terminal=job.terminal, reason=job.reason,
                    current_state=job.current_state,
                    start_val_loss=start, gain_over_start=_gain(last.winner_val_loss, start) if last else None,
-                   rounds=[RoundPublic.from_record(r, positions, start) for r in rounds],
+                   rounds=[RoundPublic.from_record(r, naming, start) for r in rounds],
                    next_since_round=rounds[-1].index + 1 if rounds else since_round)
 
 

@@ -2,8 +2,9 @@
 
 A bundle directory holds
 
-* ``model.json``: model name, positions, state, module choices, latent size, parameter specs,
-  training config, provenance and metrics;
+* ``model.json``: model name, positions, state, module choices, whether alternative terms are
+  offered (and every position's choices by name), latent size, parameter specs, training config,
+  provenance and metrics;
 * ``weights.safetensors``: the neural modules' weights (keys ``<position>.layers.<i>.weight``);
 * ``materials.safetensors``: per-material parameters (raw analytical values and latent), the
   material names in its metadata. Optional: a shipped model may carry none.
@@ -56,9 +57,10 @@ class Bundle:
         material_names: list[str] | tuple[str, ...],
         module_config: ModuleConfig = ModuleConfig(),
         latent_dim: int = 27,
+        alternatives: bool = False,
     ) -> "Bundle":
         """The all-zero analytical model with every material at the paper's initial values."""
-        model = get_model(model_name, module_config=module_config, latent_dim=latent_dim)
+        model = get_model(model_name, module_config=module_config, latent_dim=latent_dim, alternatives=alternatives)
         return cls(model, MaterialTable(model.specs, material_names, latent_dim))
 
     # -- description -------------------------------------------------------------------------
@@ -72,10 +74,13 @@ class Bundle:
             "state": m.state,
             "formula": m.describe(),
             "module_config": m.module_config.to_json(),
+            "alternatives": m.has_alternatives,
+            "choices": {p: list(m.choices(p)) for p in m.positions},  # by digit, for people
             "latent_dim": m.latent_dim,
             "n_weights": m.n_weights(),
+            "params_per_material": m.n_material_params(),
             "param_specs": [
-                {"name": s.name, "width": s.width, "low": s.low, "high": s.high, "scale": s.scale}
+                {"name": s.name, "width": s.width, "low": s.low, "high": s.high, "scale": s.scale, "init": s.init}
                 for s in m.specs
             ],
             "materials": list(self.materials.names) if self.materials is not None else [],
@@ -158,6 +163,7 @@ class Bundle:
                 state=meta["state"],
                 module_config=ModuleConfig.from_json(meta["module_config"]),
                 latent_dim=int(meta["latent_dim"]),
+                alternatives=bool(meta.get("alternatives", False)),  # bundles before alternatives: none
             )
         except (KeyError, ValueError, TypeError) as exc:
             raise BundleError(f"{where}: {exc}") from None

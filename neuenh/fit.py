@@ -94,13 +94,14 @@ class FitResult:
         """The fit as plain data (``neuenh fit --json`` and ``POST /v1/jobs/{id}/fit``): per material
         its loss, sample count and fitted parameters (the latent code only if the model uses it)."""
         counts = torch.bincount(samples.material, minlength=len(self.materials)).tolist()
+        used = set(model.used_specs().names)  # not the parameters of alternatives the state does not read
         return {
             "model": model.name, "state": model.state, "method": method, "epochs": self.epochs,
             "wall_s": round(self.wall_s, 3),
             "materials": [
                 {"name": name, "loss": self.losses[i], "samples": counts[i],
                  "params": {k: [round(x, 6) for x in v.tolist()] for k, v in self.materials.as_params(i).items()
-                            if k != "latent" or model.uses_latent}}
+                            if k in used or (k == "latent" and model.uses_latent)}}
                 for i, name in enumerate(self.materials.names)],
         }
 
@@ -135,15 +136,15 @@ def fit_materials(
         raise ValueError("no samples to fit")
     start = time.perf_counter()
     paper_start = MaterialTable(model.specs, samples.names, model.latent_dim)
-    if not any(model.digits) and config.method == "fast":
+    if not model.has_modules and config.method == "fast":
         result = fit_plain(model, samples, config, trace_every=trace_every)
         result.wall_s = time.perf_counter() - start
         return result
-    if config.starts == "paper" or not any(model.digits):
+    if config.starts == "paper" or not model.has_modules:
         (result,) = fit_starts(model, samples, [paper_start], config, seed=seed, trace_every=trace_every)
         result.wall_s = time.perf_counter() - start
         return result
-    analytical = model.enhance("0" * len(model.positions), seed)
+    analytical = model.enhance(model.analytical_state(), seed)
     if config.method == "fast":
         # The old protocol's base (Adam), not fit_plain's lower-loss one: the imitations start from
         # it, and from fit_plain's they failed more often (GGX + residual on ilm_solo_m_68: 0.062
@@ -222,7 +223,7 @@ def fit_starts(
                 for i, table in enumerate(starts)]
     start_time = time.perf_counter()
     stacked, table = _stack(samples, starts)
-    if any(model.digits):
+    if model.has_modules:
         _, _, trace = adam_rows(model, stacked, table, config, trace_every=trace_every)
         iterations = config.resolved_epochs
     else:

@@ -6,10 +6,19 @@ operands. Every term and operator is a *position*; positions are ordered terms f
 right), then operators bottom-up, and that order never changes, so state strings and checkpoints
 reproduce.
 
-An *enhancement state* is one digit per position (paper Sec. 4.1): 0 keeps the original term or
-operator, digit k >= 1 replaces it with neural module choice k (see ``modules.ModuleConfig``).
-``BRDFModel`` is the torch module of one state: the analytical graph plus the neural modules its
-non-zero digits call for. Per-material parameters live outside it (``materials.MaterialTable``).
+An *enhancement state* is one digit per position (paper Sec. 4.1, with its m-ary extension): the
+digit picks one of the position's *choices*, in this order —
+
+* 0: the original term or operator;
+* 1..K: a neural module, ``modules.ModuleConfig.choices[k - 1]`` (K = 1 by default: the paper's);
+* K+1..: the term's alternative analytical formulas (``Term.alternatives``, e.g. Beckmann or a
+  Student-t distribution at GGX's D; ``models.alternatives``), each with its own extra
+  per-material parameters. Operators have no alternatives.
+
+So a model without alternatives and one module size has the paper's binary states, unchanged.
+``BRDFModel`` is the torch module of one state: the analytical graph with the chosen alternatives
+substituted (``Graph.substitute``, a graph rewrite) plus the neural modules its neural digits call
+for. Per-material parameters live outside it (``materials.MaterialTable``).
 """
 
 from __future__ import annotations
@@ -22,7 +31,7 @@ import torch
 from torch import nn
 
 from .modules import ModuleConfig, NeuralModule, module_seed
-from .params import ParamSpecs
+from .params import ParamSpec, ParamSpecs
 from .shading import Shading, make_shading
 
 if TYPE_CHECKING:
@@ -36,12 +45,26 @@ LATENT = "latent"  # the key of the neural (latent) parameters in a params mappi
 
 @dataclass(frozen=True, eq=False)
 class Term:
-    """A leaf of the graph: one semantic term and its analytic formula."""
+    """A leaf of the graph: one semantic term and its analytic formula.
+
+    ``alternatives``: other analytical formulas a state may choose at this position, each a Term
+    of the same name with its own ``choice`` name, formula, ``reads_directions`` and the extra
+    per-material ``params`` it reads; none may be wider than this term (whose width is the
+    position's: an RGB position may hold a scalar formula, which broadcasts)."""
 
     name: str
     width: int  # 1 (scalar) or 3 (RGB)
     formula: Callable[[Shading], torch.Tensor]  # Shading -> (n, width)
     reads_directions: bool  # its module then also reads wi, wo (paper Fig. 4, left vs centre)
+    choice: str = "original"  # this formula's name among the position's choices
+    params: tuple[ParamSpec, ...] = ()  # per-material parameters it reads beyond the model's own
+    alternatives: tuple["Term", ...] = ()
+
+    def __post_init__(self) -> None:
+        for alt in self.alternatives:
+            if alt.name != self.name or alt.width > self.width or alt.alternatives:
+                raise ValueError(f"alternative {alt.choice!r} of {self.name}: same name, no wider than "
+                                 f"{self.width}, no alternatives of its own")
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,8 +126,22 @@ class Graph:
     def __len__(self) -> int:
         return len(self.positions)
 
-    def parse_state(self, state: str | None, digits: int) -> tuple[int, ...]:
-        """State string -> digits, with an error that names what is wrong."""
+    def substitute(self, terms: Mapping[str, Term]) -> Expr:
+        """The tree with the leaves named in ``terms`` replaced (same names, so the same positions)."""
+        if not terms:
+            return self.root
+
+        def rebuild(expr: Expr) -> Expr:
+            if isinstance(expr, Term):
+                return terms.get(expr.name, expr)
+            return Operator(expr.op, rebuild(expr.left), rebuild(expr.right))
+
+        return rebuild(self.root)
+
+    def parse_state(self, state: str | None, digits: int | Sequence[int]) -> tuple[int, ...]:
+        """State string -> digits, with an error that names what is wrong. ``digits``: how many
+        choices each position has (one number for all, or one per position)."""
+        counts = (digits,) * len(self) if isinstance(digits, int) else tuple(digits)
         if state is None:
             return (0,) * len(self)
         if not isinstance(state, str) or len(state) != len(self):
@@ -113,11 +150,11 @@ class Graph:
                 f"{', '.join(self.names)}), got {state!r}"
             )
         out = []
-        for name, ch in zip(self.names, state.lower()):
+        for name, ch, count in zip(self.names, state.lower(), counts):
             d = _DIGITS.find(ch)
-            if not 0 <= d < digits:
+            if not 0 <= d < count:
                 raise ValueError(
-                    f"state {state!r}: digit {ch!r} at position {name} is not in 0..{digits - 1}"
+                    f"state {state!r}: digit {ch!r} at position {name} is not in 0..{count - 1}"
                 )
             out.append(d)
         return tuple(out)
@@ -126,13 +163,17 @@ class Graph:
     def format_state(digits: Sequence[int]) -> str:
         return "".join(_DIGITS[d] for d in digits)
 
-    def describe(self, digits: Sequence[int] | None = None) -> str:
-        """The formula with neural replacements marked by a hat: ``M + (((S*D)*F^)*^G^)*invE^``."""
+    def describe(self, digits: Sequence[int] | None = None,
+                 mark_digit: Callable[[str, int], str] | None = None) -> str:
+        """The formula with neural replacements marked by a hat: ``M + (((S*D)*F^)*^G^)*invE^``.
+        ``mark_digit(position, digit)``: the mark of a non-zero digit (default ``^``, ``^k``)."""
         digits = digits or (0,) * len(self)
 
         def mark(name: str) -> str:
             d = digits[self.index[name]]
-            return "" if d == 0 else ("^" if d == 1 else f"^{d}")
+            if d == 0:
+                return ""
+            return mark_digit(name, d) if mark_digit else ("^" if d == 1 else f"^{d}")
 
         def render(expr: Expr, top: bool) -> str:
             if isinstance(expr, Term):
@@ -148,6 +189,11 @@ class BRDFModel(nn.Module):
 
     The stable Python API (DESIGN §4): ``positions``, ``param_names`` and
     ``evaluate(wi, wo, params, state=None) -> (n, 3)`` f_r without the cosine factor.
+
+    Parameters: ``module_specs`` are the model's own (the paper's 12 for GGX): every neural module
+    reads them. ``specs`` adds the extra parameters of every alternative the graph offers, in
+    position order; every material carries them all (so a search's candidates share one material
+    table), but only the chosen alternatives read theirs (``used_specs``).
     """
 
     def __init__(
@@ -166,14 +212,23 @@ class BRDFModel(nn.Module):
             raise ValueError(f"latent_dim must be >= 0, got {latent_dim}")
         self.name = name
         self.graph = graph
-        self.specs = specs
+        self.module_specs = specs
+        extras: dict[str, ParamSpec] = {}
+        for expr in graph.positions:
+            for alt in getattr(expr, "alternatives", ()):
+                for spec in alt.params:
+                    if spec.name in specs or extras.get(spec.name, spec) != spec:
+                        raise ValueError(f"parameter {spec.name!r} of {expr.name}[{alt.choice}] clashes with another")
+                    extras[spec.name] = spec
+        self.specs = ParamSpecs([*specs, *extras.values()]) if extras else specs
         self.module_config = module_config
         self.latent_dim = latent_dim
-        self.digits = graph.parse_state(state, module_config.digits)
+        self.digits = graph.parse_state(state, self.digit_counts)
         self.neural = nn.ModuleDict()
         for position, digit in zip(graph.names, self.digits):
-            if digit:
+            if self.is_neural(digit):
                 self.neural[position] = self.fresh_module(position, digit, seed)
+        self._roots: dict[tuple[int, ...], Expr] = {}
 
     # -- what the model is ------------------------------------------------------------------
     @property
@@ -189,12 +244,84 @@ class BRDFModel(nn.Module):
         return self.graph.format_state(self.digits)
 
     @property
+    def has_alternatives(self) -> bool:
+        return any(isinstance(p, Term) and p.alternatives for p in self.graph.positions)
+
+    @property
+    def digit_counts(self) -> tuple[int, ...]:
+        """How many choices each position has: original, the neural modules, the alternatives."""
+        return tuple(self.module_config.digits + len(getattr(p, "alternatives", ())) for p in self.graph.positions)
+
+    def is_neural(self, digit: int) -> bool:
+        """Whether ``digit`` (at any position) selects a neural module."""
+        return 1 <= digit < self.module_config.digits
+
+    def choices(self, position: str) -> tuple[str, ...]:
+        """The names of ``position``'s choices, by digit: e.g. ``("ggx", "mlp16-32-16",
+        "beckmann", ...)`` for GGX's D with alternatives."""
+        expr = self.graph.positions[self.graph.index[position]]
+        original = expr.choice if isinstance(expr, Term) else ("add" if expr.op == "+" else "multiply")
+        neural = tuple("mlp" + "-".join(map(str, hidden)) for hidden in self.module_config.choices)
+        return (original, *neural, *(alt.choice for alt in getattr(expr, "alternatives", ())))
+
+    def choice_names(self) -> dict[tuple[str, int], str]:
+        """(position, digit) -> choice name for every non-zero digit: what a search trail shows
+        when digits mean more than "neural" (``search.describe_change``); empty for binary states."""
+        if not self.has_alternatives and self.module_config.digits == 2:
+            return {}
+        return {(p, d): name for p in self.positions for d, name in enumerate(self.choices(p)) if d}
+
+    def chosen_terms(self, digits: Sequence[int] | None = None) -> dict[str, Term]:
+        """Position -> the alternative Term ``digits`` choose there (only positions that choose one)."""
+        digits = self.digits if digits is None else digits
+        k = self.module_config.digits
+        return {expr.name: expr.alternatives[d - k] for expr, d in zip(self.graph.positions, digits)
+                if isinstance(expr, Term) and d >= k}
+
+    def expression(self, digits: Sequence[int] | None = None) -> Expr:
+        """The graph's root with the chosen alternatives substituted (neural positions keep their
+        original Term: the module replaces it when evaluated)."""
+        digits = tuple(self.digits if digits is None else digits)
+        if digits not in self._roots:
+            self._roots[digits] = self.graph.substitute(self.chosen_terms(digits))
+        return self._roots[digits]
+
+    def used_specs(self, digits: Sequence[int] | None = None) -> ParamSpecs:
+        """The parameters a state reads: the model's own and its chosen alternatives' extras."""
+        extra = {spec.name: spec for term in self.chosen_terms(digits).values() for spec in term.params}
+        return ParamSpecs([*self.module_specs, *extra.values()]) if extra else self.module_specs
+
+    def n_material_params(self, digits: Sequence[int] | None = None) -> int:
+        """Per-material parameters of a state: its used analytical ones plus the latent when a
+        module reads it (39 for the paper's enhanced GGX)."""
+        digits = self.digits if digits is None else digits
+        latent = self.latent_dim if _reads_latent(self, digits) else 0
+        return self.used_specs(digits).total_width + latent
+
+    @property
+    def has_modules(self) -> bool:
+        """Whether the state has neural modules (else it is an analytical formula, alternatives included)."""
+        return any(self.is_neural(d) for d in self.digits)
+
+    def analytical_state(self) -> str:
+        """This state with every neural module back to its original term (alternatives kept)."""
+        return self.graph.format_state([0 if self.is_neural(d) else d for d in self.digits])
+
+    @property
     def uses_latent(self) -> bool:
         """Whether some neural module replaces a term (and so reads the latent parameters)."""
-        return _reads_latent(self.graph, self.digits)
+        return _reads_latent(self, self.digits)
 
     def describe(self) -> str:
-        return self.graph.describe(self.digits)
+        """The formula with neural positions hatted and alternatives named: ``M + ((S * D[beckmann]) ...``."""
+        k = self.module_config.digits
+
+        def mark(position: str, digit: int) -> str:
+            if digit >= k:
+                return f"[{self.choices(position)[digit]}]"
+            return "^" if digit == 1 else f"^{digit}"
+
+        return self.graph.describe(self.digits, mark)
 
     def n_weights(self) -> int:
         return sum(p.numel() for p in self.neural.parameters())
@@ -204,7 +331,7 @@ class BRDFModel(nn.Module):
         expr = self.graph.positions[self.graph.index[position]]
         if isinstance(expr, Operator):
             return expr.left.width + expr.right.width
-        return self.specs.total_width + self.latent_dim + (6 if expr.reads_directions else 0)
+        return self.module_specs.total_width + self.latent_dim + (6 if expr.reads_directions else 0)
 
     def fresh_module(self, position: str, digit: int, seed: int) -> NeuralModule:
         expr = self.graph.positions[self.graph.index[position]]
@@ -223,17 +350,17 @@ class BRDFModel(nn.Module):
 
         Modules at positions whose digit is unchanged keep the parent's trained weights (copied);
         newly added or changed modules are freshly initialised from ``seed``; modules whose
-        position went back to 0 are dropped.
+        position went back to 0 or to an alternative are dropped.
         """
         child = BRDFModel(
-            self.name, self.graph, self.specs,
+            self.name, self.graph, self.module_specs,
             module_config=self.module_config, latent_dim=self.latent_dim,
         )
-        child.digits = self.graph.parse_state(state, self.module_config.digits)
+        child.digits = self.graph.parse_state(state, self.digit_counts)
         for position, old, new in zip(self.graph.names, self.digits, child.digits):
-            if new and new == old:
+            if self.is_neural(new) and new == old:
                 child.neural[position] = copy.deepcopy(self.neural[position])
-            elif new:
+            elif self.is_neural(new):
                 child.neural[position] = self.fresh_module(position, new, seed)
         return child
 
@@ -248,21 +375,34 @@ class BRDFModel(nn.Module):
         """f_r (n, 3), without the cosine factor, clipped at zero.
 
         ``wi, wo``: (n, 3) unit vectors in the local frame (z = geometric normal). ``params``:
-        physical values by name, each broadcastable to (n, width); an enhanced model whose
-        modules replace terms also needs ``latent`` (broadcastable to (n, latent_dim)).
-        ``state``: evaluate in another state; every non-zero digit must name a module this model
-        holds (e.g. the all-zero state of an enhanced model is the analytical formula).
+        physical values by name, each broadcastable to (n, width); the parameters of alternatives
+        the state does not choose may be left out. An enhanced model whose modules replace terms
+        also needs ``latent`` (broadcastable to (n, latent_dim)). ``state``: evaluate in another
+        state; every neural digit must name a module this model holds (e.g. the all-zero state of
+        an enhanced model is the analytical formula).
         """
         wi, wo = _check_directions(wi, wo)
         n = wi.shape[0]
-        values = self.specs.validate(params, n, extra=(LATENT,))
         digits = self.digits if state is None else self._held_digits(state)
+        values = self.specs.validate(self.complete_params(params, digits), n, extra=(LATENT,))
         latent = None
-        if self.latent_dim and _reads_latent(self.graph, digits):
+        if self.latent_dim and _reads_latent(self, digits):
             latent = self._check_latent(values.get(LATENT), n)
         values.pop(LATENT, None)
         values = {k: v.to(wi.dtype) for k, v in values.items()}
         return self.forward(wi, wo, values, latent, digits).clamp_min(0.0)
+
+    def complete_params(self, params: Mapping[str, torch.Tensor], digits: Sequence[int] | None = None
+                        ) -> dict[str, torch.Tensor]:
+        """``params`` with the parameters of alternatives the state does not read filled in (their
+        initial values), so a user names only what the state uses; a used one missing stays missing
+        (``ParamSpecs.validate`` names it)."""
+        used = set(self.used_specs(digits).names)
+        out = dict(params)
+        for spec in self.specs:
+            if spec.name not in out and spec.name not in used:
+                out[spec.name] = torch.full((spec.width,), spec.init)
+        return out
 
     def forward(
         self,
@@ -282,27 +422,28 @@ class BRDFModel(nn.Module):
         neural_terms = self._neural_term_outputs(digits, shading, values, latent)
 
         def term(expr: Term, digit: int) -> torch.Tensor:
-            return neural_terms[expr.name] if digit else expr.formula(shading)
+            return neural_terms[expr.name] if self.is_neural(digit) else expr.formula(shading)
 
         return self._combine(digits, term, shading.above)
 
     def _combine(self, digits: Sequence[int], term: Callable[[Term, int], torch.Tensor],
                  above: torch.Tensor) -> torch.Tensor:
-        """The graph's value from its terms' values (``term(expr, digit)``): operators combine
-        their operands, or their module does; exactly 0 below either horizon (``above`` false)."""
+        """The graph's value from its terms' values (``term(expr, digit)``, ``expr`` the chosen
+        formula's Term): operators combine their operands, or their module does; exactly 0 below
+        either horizon (``above`` false)."""
 
         def run(expr: Expr) -> torch.Tensor:
             digit = digits[self.graph.index[expr.name]]
             if isinstance(expr, Term):
                 return term(expr, digit)
             left, right = run(expr.left), run(expr.right)
-            if digit:
+            if self.is_neural(digit):
                 return self.neural[expr.name](
                     torch.cat([left.expand(-1, expr.left.width), right.expand(-1, expr.right.width)], dim=-1)
                 )
             return left + right if expr.op == "+" else left * right
 
-        out = run(self.graph.root).expand(-1, 3)
+        out = run(self.expression(digits)).expand(-1, 3)
         return torch.where(above, out, torch.zeros_like(out))
 
     def forward_indexed(
@@ -317,7 +458,7 @@ class BRDFModel(nn.Module):
         """``forward`` for samples of a table of materials, the training and fitting path.
 
         ``values``: physical values per *material*, (m, width) each; ``latent`` (m, latent_dim);
-        ``material`` (n,) the table row of each sample. Equals ``forward(wi, wo,
+        ``material`` (n,) the row of each sample. Equals ``forward(wi, wo,
         values[material], latent[material])`` up to float rounding, but what depends on the
         material alone is computed once per material: terms that read no direction (their
         formula or their module), and the first-layer contribution of the 12 + latent
@@ -327,10 +468,10 @@ class BRDFModel(nn.Module):
         # index_select, not [material]: its backward accumulates in a fixed order (bit-identical).
         shading = make_shading(wi, wo, {k: torch.index_select(v, 0, material) for k, v in values.items()})
         per_material = Shading(None, None, None, None, None, None, None, values, None)
-        modules_read = any(d and isinstance(p, Term) for p, d in zip(self.graph.positions, digits))
+        modules_read = _reads_latent(self, digits)
         material_input = None
         if modules_read:
-            parts = [self.specs.unit_vector(values).to(wi.dtype)]
+            parts = [self.module_specs.unit_vector(values).to(wi.dtype)]
             if self.latent_dim:
                 parts.append(latent.to(wi.dtype))
             material_input = torch.cat(parts, dim=-1)
@@ -338,7 +479,7 @@ class BRDFModel(nn.Module):
         m = material_input.shape[0] if modules_read else next(iter(values.values())).shape[0]
 
         def term(expr: Term, digit: int) -> torch.Tensor:
-            if digit:
+            if self.is_neural(digit):
                 return self.neural[expr.name].forward_indexed(
                     material_input, directions if expr.reads_directions else None, material)
             if not expr.reads_directions:  # a function of the parameters alone: per material
@@ -359,12 +500,12 @@ class BRDFModel(nn.Module):
         without directions) share one concatenated input."""
         groups: dict[bool, list[str]] = {}
         for expr, digit in zip(self.graph.positions, digits):
-            if digit and isinstance(expr, Term):
+            if self.is_neural(digit) and isinstance(expr, Term):
                 groups.setdefault(expr.reads_directions, []).append(expr.name)
         if not groups:
             return {}
         wi, wo = shading.wi.array, shading.wo.array
-        base = [self.specs.unit_vector(values).to(wi.dtype)]
+        base = [self.module_specs.unit_vector(values).to(wi.dtype)]
         if self.latent_dim:
             base.append(latent.to(wi.dtype))
         out: dict[str, torch.Tensor] = {}
@@ -381,9 +522,9 @@ class BRDFModel(nn.Module):
         return SpecializedBRDF(self, params)
 
     def _held_digits(self, state: str) -> tuple[int, ...]:
-        digits = self.graph.parse_state(state, self.module_config.digits)
+        digits = self.graph.parse_state(state, self.digit_counts)
         for position, digit, own in zip(self.graph.names, digits, self.digits):
-            if digit and digit != own:
+            if self.is_neural(digit) and digit != own:
                 raise ValueError(
                     f"state {state!r} asks for module {digit} at {position}, but this model holds "
                     f"{'no module' if not own else f'module {own}'} there (its state is {self.state!r})"
@@ -412,8 +553,9 @@ class BRDFModel(nn.Module):
             ) from None
 
 
-def _reads_latent(graph: Graph, digits: Sequence[int]) -> bool:
-    return any(d and isinstance(p, Term) for p, d in zip(graph.positions, digits))
+def _reads_latent(model: BRDFModel, digits: Sequence[int]) -> bool:
+    """Whether a neural module replaces a term in ``digits`` (term modules read the latent)."""
+    return any(model.is_neural(d) and isinstance(p, Term) for p, d in zip(model.graph.positions, digits))
 
 
 def _check_directions(wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -6,7 +6,8 @@ logarithmic axis for ``scale="log"``), so no optimiser step can leave the range.
 read the *unit* value, the position inside the range in ``[0, 1]``, which keeps their inputs
 well conditioned whatever the physical units.
 
-Initialisation follows the paper (Sec. 4.3): the mean of the valid range.
+Initialisation follows the paper (Sec. 4.3): the mean of the valid range (alternative terms'
+parameters may name another start).
 """
 
 from __future__ import annotations
@@ -31,17 +32,21 @@ class ParamSpec:
     high: float
     scale: Literal["linear", "log"] = "linear"
     doc: str = ""
+    start: float | None = None  # the initial value when not the range's mean (alternative terms)
 
     def __post_init__(self) -> None:
         if not self.high > self.low:
             raise ValueError(f"parameter {self.name}: empty range [{self.low}, {self.high}]")
         if self.scale == "log" and self.low <= 0:
             raise ValueError(f"parameter {self.name}: a log-scale range must be positive")
+        if self.start is not None and not self.low <= self.start <= self.high:
+            raise ValueError(f"parameter {self.name}: start {self.start} outside [{self.low}, {self.high}]")
 
     @property
     def init(self) -> float:
-        """The paper's initial value: the mean of the valid range."""
-        return 0.5 * (self.low + self.high)
+        """The paper's initial value, the mean of the valid range, unless ``start`` says otherwise
+        (an alternative term's parameters start where it equals, or nears, the original term)."""
+        return 0.5 * (self.low + self.high) if self.start is None else self.start
 
     def _axis(self, value: torch.Tensor) -> torch.Tensor:
         return torch.log(value) if self.scale == "log" else value

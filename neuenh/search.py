@@ -28,12 +28,18 @@ class Constraints:
     """Which states a search may visit.
 
     ``fixed``: position index -> the digit it must keep. ``allowed``: position index -> the digits
-    it may take (default: all of ``0..m-1``). ``max_neural``: at most this many non-zero digits.
+    it may take (default: all of ``0..m-1``). ``max_neural``: at most this many neural digits, which
+    are the digits in ``neural`` (default: every non-zero digit; with alternative analytical terms
+    the model's module digits, ``BRDFModel.is_neural``).
     """
 
     fixed: Mapping[int, int] = field(default_factory=dict)
     allowed: Mapping[int, frozenset[int]] = field(default_factory=dict)
     max_neural: int | None = None
+    neural: frozenset[int] | None = None
+
+    def n_neural(self, state: Digits) -> int:
+        return sum(1 for d in state if (d in self.neural if self.neural is not None else d))
 
     def digits_at(self, position: int, m: int) -> tuple[int, ...]:
         if position in self.fixed:
@@ -41,7 +47,7 @@ class Constraints:
         return tuple(d for d in range(m) if d in self.allowed.get(position, range(m)))
 
     def admits(self, state: Digits, m: int) -> bool:
-        if self.max_neural is not None and sum(1 for d in state if d) > self.max_neural:
+        if self.max_neural is not None and self.n_neural(state) > self.max_neural:
             return False
         return all(d in self.digits_at(i, m) for i, d in enumerate(state))
 
@@ -53,8 +59,12 @@ class Constraints:
         fixed: Mapping[str, int] | None = None,
         allowed: Mapping[str, Iterable[int]] | None = None,
         max_neural: int | None = None,
+        digit_counts: Sequence[int] | None = None,
+        neural: Iterable[int] | None = None,
     ) -> "Constraints":
-        """Constraints given by position name, as a job spec writes them."""
+        """Constraints given by position name, as a job spec writes them. ``digit_counts``: how many
+        choices each position has, when they differ (a position then never takes a digit beyond its
+        own); ``neural``: the digits that count towards ``max_neural``."""
         index = {name: i for i, name in enumerate(positions)}
 
         def resolve(name: str) -> int:
@@ -64,10 +74,15 @@ class Constraints:
 
         if max_neural is not None and max_neural < 0:
             raise ValueError(f"max_neural must be >= 0, got {max_neural}")
+        allowed_at = {resolve(k): frozenset(int(d) for d in v) for k, v in (allowed or {}).items()}
+        if digit_counts is not None and len(set(digit_counts)) > 1:
+            for i, count in enumerate(digit_counts):
+                allowed_at[i] = allowed_at.get(i, frozenset(range(count))) & frozenset(range(count))
         return cls(
             fixed={resolve(k): int(v) for k, v in (fixed or {}).items()},
-            allowed={resolve(k): frozenset(int(d) for d in v) for k, v in (allowed or {}).items()},
+            allowed=allowed_at,
             max_neural=max_neural,
+            neural=None if neural is None else frozenset(neural),
         )
 
 
@@ -76,7 +91,7 @@ def initial_state(n_positions: int, m: int, constraints: Constraints = Constrain
     state = tuple(constraints.fixed.get(i, 0) for i in range(n_positions))
     if not constraints.admits(state, m):
         raise ValueError(
-            f"no admissible start: the fixed positions need {sum(1 for d in state if d)} modules "
+            f"no admissible start: the fixed positions need {constraints.n_neural(state)} modules "
             f"or a digit outside the allowed ones"
         )
     return state

@@ -105,14 +105,14 @@ class SpecializedBRDF:
         self.model_name = model.name
         self.state = model.state
         self.formula = model.describe()
-        self._graph, self._digits = model.graph, model.digits
-        values = model.specs.validate(params, 1, extra=(LATENT,))
+        self.expression = model.expression()  # the tree evaluated: the chosen alternatives substituted
+        values = model.specs.validate(model.complete_params(params), 1, extra=(LATENT,))
         latent = values.pop(LATENT, None)
         if model.latent_dim and model.uses_latent:
             latent = model._check_latent(latent, 1)
         values = {k: v.detach().double() for k, v in values.items()}
         # Per-material inputs of term modules, as every module reads them (float64 for the fold).
-        per_material = [model.specs.unit_vector(values)]
+        per_material = [model.module_specs.unit_vector(values)]
         if model.latent_dim and model.uses_latent:
             per_material.append(latent.detach().double())
         material_input = torch.cat(per_material, dim=-1)[0]
@@ -120,9 +120,11 @@ class SpecializedBRDF:
         modules: dict[str, FoldedModule] = {}
         constants: dict[str, torch.Tensor] = {}
         param_shading = Shading(None, None, None, None, None, None, None, params, None, TORCH)
+        chosen = model.chosen_terms()
         for expr, digit in zip(model.graph.positions, model.digits):
+            expr = chosen.get(expr.name, expr)
             if isinstance(expr, Term):
-                if digit:
+                if model.is_neural(digit):
                     module = _fold(expr.name, model.neural[expr.name], material_input, expr.reads_directions)
                     if expr.reads_directions:
                         modules[expr.name] = module
@@ -131,7 +133,7 @@ class SpecializedBRDF:
                 elif not expr.reads_directions:
                     constants[expr.name] = _rows(expr.formula(param_shading), expr.width)
             else:
-                if digit:
+                if model.is_neural(digit):
                     modules[expr.name] = _fold(expr.name, model.neural[expr.name], None, True)
                 elif expr.left.name in constants and expr.right.name in constants:
                     left, right = constants[expr.left.name], constants[expr.right.name]
@@ -174,7 +176,7 @@ class SpecializedBRDF:
         rotate = (lambda w: w) if k.rotation is None else (lambda w: w @ k.rotation.t())
         s = shade(TORCH, BatchVec3(wi), BatchVec3(wo), BatchVec3(rotate(wi)), BatchVec3(rotate(wo)), k.params)
         directions = torch.cat([s.wi.array, s.wo.array], dim=-1) if k.modules else None
-        out = self._run(k, self._graph.root, s, directions)
+        out = self._run(k, self.expression, s, directions)
         out = out.expand(wi.shape[0], 3)
         return torch.where(s.above, out, 0.0).clamp_min(0.0)
 
@@ -223,7 +225,7 @@ class SpecializedBRDF:
             left, right = run(expr.left), run(expr.right)
             return left + right if expr.op == "+" else left * right
 
-        return xp.where(s.above, run(self._graph.root), 0.0)
+        return xp.where(s.above, run(self.expression), 0.0)
 
     def throughput(self, n: int = 100_000, seconds: float = 0.5, threads: int | None = 1) -> float:
         """Measured evaluations per second at batches of ``n`` random directions (on ``threads``

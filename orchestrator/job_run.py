@@ -15,7 +15,6 @@ import math
 import time
 from typing import Callable
 
-from neuenh.models import get_model
 from neuenh.search import Outcome, candidate_seed, hamming_ball, initial_state, keep_better_half, select, weight_cost
 from storage import (ArtifactStore, CandidateRecord, FinishedCandidate, HalvingRecord, JobStatus, JobStore, RoundKind,
                      RoundRecord, WarmupRecord)
@@ -67,7 +66,8 @@ class JobRun:
         self.resource_wait_s = resource_wait_s
         self.jobs, self.artifacts, self.executor = jobs, artifacts, executor
         self.on_progress, self.should_stop = on_progress, should_stop
-        self.graph = get_model(spec.model).graph
+        self.graph = spec.model_instance().graph
+        self.digit_counts = spec.model_instance().digit_counts
         self.digits = spec.digits()
         self.constraints = spec.constraints()
         self.resources = Resources(spec.resources.cpus_per_candidate, spec.resources.gpus_per_candidate)
@@ -353,7 +353,7 @@ class JobRun:
                                   time.perf_counter() - self.clock, message))
 
     def parse(self, state: str):
-        return self.graph.parse_state(state, self.digits)
+        return self.graph.parse_state(state, self.digit_counts)
 
     def format(self, digits) -> str:
         return self.graph.format_state(digits)

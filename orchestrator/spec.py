@@ -23,7 +23,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from neuenh.checkpoint import Bundle
 from neuenh.data.sources import DataSource
-from neuenh.models import available_models, get_model
+from neuenh.graph import BRDFModel
+from neuenh.models import available_models, get_model, models_with_alternatives
 from neuenh.modules import ModuleConfig
 from neuenh.search import Constraints
 from neuenh.train import TrainConfig
@@ -128,6 +129,9 @@ class JobSpec(_Strict):
         "queued jobs start highest priority first, in submission order within a priority"))
     budget: BudgetSpec = Field(default_factory=BudgetSpec)
     model: str = "ggx"
+    alternatives: bool = Field(False, description=(
+        "offer each term's alternative analytical formulas (e.g. Beckmann, Student-t at D; a conductor "
+        "Fresnel at F) as digits besides its neural modules (neuenh.models.alternatives)"))
     search: SearchSpec = Field(default_factory=SearchSpec)
     module: ModuleSpec = Field(default_factory=ModuleSpec)
     latent_dim: int = Field(27, ge=0)
@@ -157,32 +161,46 @@ class JobSpec(_Strict):
                 seen[key] = i
         if self.model not in available_models():
             raise ValueError(f"unknown model {self.model!r}; available: {', '.join(available_models())}")
-        m = self.digits()
+        if self.alternatives and self.model not in models_with_alternatives():
+            raise ValueError(f"alternatives: model {self.model!r} offers none; those that do: "
+                             f"{', '.join(models_with_alternatives())}")
+        counts = dict(zip(self.positions(), self.model_instance().digit_counts))
         self.constraints()  # raises on unknown position names
         for name, digit in self.search.fixed.items():
-            if not 0 <= digit < m:
-                raise ValueError(f"search.fixed: digit {digit} for {name} is not in 0..{m - 1}")
+            if not 0 <= digit < counts[name]:
+                raise ValueError(f"search.fixed: digit {digit} for {name} is not in 0..{counts[name] - 1}")
         for name, digits in self.search.allowed.items():
-            if any(not 0 <= d < m for d in digits):
-                raise ValueError(f"search.allowed: digits {digits} for {name} are not all in 0..{m - 1}")
+            if any(not 0 <= d < counts[name] for d in digits):
+                raise ValueError(f"search.allowed: digits {digits} for {name} are not all in 0..{counts[name] - 1}")
         return self
 
     # -- what the orchestrator needs ---------------------------------------------------------
+    def model_instance(self, state: str | None = None) -> BRDFModel:
+        """The spec's model (its module choices, latent size and alternatives) in ``state``."""
+        return _model(self.model, state, self.module.config(), self.latent_dim, self.alternatives)
+
     def positions(self) -> tuple[str, ...]:
-        return get_model(self.model).positions
+        return self.model_instance().positions
 
     def constraints(self) -> Constraints:
+        model = self.model_instance()
         return Constraints.from_names(
             self.positions(), fixed=self.search.fixed, allowed=self.search.allowed,
-            max_neural=self.search.max_neural,
+            max_neural=self.search.max_neural, digit_counts=model.digit_counts,
+            neural=range(1, self.module.config().digits),
         )
 
     def digits(self) -> int:
-        return self.module.config().digits
+        """m of the search's hypercube: the most choices any position has."""
+        return max(self.model_instance().digit_counts)
+
+    def choice_names(self) -> dict[tuple[str, int], str]:
+        """(position, digit) -> choice name, for trails (empty for binary states)."""
+        return self.model_instance().choice_names()
 
     def initial_bundle(self, material_names) -> Bundle:
         """Round 0's parent: the analytical model, every material at the paper's initial values."""
-        return Bundle.initial(self.model, material_names, self.module.config(), self.latent_dim)
+        return Bundle.initial(self.model, material_names, self.module.config(), self.latent_dim, self.alternatives)
 
     def train_config(self, epochs: int | None = None) -> TrainConfig:
         return TrainConfig(epochs=self.search.epochs_per_round if epochs is None else epochs,
@@ -197,12 +215,15 @@ class JobSpec(_Strict):
 
 def neural_weights(spec: JobSpec, state: str) -> int:
     """Neural weights of ``state`` of the spec's model (its modules and latent size)."""
-    return _n_weights(spec.model, state, spec.module.config(), spec.latent_dim)
+    return spec.model_instance(state).n_weights()
 
 
-@functools.lru_cache(maxsize=4096)
-def _n_weights(model: str, state: str, module_config, latent_dim: int) -> int:
-    return get_model(model, state=state, module_config=module_config, latent_dim=latent_dim).n_weights()
+@functools.lru_cache(maxsize=512)
+def _model(model: str, state: str | None, module_config, latent_dim: int, alternatives: bool) -> BRDFModel:
+    """Built once per distinct arguments (specs are validated and asked for positions often); callers
+    must not change it."""
+    return get_model(model, state=state, module_config=module_config, latent_dim=latent_dim,
+                     alternatives=alternatives)
 
 
 class SpecError(ValueError):

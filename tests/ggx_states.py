@@ -6,3 +6,7 @@ GGX_POSITIONS = ("M", "S", "D", "F", "G", "invE", "S*D", "S*D*F", "S*D*F*G", "S*
 #: The paper's enhanced GGX, M + S·D·F̂ ×̂ Ĝ·(1/Ê) (Sec. 6): F, G, invE and the product x of
 #: (S*D*F) x G neural.
 PAPER_STATE = "00011100100"
+
+#: GGX with alternative terms (``get_model("ggx", alternatives=True)``): Oren-Nayar at M, a Student-t D,
+#: a conductor F, height-correlated G, and invE neural beside them.
+ALTERNATIVES_STATE = "20422100000"

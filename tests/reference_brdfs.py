@@ -165,3 +165,87 @@ def f_r(model: str, wi: np.ndarray, wo: np.ndarray, params: Params) -> np.ndarra
         spec = SPECULAR[model](g, params, n)
         out = _rows(params["rho_d"], n, 3) / math.pi + _rows(params["rho_s"], n, 3) * spec[:, None]
     return np.where(above[:, None], out, 0.0)
+
+
+# -- alternative terms (neuenh.models.alternatives), from their papers' own forms ---------------
+def gtr_d(cos_h, a2, gamma):
+    """Burley 2012, GTR: c / (a² cos²θh + sin²θh)^γ, c = (γ−1)(a²−1) / (π (1 − (a²)^(1−γ)))."""
+    c = (gamma - 1.0) * (a2 - 1.0) / (math.pi * (1.0 - a2 ** (1.0 - gamma)))
+    return c / (a2 * cos_h**2 + (1.0 - cos_h**2)) ** gamma
+
+
+def student_t_d(cos_h, tan2_h, phi_h, ax, ay, gamma):
+    """Ribardière et al. 2017 eq. 5: (γ−1)^γ / (π αx αy cos⁴θh ((γ−1) + tan²θh (cos²φ/αx² + sin²φ/αy²))^γ)."""
+    stretch = tan2_h * _azimuthal_inverse_sq(phi_h, ax, ay)
+    return (gamma - 1.0) ** gamma / (math.pi * ax * ay * cos_h**4 * ((gamma - 1.0) + stretch) ** gamma)
+
+
+def hazy_d(cos_h, tan2_h, phi_h, ax, ay, weight, extent):
+    """Barla et al. 2018: (1 − χ) GGX(α) + χ GGX(min(λ α, 1))."""
+    haze = ggx_d(cos_h, tan2_h, phi_h, np.minimum(extent * ax, 1.0), np.minimum(extent * ay, 1.0))
+    return (1.0 - weight) * ggx_d(cos_h, tan2_h, phi_h, ax, ay) + weight * haze
+
+
+def conductor_f(cos_d, eta, kappa):
+    """Fresnel's equations with a complex index n = η + iκ in complex arithmetic (Born & Wolf):
+    cos θt = sqrt(1 − sin²θ / n²), rs = (cos − n cos θt) / (cos + n cos θt), rp = (n cos − cos θt) /
+    (n cos + cos θt), F = (|rs|² + |rp|²) / 2. (n, 3) from cos_d (n,) and eta, kappa (n, 3)."""
+    n_c = eta + 1j * kappa
+    c = cos_d[:, None].astype(np.complex128)
+    cos_t = np.sqrt(1.0 - (1.0 - c**2) / n_c**2)
+    rs = (c - n_c * cos_t) / (c + n_c * cos_t)
+    rp = (n_c * c - cos_t) / (n_c * c + cos_t)
+    return 0.5 * (np.abs(rs) ** 2 + np.abs(rp) ** 2)
+
+
+def schlick_tint_f(cos_d, f0, tint):
+    """Hoffman 2019: Schlick minus a cosθ (1 − cosθ)^6, a = (1 − tint) Schlick(θ̄) / (cos θ̄ (1 − cos θ̄)^6)
+    at cos θ̄ = 1/7; clipped at 0. (n, 3) from cos_d, f0 (n,) and tint (n, 3)."""
+    bar = 1.0 / 7.0
+    peak = bar * (1.0 - bar) ** 6
+    a = (1.0 - tint) * schlick(f0, bar)[:, None] / peak
+    return np.clip(schlick(f0, cos_d)[:, None] - a * (cos_d * (1.0 - cos_d) ** 6)[:, None], 0.0, None)
+
+
+def height_correlated_g(tan2_i, phi_i, tan2_o, phi_o, ax, ay):
+    """Heitz 2014 eq. 99: 1 / (1 + Λ(ωi) + Λ(ωo)), Λ from eq. 86."""
+    def lam(tan2, phi):
+        return (-1.0 + np.sqrt(1.0 + (np.cos(phi) ** 2 * ax**2 + np.sin(phi) ** 2 * ay**2) * tan2)) / 2.0
+    return 1.0 / (1.0 + lam(tan2_i, phi_i) + lam(tan2_o, phi_o))
+
+
+def oren_nayar_factor(cos_i, phi_i, cos_o, phi_o, sigma):
+    """Oren & Nayar 1994 eq. 30: A + B max(0, cos(φi − φo)) sin α tan β, α = max(θi, θo), β = min."""
+    theta_i, theta_o = np.arccos(np.clip(cos_i, -1, 1)), np.arccos(np.clip(cos_o, -1, 1))
+    alpha, beta = np.maximum(theta_i, theta_o), np.minimum(theta_i, theta_o)
+    s2 = sigma**2
+    a, b = 1.0 - 0.5 * s2 / (s2 + 0.33), 0.45 * s2 / (s2 + 0.09)
+    return a + b * np.maximum(0.0, np.cos(phi_i - phi_o)) * np.sin(alpha) * np.tan(beta)
+
+
+def ggx_with(wi, wo, params: Params, *, m="lambert", d="ggx", f="schlick", g="smith") -> np.ndarray:
+    """GGX's f_r (n, 3) with the named alternatives at M, D, F and G (``neuenh.models.alternatives``'
+    choice names), zero below either horizon."""
+    n, geo = _geometry(wi, wo, params)
+    ax, ay, f0 = _scalar(params, "alpha_x", n), _scalar(params, "alpha_y", n), _scalar(params, "f0", n)
+    angles = geo["cos_h"], geo["tan2_h"], geo["phi_h"]
+    with np.errstate(all="ignore"):
+        dist = {"ggx": lambda: ggx_d(*angles, ax, ay),
+                "beckmann": lambda: beckmann_d(*angles, ax, ay),
+                "gtr": lambda: gtr_d(geo["cos_h"], np.minimum(ax * ay, 0.999), _scalar(params, "gtr_gamma", n)),
+                "student_t": lambda: student_t_d(*angles, ax, ay, _scalar(params, "std_gamma", n)),
+                "hazy_ggx": lambda: hazy_d(*angles, ax, ay, _scalar(params, "haze_weight", n),
+                                           _scalar(params, "haze_extent", n))}[d]()
+        fresnel = {"schlick": lambda: schlick(f0, geo["cos_d"])[:, None],
+                   "conductor": lambda: conductor_f(geo["cos_d"], _rows(params["eta"], n, 3), _rows(params["kappa"], n, 3)),
+                   "schlick_tint": lambda: schlick_tint_f(geo["cos_d"], f0, _rows(params["edge_tint"], n, 3))}[f]()
+        shadow = {"smith": lambda: ggx_g1(geo["tan2_i"], geo["phi_i"], ax, ay) * ggx_g1(geo["tan2_o"], geo["phi_o"], ax, ay),
+                  "height_correlated": lambda: height_correlated_g(geo["tan2_i"], geo["phi_i"], geo["tan2_o"],
+                                                                  geo["phi_o"], ax, ay)}[g]()
+        diffuse = _rows(params["rho_d"], n, 3) / math.pi
+        if m == "oren_nayar":
+            diffuse = diffuse * oren_nayar_factor(geo["cos_i"], geo["phi_i"], geo["cos_o"], geo["phi_o"],
+                                                  _scalar(params, "on_sigma", n))[:, None]
+        spec = (dist * shadow / (4.0 * geo["cos_i"] * geo["cos_o"]))[:, None] * fresnel
+        out = diffuse + _rows(params["rho_s"], n, 3) * spec
+    return np.where(geo["above"][:, None], out, 0.0)

@@ -101,9 +101,12 @@ export function neuralNames(state, positions) {
   return out;
 }
 
-/** What a digit means at a position.
- * @param {string} digit */
-export function digitMeaning(digit) {
+/** What a digit means at a position: its choice's name when the job serves them (e.g. "beckmann",
+ * "mlp16-32-16"), else "analytical", "neural module" or "choice N".
+ * @param {string} digit @param {string[]} [names] the position's choices by digit */
+export function digitMeaning(digit, names) {
+  const named = names && names[parseInt(digit, 36)];
+  if (named && !(digit === "1" && names.length === 2)) return digit === "0" ? `${named} (original)` : named;
   return digit === "0" ? "analytical" : digit === "1" ? "neural module" : "choice " + digit;
 }
 

@@ -7,7 +7,8 @@
  * @typedef {{id: string, name: string | null, model: string, status: string, terminal: boolean,
  *            error: string | null, reason: string | null, priority: number, used_wall_s: number,
  *            used_cpu_s: number, created_at: string, last_round: number | null,
- *            current_state: string | null, spec: any, progress: Progress | null, positions: string[]}} Job
+ *            current_state: string | null, spec: any, progress: Progress | null, positions: string[],
+ *            choices?: Record<string, string[]>}} Job
  * @typedef {{state: string, change: string, ok: boolean, winner: boolean, pruned: boolean,
  *            val_loss: number | null, error: string | null}} Candidate
  * @typedef {{round: number, kind: string, parent_state: string, winner_state: string, change: string,

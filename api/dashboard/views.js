@@ -176,6 +176,12 @@ export function renderProgress(job) {
   box.classList.toggle("indeterminate", !p || p.total === 0);
 }
 
+/** A position's choices by digit, as the job serves them (none for older services).
+ * @param {Job | null | undefined} job @param {string} position @returns {string[] | undefined} */
+function choicesAt(job, position) {
+  return job && job.choices ? job.choices[position] : undefined;
+}
+
 /** What a round's change column says: the served change, or why it stayed.
  * @param {Round} r */
 function changeText(r) {
@@ -214,7 +220,7 @@ export function renderTrail(rounds, positions, job) {
       const d = r.winner_state[i] || "?";
       cells.push(el("td", {
         class: `digit ${digitClass(d)}` + (changed.has(i) ? " flipped" : ""),
-        title: `${positions[i]}: ${digitMeaning(d)}` + (changed.has(i) ? ` (was ${r.parent_state[i]})` : ""),
+        title: `${positions[i]}: ${digitMeaning(d, choicesAt(job, positions[i]))}` + (changed.has(i) ? ` (was ${r.parent_state[i]})` : ""),
         text: d,
       }));
     }
@@ -253,8 +259,11 @@ export function renderFinal(job, state, rounds, positions) {
   strip.appendChild(el("span", { class: "mono state-code", text: state }));
   for (let i = 0; i < positions.length; i++) {
     const d = state[i] || "?";
-    strip.appendChild(el("span", { class: `chip ${digitClass(d)}`, title: digitMeaning(d) },
-      el("span", { class: "chip-name", text: positions[i] }), el("span", { class: "chip-digit", text: d })));
+    const names = choicesAt(job, positions[i]);
+    const named = d !== "0" && d !== "1" && names && names[parseInt(d, 36)];
+    strip.appendChild(el("span", { class: `chip ${digitClass(d)}`, title: digitMeaning(d, names) },
+      el("span", { class: "chip-name", text: named ? `${positions[i]} ${named}` : positions[i] }),
+      el("span", { class: "chip-digit", text: d })));
   }
   const neural = neuralNames(state, positions);
   const last = rounds[rounds.length - 1];

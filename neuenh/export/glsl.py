@@ -233,7 +233,7 @@ def material_source(brdf: SpecializedBRDF, name: str) -> str:
                                 (expr.left.width, expr.right.width))
         return left + right if expr.op == "+" else left * right
 
-    value = run(brdf._graph.root)
+    value = run(brdf.expression)
     value = xp.where(s.above, value, (0.0, 0.0, 0.0))
     if _type(value) != "vec3":
         value = code.let("vec3", f"vec3({_text(value)})")

@@ -320,7 +320,6 @@ def material_graph(specialized: SpecializedBRDF, name: str | None = None) -> byt
     wi, wo = _Value(b, "wi", 3, True), _Value(b, "wo", 3, True)
     xp = _OnnxOps(b, wi)
     k = specialized.folded.to(torch.float32)
-    graph = specialized._graph  # the expression tree the kernel evaluates (SpecializedBRDF._run)
     if k.rotation is None:
         wi_s, wo_s = wi, wo
     else:
@@ -345,7 +344,7 @@ def material_graph(specialized: SpecializedBRDF, name: str | None = None) -> byt
             return xp.mlp(module.layers, module.negative_slope, operands)
         return left + right if expr.op == "+" else left * right
 
-    output = xp.finish(run(graph.root), s.above)
+    output = xp.finish(run(specialized.expression), s.above)
     inputs = {"wi": ([BATCH, 3], "incident direction, local frame (z = geometric normal), unit"),
               "wo": ([BATCH, 3], "outgoing direction, local frame, unit")}
     what = f"material {name!r} of " if name is not None else "one material of "
@@ -382,12 +381,12 @@ def generic_graph(model: BRDFModel) -> bytes:
     # BRDFModel._neural_term_outputs: one input per group (modules that read directions or not)
     neural: dict[str, _Value] = {}
     if reads_latent:
-        base = [xp.concat([_unit(values[spec.name], spec) for spec in model.specs])]
+        base = [xp.concat([_unit(values[spec.name], spec) for spec in model.module_specs])]
         if model.latent_dim:
             base.append(latent)
         groups: dict[bool, list[str]] = {}
         for expr, digit in zip(model.graph.positions, model.digits):
-            if digit and isinstance(expr, Term):
+            if model.is_neural(digit) and isinstance(expr, Term):
                 groups.setdefault(expr.reads_directions, []).append(expr.name)
         for reads_directions, names in groups.items():
             x = xp.concat(base + ([shading.wi.array, shading.wo.array] if reads_directions else []))
@@ -398,15 +397,15 @@ def generic_graph(model: BRDFModel) -> bytes:
     def run(expr) -> _Value:  # BRDFModel._combine
         digit = model.digits[model.graph.index[expr.name]]
         if isinstance(expr, Term):
-            return neural[expr.name] if digit else expr.formula(shading)
+            return neural[expr.name] if model.is_neural(digit) else expr.formula(shading)
         left, right = run(expr.left), run(expr.right)
-        if digit:
+        if model.is_neural(digit):
             module = model.neural[expr.name]
             operands = xp.concat([xp.rows(left, expr.left.width), xp.rows(right, expr.right.width)])
             return xp.mlp([(l.weight, l.bias) for l in module.layers], module.negative_slope, operands)
         return left + right if expr.op == "+" else left * right
 
-    output = xp.finish(run(model.graph.root), shading.above)
+    output = xp.finish(run(model.expression()), shading.above)
     shapes = ", ".join(f"{k} ({', '.join(map(str, v[0]))})" for k, v in inputs.items())
     doc = (f"f_r(wi, wo, parameters) of {model.name} in state {model.state} ({model.describe()}) for any "
            f"materials: f_r without the cosine factor, 0 below either horizon, >= 0. Inputs: {shapes}; "

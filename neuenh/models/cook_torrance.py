@@ -13,7 +13,8 @@ Citations: Cook, Torrance, "A Reflectance Model for Computer Graphics", ACM TOG 
 its V-groove G from Torrance & Sparrow 1967); Beckmann & Spizzichino 1963, normalised and
 anisotropic as in Walter et al. 2007 (eq. 25) and Heitz 2014 (eq. 83); Schlick 1994. The 1/(4 cos cos)
 normalisation replaces the original 1/(pi cos cos) so that D is a normalised distribution, as in
-the paper's enhanced Cook-Torrance (Fig. 14). 11 positions, 12 parameters.
+the paper's enhanced Cook-Torrance (Fig. 14). 11 positions, 12 parameters. ``build(alternatives=True)``
+offers the microfacet alternatives (``models.alternatives``; GGX in place of Beckmann at D).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import math
 from ..graph import Graph, Term, add, mul
 from ..params import ParamSpecs
 from ..shading import Shading
+from .alternatives import microfacet_alternatives
 from .common import (
     MICROFACET_PARAMS,
     anisotropic_slope_sq,
@@ -49,11 +51,15 @@ def v_groove_shadowing(s: Shading):
     return s.xp.clamp(s.xp.minimum(masking, shadowing), hi=1.0)
 
 
-def build() -> tuple[Graph, ParamSpecs]:
-    M = Term("M", 3, lambertian, reads_directions=False)  # Lambertian diffuse rho_d/pi
-    S = Term("S", 3, specular_albedo, reads_directions=False)  # specular albedo rho_s
-    D = Term("D", 1, beckmann_distribution, reads_directions=True)  # Beckmann distribution
-    F = Term("F", 1, schlick_fresnel, reads_directions=True)  # Schlick Fresnel with f0
-    G = Term("G", 1, v_groove_shadowing, reads_directions=True)  # V-groove masking-shadowing
-    invE = Term("invE", 1, inverse_microfacet_normalisation, reads_directions=True)  # 1/(4 cos cos)
+def build(alternatives: bool = False) -> tuple[Graph, ParamSpecs]:
+    from .ggx import ggx_distribution  # ggx imports this module's Beckmann
+
+    alt = microfacet_alternatives(other_d=("ggx", ggx_distribution)) if alternatives else {}
+    f_width = 3 if alternatives else 1  # the conductor Fresnel is RGB
+    M = Term("M", 3, lambertian, False, "lambert", alternatives=alt.get("M", ()))  # Lambertian rho_d/pi
+    S = Term("S", 3, specular_albedo, False, "albedo")  # specular albedo rho_s
+    D = Term("D", 1, beckmann_distribution, True, "beckmann", alternatives=alt.get("D", ()))  # Beckmann
+    F = Term("F", f_width, schlick_fresnel, True, "schlick", alternatives=alt.get("F", ()))  # Schlick, f0
+    G = Term("G", 1, v_groove_shadowing, True, "v_groove", alternatives=alt.get("G", ()))  # V-groove
+    invE = Term("invE", 1, inverse_microfacet_normalisation, True, "jacobian")  # 1/(4 cos_i cos_o)
     return Graph(add(M, mul(S, D, F, G, invE))), ParamSpecs(MICROFACET_PARAMS)

@@ -15,6 +15,9 @@ G1 from Heitz, "Understanding the Masking-Shadowing Function in Microfacet-Based
 (eqs. 85-86); Schlick, "An Inexpensive BRDF Model for Physically-based Rendering", 1994; the graph,
 parameters and enhancement from Shen, Ma, Zhou, Wu, "Neural Enhancement of Analytical Appearance
 Models" (Sec. 3). 11 positions, 12 parameters.
+
+``build(alternatives=True)`` offers each of M, D, F and G's alternative analytical terms
+(``models.alternatives``) as further digits; F is then an RGB position (Schlick broadcasts).
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ import math
 from ..graph import Graph, Term, add, mul
 from ..params import ParamSpecs
 from ..shading import Shading
+from .cook_torrance import beckmann_distribution
+from .alternatives import microfacet_alternatives
 from .common import (
     MICROFACET_PARAMS,
     anisotropic_slope_sq,
@@ -54,11 +59,13 @@ def ggx_shadowing(s: Shading):
     return ggx_smith_g1(s, s.wi, s.cos_i) * ggx_smith_g1(s, s.wo, s.cos_o)
 
 
-def build() -> tuple[Graph, ParamSpecs]:
-    M = Term("M", 3, lambertian, reads_directions=False)  # Lambertian diffuse rho_d/pi
-    S = Term("S", 3, specular_albedo, reads_directions=False)  # specular albedo rho_s
-    D = Term("D", 1, ggx_distribution, reads_directions=True)  # GGX normal distribution
-    F = Term("F", 1, schlick_fresnel, reads_directions=True)  # Schlick Fresnel with f0
-    G = Term("G", 1, ggx_shadowing, reads_directions=True)  # separable Smith G1(wi) G1(wo)
-    invE = Term("invE", 1, inverse_microfacet_normalisation, reads_directions=True)  # 1/(4 cos cos)
+def build(alternatives: bool = False) -> tuple[Graph, ParamSpecs]:
+    alt = microfacet_alternatives(other_d=("beckmann", beckmann_distribution)) if alternatives else {}
+    f_width = 3 if alternatives else 1  # the conductor Fresnel is RGB
+    M = Term("M", 3, lambertian, False, "lambert", alternatives=alt.get("M", ()))  # Lambertian rho_d/pi
+    S = Term("S", 3, specular_albedo, False, "albedo")  # specular albedo rho_s
+    D = Term("D", 1, ggx_distribution, True, "ggx", alternatives=alt.get("D", ()))  # GGX distribution
+    F = Term("F", f_width, schlick_fresnel, True, "schlick", alternatives=alt.get("F", ()))  # Schlick, f0
+    G = Term("G", 1, ggx_shadowing, True, "smith", alternatives=alt.get("G", ()))  # separable Smith G1 G1
+    invE = Term("invE", 1, inverse_microfacet_normalisation, True, "jacobian")  # 1/(4 cos_i cos_o)
     return Graph(add(M, mul(S, D, F, G, invE))), ParamSpecs(MICROFACET_PARAMS)

@@ -39,7 +39,11 @@ test("states: the positions that differ, the neural ones, what a digit means", (
   assert.deepEqual(diff("00011100100", "10011000100"), [0, 5]);
   assert.deepEqual(diff("01", "012"), [2]);  // a longer state differs where the shorter ends
   assert.deepEqual(neuralNames("0102", ["M", "S", "D", "F"]), ["S", "F"]);
-  assert.deepEqual(["0", "1", "2", "7"].map(digitMeaning), ["analytical", "neural module", "choice 2", "choice 7"]);
+  assert.deepEqual(["0", "1", "2", "7"].map((d) => digitMeaning(d)), ["analytical", "neural module", "choice 2", "choice 7"]);
+  const d = ["ggx", "mlp16-32-16", "beckmann"];
+  assert.deepEqual(["0", "1", "2"].map((x) => digitMeaning(x, d)), ["ggx (original)", "mlp16-32-16", "beckmann"]);
+  // binary states keep their words: one module is "neural module"
+  assert.equal(digitMeaning("1", ["schlick", "mlp16-32-16"]), "neural module");
   assert.deepEqual(["0", "1", "2", "7", "?"].map(digitClass), ["d0", "d1", "d2", "d3", "d0"]);
   assert.ok(isOperator("S*D") && isOperator("M+S*D*F*G*invE") && !isOperator("invE"));
 });

@@ -18,7 +18,7 @@ from neuenh.models import available_models, get_model
 from neuenh.pretrained import bundle_path
 from test_models import DIRECTIONS, FRAMES, random_directions, random_params, spec_values, torch_params
 
-from ggx_states import PAPER_STATE
+from ggx_states import ALTERNATIVES_STATE, PAPER_STATE
 
 N_RANDOM = 8192  # random pairs per material, besides every hard case in every frame
 
@@ -55,7 +55,15 @@ def directions(model, params, rng) -> tuple[np.ndarray, np.ndarray]:
 # Every model's analytical terms; the module code on the paper's state (a term module reading
 # directions, operator modules) and on every position of Ward neural (modules over constants and
 # RGB operands too). Each neural shader takes llvmpipe seconds to compile, so not every model's.
-CASES = [(m, "0" * len(get_model(m).positions)) for m in available_models()] + [("ggx", PAPER_STATE), ("ward", "1111111")]
+# And GGX with alternative terms beside a module (ALTERNATIVES_STATE: an RGB Fresnel, Oren-Nayar).
+CASES = [(m, "0" * len(get_model(m).positions)) for m in available_models()] + [
+    ("ggx", PAPER_STATE), ("ward", "1111111"), ("ggx-alternatives", ALTERNATIVES_STATE)]
+
+
+def model_for(name: str, state: str):
+    if name == "ggx-alternatives":
+        return get_model("ggx", alternatives=True, state=state)
+    return get_model(name, state=state)
 
 
 def check_export(gl, model, material: dict, wi: np.ndarray, wo: np.ndarray, what: str) -> None:
@@ -82,7 +90,7 @@ def check_export(gl, model, material: dict, wi: np.ndarray, wo: np.ndarray, what
 def test_exported_glsl_equals_the_torch_model_on_llvmpipe(gl, name, state, tmp_path):
     rng = np.random.default_rng(7)
     torch.manual_seed(0)
-    model = get_model(name, state=state)
+    model = model_for(name, state)
     checked, chosen = 0, materials(model, rng)
     if "1" in state:  # a neural shader takes llvmpipe a second or more to compile: the extremes and one random
         chosen = [chosen[0], chosen[2], chosen[3]]

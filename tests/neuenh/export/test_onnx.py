@@ -32,9 +32,11 @@ from neuenh.pretrained import load_model
 from test_models import above_mask, random_directions, random_params, stability_grid, torch_params
 from test_specialize import materials_of
 
+from ggx_states import ALTERNATIVES_STATE
+
 N_RANDOM = 16_384  # random pairs per random material; 4 per model
 N_RANDOM_ALL_NEURAL = 4_096  # eleven modules: this model adds operator and constant modules, not pairs
-CASES = ["enhanced-ggx", "ggx-all-neural", *available_models()]
+CASES = ["enhanced-ggx", "ggx-all-neural", "ggx-alternatives", *available_models()]
 
 
 def session(blob: bytes) -> ort.InferenceSession:
@@ -66,6 +68,9 @@ def build(case: str):
     if case == "ggx-all-neural":  # every position neural: operator modules, M a constant module
         model = get_model("ggx", state="1" * 11, seed=3)
         return model, torch.as_tensor(np.random.default_rng(0).random(27)), []
+    if case == "ggx-alternatives":  # alternative terms (RGB Fresnel, Oren-Nayar) beside a module
+        model = get_model("ggx", alternatives=True, state=ALTERNATIVES_STATE, seed=3)
+        return model, torch.as_tensor(np.random.default_rng(1).random(27)), []
     return get_model(case), None, []
 
 
