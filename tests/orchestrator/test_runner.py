@@ -10,6 +10,7 @@ from storage import JobStatus
 from workers.inline import InlineExecutor
 
 from jobspecs import tiny_spec
+from orchestrator.spec import parse_spec
 
 
 def _path(jobs, job_id):
@@ -409,3 +410,22 @@ def test_a_job_no_node_can_hold_fails_after_the_stated_wait(stores):
     assert job.status is JobStatus.FAILED
     assert "within 0.3 s" in job.error and "cpus_per_candidate: 2" in job.error and "has 1 CPUs" in job.error
     assert jobs.last_round(job.id) is None
+
+
+def test_a_search_with_alternatives_tries_every_choice_and_ships_what_won(orchestrator, stores):
+    """m-ary rounds: each position's own choices (20 candidates around GGX's all-zero state, the
+    alternatives beside the modules), the winner's bundle holds its choices and its parameters."""
+    jobs, artifacts = stores
+    spec = parse_spec({**tiny_spec(max_rounds=1).model_dump(mode="json"), "alternatives": True})
+    job = orchestrator.run(orchestrator.submit(spec)[0].id)
+    assert job.error is None
+    (r,) = jobs.rounds(job.id)
+    model = spec.model_instance()
+    states = [c.state for c in r.candidates]
+    assert len(states) == len(set(states)) == 1 + sum(n - 1 for n in model.digit_counts) == 20
+    for i, position in enumerate(model.positions):
+        assert {s[i] for s in states} == {str(d) for d in range(model.digit_counts[i])}, position
+    winner = Bundle.from_bytes(artifacts.get(r.artifact_key))
+    assert winner.model.state == r.winner_state and winner.model.has_alternatives
+    assert set(winner.materials.raw) == set(model.param_names)  # every alternative's parameters travel along
+    assert all(c.ok for c in r.candidates), [c.error for c in r.candidates if not c.ok]

@@ -31,8 +31,13 @@ def test_the_reference_spec_decays_its_lr_and_polishes():
         ({"data": [{"source": "synthetic_zoo", "families": ["velvet"]}]}, "unknown zoo families"),
         ({"train": {"lr": 1e-3, "lr_final": 1e-2}}, r"train: .*lr_final \(0.01\) must not exceed lr \(0.001\)"),
         ({"search": {"polish_epochs": -1}}, "search.polish_epochs"),
+        ({"model": "ward", "alternatives": True}, "alternatives: model 'ward' offers none"),
+        ({"alternatives": True, "search": {"fixed": {"S": 2}}}, "digit 2 for S is not in 0..1"),
+        ({"alternatives": True, "search": {"allowed": {"D": [0, 6]}}}, r"digits \[0, 6\] for D are not all in 0..5"),
+        ({"data": [{"source": "table", "paths": ["x.npz"], "near_mirror": 0.5}]}, "near_mirror"),
     ],
-    ids=["no-data", "model", "typo", "radius", "position", "digit", "lr", "source", "family", "lr-final", "polish"],
+    ids=["no-data", "model", "typo", "radius", "position", "digit", "lr", "source", "family", "lr-final", "polish",
+         "alternatives-model", "alternatives-digit", "alternatives-allowed", "table-near-mirror"],
 )
 def test_bad_specs_name_the_field(change, message):
     with pytest.raises(SpecError, match=message):
@@ -58,3 +63,13 @@ def test_the_paper_scale_spec_is_valid_and_has_the_papers_sizes():
     nbrdf, ggx = spec.data
     assert 100 * nbrdf.samples + ggx.materials * ggx.samples == 28_000_000  # the MERL 100 plus the synthetic 100
     assert isinstance(spec.train_config(), TrainConfig)
+
+
+def test_alternatives_give_each_position_its_own_digits_and_names():
+    spec = parse_spec({**BASE, "alternatives": True, "search": {"max_neural": 2}})
+    assert spec.digits() == 6  # D: ggx, its module, beckmann, gtr, student_t, hazy_ggx
+    constraints = spec.constraints()
+    assert constraints.digits_at(spec.positions().index("S"), 6) == (0, 1)
+    assert constraints.neural == frozenset({1}) and constraints.max_neural == 2
+    assert spec.choice_names()[("F", 2)] == "conductor"
+    assert parse_spec(BASE).choice_names() == {}  # binary states keep '+G'
