@@ -8,6 +8,11 @@ A bundle directory holds
 * ``weights.safetensors``: the neural modules' weights (keys ``<position>.layers.<i>.weight``);
 * ``materials.safetensors``: per-material parameters (raw analytical values and latent), the
   material names in its metadata. Optional: a shipped model may carry none.
+* ``rungs.safetensors``: optional, the *rungs* of the search that made the model — every committed
+  round's winner (the latest round of each state), cheaper models on the way to this one — their
+  module weights (keys ``<k>.<position>.layers.<i>.weight``) and their training materials' mean
+  latent code (``<k>.latent_mean``, a start for new fits); ``model.json`` lists them
+  (round, state, validation loss, weights, parameters per material).
 
 Loading never unpickles: safetensors and JSON only. Every file is written atomically (temporary
 file + rename) and ``model.json`` last, so a directory with a ``model.json`` is complete.
@@ -16,6 +21,7 @@ file + rename) and ``model.json`` last, so a directory with a ``model.json`` is 
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import os
@@ -36,10 +42,40 @@ from .modules import ModuleConfig
 FORMAT = "neuenh-bundle"
 VERSION = 1
 MODEL_JSON, WEIGHTS, MATERIALS = "model.json", "weights.safetensors", "materials.safetensors"
+RUNGS = "rungs.safetensors"
 
 
 class BundleError(ValueError):
     """A bundle that cannot be read: names the file and what is wrong."""
+
+
+@dataclass(frozen=True, eq=False)
+class Rung:
+    """One committed round's winner of the search that made a bundle: a model of the same family,
+    usually cheaper. ``model``'s module weights are that round's; ``latent_mean`` is its training
+    materials' mean latent code (None when no module reads the latent)."""
+
+    round: int
+    val_loss: float
+    model: BRDFModel
+    latent_mean: torch.Tensor | None = None
+
+    @property
+    def state(self) -> str:
+        return self.model.state
+
+    def describe(self) -> dict[str, Any]:
+        return {"round": self.round, "state": self.state, "formula": self.model.describe(),
+                "val_loss": self.val_loss, "n_weights": self.model.n_weights(),
+                "params_per_material": self.model.n_material_params()}
+
+    @classmethod
+    def of(cls, round_index: int, val_loss: float, bundle: "Bundle") -> "Rung":
+        """The rung of a round's committed bundle."""
+        latent = None
+        if bundle.model.uses_latent and bundle.materials is not None and len(bundle.materials):
+            latent = bundle.materials.latent.detach().mean(0).clone()
+        return cls(round_index, float(val_loss), copy.deepcopy(bundle.model), latent)
 
 
 @dataclass
@@ -49,6 +85,7 @@ class Bundle:
     training: dict[str, Any] = field(default_factory=dict)
     provenance: dict[str, Any] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
+    rungs: list[Rung] = field(default_factory=list)  # cheapest (first committed) to latest
 
     @classmethod
     def initial(
@@ -84,6 +121,7 @@ class Bundle:
                 for s in m.specs
             ],
             "materials": list(self.materials.names) if self.materials is not None else [],
+            "rungs": [r.describe() for r in self.rungs],
             "training": self.training,
             "provenance": self.provenance,
             "metrics": self.metrics,
@@ -103,6 +141,10 @@ class Bundle:
                                          lambda p: save_file(self.materials.tensors(), p, metadata=meta))
         elif (directory / MATERIALS).exists():
             (directory / MATERIALS).unlink()
+        if self.rungs:
+            digests[RUNGS] = _atomic(directory / RUNGS, lambda p: save_file(_rung_tensors(self.rungs), p))
+        elif (directory / RUNGS).exists():
+            (directory / RUNGS).unlink()
         text = json.dumps({**self.describe(), "digests": digests}, indent=2, sort_keys=False) + "\n"
         _atomic(directory / MODEL_JSON, lambda p: Path(p).write_text(text))
         return directory
@@ -118,7 +160,7 @@ class Bundle:
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise BundleError(f"{meta_path}: not valid JSON ({exc})") from None
         for name, digest in (meta.get("digests") or {}).items():  # bundles saved before digests have none
-            if name not in (WEIGHTS, MATERIALS):
+            if name not in (WEIGHTS, MATERIALS, RUNGS):
                 raise BundleError(f"{meta_path}: digests name an unknown file {name!r}")
             path = directory / name
             if path.is_file() and _sha256(path) != digest:  # a missing one is named by its reader below
@@ -129,7 +171,8 @@ class Bundle:
         if (directory / MATERIALS).exists():
             tensors, names = _read_materials(directory / MATERIALS)
             materials = (tensors, names)
-        return cls._assemble(meta, weights, materials, str(directory))
+        rungs = _read_safetensors(directory / RUNGS) if meta.get("rungs") else {}
+        return cls._assemble(meta, weights, materials, str(directory), rungs)
 
     # -- wire --------------------------------------------------------------------------------
     def to_bytes(self) -> bytes:
@@ -138,6 +181,7 @@ class Bundle:
         if self.materials is not None:
             tensors.update({f"material.{k}": v for k, v in self.materials.tensors().items()})
             meta["names"] = json.dumps(list(self.materials.names))
+        tensors.update({f"rung.{k}": v for k, v in _rung_tensors(self.rungs).items()})
         return save(tensors, metadata=meta)
 
     @classmethod
@@ -149,22 +193,27 @@ class Bundle:
         if "names" in meta:
             mt = {k[len("material."):]: v for k, v in tensors.items() if k.startswith("material.")}
             materials = (mt, json.loads(meta["names"]))
-        return cls._assemble(json.loads(meta["model.json"]), weights, materials, "<bytes>")
+        rungs = {k[len("rung."):]: v for k, v in tensors.items() if k.startswith("rung.")}
+        return cls._assemble(json.loads(meta["model.json"]), weights, materials, "<bytes>", rungs)
 
     @classmethod
-    def _assemble(cls, meta: dict, weights: dict, materials, where: str) -> "Bundle":
+    def _assemble(cls, meta: dict, weights: dict, materials, where: str,
+                  rung_tensors: dict[str, torch.Tensor] | None = None) -> "Bundle":
         if meta.get("format") != FORMAT:
             raise BundleError(f"{where}: not a {FORMAT} (format {meta.get('format')!r})")
         if meta.get("version") != VERSION:
             raise BundleError(f"{where}: bundle version {meta.get('version')} is not supported ({VERSION})")
-        try:
-            model = get_model(
+        def build(state: str) -> BRDFModel:
+            return get_model(
                 meta["model"],
-                state=meta["state"],
+                state=state,
                 module_config=ModuleConfig.from_json(meta["module_config"]),
                 latent_dim=int(meta["latent_dim"]),
                 alternatives=bool(meta.get("alternatives", False)),  # bundles before alternatives: none
             )
+
+        try:
+            model = build(meta["state"])
         except (KeyError, ValueError, TypeError) as exc:
             raise BundleError(f"{where}: {exc}") from None
         saved_specs = [(p["name"], p["width"], p["low"], p["high"], p["scale"]) for p in meta["param_specs"]]
@@ -174,16 +223,19 @@ class Bundle:
                 f"{where}: parameter specs differ from this version's {model.name} "
                 f"(saved {saved_specs}, current {current})"
             )
-        expected = set(_weights(model))
-        if set(weights) != expected:
-            raise BundleError(
-                f"{where}: weights do not match state {model.state} "
-                f"(missing {sorted(expected - set(weights))}, unexpected {sorted(set(weights) - expected)})"
-            )
-        try:
-            model.neural.load_state_dict(weights, strict=True)
-        except RuntimeError as exc:
-            raise BundleError(f"{where}: {exc}") from None
+        _load_weights(model, weights, where)
+        rungs = []
+        for k, entry in enumerate(meta.get("rungs") or []):
+            what = f"{where} rung {k}"
+            try:
+                rung_model = build(entry["state"])
+            except (KeyError, ValueError, TypeError) as exc:
+                raise BundleError(f"{what}: {exc}") from None
+            prefix = f"{k}."
+            own = {n[len(prefix):]: v for n, v in (rung_tensors or {}).items() if n.startswith(prefix)}
+            latent = own.pop("latent_mean", None)
+            _load_weights(rung_model, own, what)
+            rungs.append(Rung(int(entry["round"]), float(entry["val_loss"]), rung_model, latent))
         table = None
         if materials is not None:
             tensors, names = materials
@@ -191,7 +243,7 @@ class Bundle:
                 table = MaterialTable.from_tensors(model.specs, names, tensors)
             except ValueError as exc:
                 raise BundleError(f"{where}: {exc}") from None
-        return cls(model, table, meta.get("training", {}), meta.get("provenance", {}), meta.get("metrics", {}))
+        return cls(model, table, meta.get("training", {}), meta.get("provenance", {}), meta.get("metrics", {}), rungs)
 
 
 def blob_metadata(blob: bytes) -> dict[str, str]:
@@ -203,6 +255,28 @@ def blob_metadata(blob: bytes) -> dict[str, str]:
 
 def _weights(model: BRDFModel) -> dict[str, torch.Tensor]:
     return {k: v.detach().contiguous() for k, v in model.neural.state_dict().items()}
+
+
+def _load_weights(model: BRDFModel, weights: dict[str, torch.Tensor], where: str) -> None:
+    expected = set(_weights(model))
+    if set(weights) != expected:
+        raise BundleError(
+            f"{where}: weights do not match state {model.state} "
+            f"(missing {sorted(expected - set(weights))}, unexpected {sorted(set(weights) - expected)})"
+        )
+    try:
+        model.neural.load_state_dict(weights, strict=True)
+    except RuntimeError as exc:
+        raise BundleError(f"{where}: {exc}") from None
+
+
+def _rung_tensors(rungs: list[Rung]) -> dict[str, torch.Tensor]:
+    out = {}
+    for k, rung in enumerate(rungs):
+        out.update({f"{k}.{name}": v for name, v in _weights(rung.model).items()})
+        if rung.latent_mean is not None:
+            out[f"{k}.latent_mean"] = rung.latent_mean.detach().float().contiguous()
+    return out
 
 
 def _read_safetensors(path: Path) -> dict[str, torch.Tensor]:

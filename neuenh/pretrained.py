@@ -10,12 +10,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from .checkpoint import Bundle
+from .checkpoint import Bundle, Rung
 from .graph import BRDFModel
 from .materials import MaterialTable
 from .models import available_models, get_model
 
-__all__ = ["bundle_path", "load_model", "shipped_models"]
+__all__ = ["bundle_path", "load_model", "rungs", "shipped_models"]
 
 
 def _models_dirs() -> list[Path]:
@@ -51,3 +51,18 @@ def load_model(spec: str, what: str = "model") -> tuple[BRDFModel, MaterialTable
         return get_model(spec), None
     raise ValueError(f"{what} {spec!r} is neither an analytical model ({', '.join(available_models())}), "
                      f"a shipped model ({', '.join(shipped_models()) or 'none found'}) nor a bundle folder")
+
+
+def rungs(spec: str) -> list[Rung]:
+    """The rungs of a shipped model or bundle folder: every committed round's winner of the search
+    that made it (the latest round of each state), first committed first, the model itself last.
+    A bundle saved without its search's rungs has one: itself (round -1, its recorded val loss)."""
+    path = bundle_path(spec)
+    if path is None:
+        raise ValueError(f"{spec!r} is neither a shipped model ({', '.join(shipped_models()) or 'none found'}) "
+                         "nor a bundle folder")
+    bundle = Bundle.load(path)
+    if bundle.rungs:
+        return bundle.rungs
+    latent = bundle.materials.latent.detach().mean(0) if bundle.model.uses_latent and bundle.materials else None
+    return [Rung(-1, float(bundle.metrics.get("val_loss", float("nan"))), bundle.model, latent)]

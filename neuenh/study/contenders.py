@@ -86,7 +86,7 @@ class GraphContender(Contender):
 
         brdf = model.specialize(params)  # equals model.evaluate(wi, wo, params), faster
 
-        per_material = sum(s.width for s in model.specs) + (model.latent_dim if model.uses_latent else 0)
+        per_material = model.n_material_params()
         return FittedMaterial(self.name, predict, brdf, result.losses[0], result.wall_s, per_material,
                               model.n_weights())
 

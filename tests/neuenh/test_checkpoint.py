@@ -117,3 +117,34 @@ def test_saved_files_are_readable_by_colleagues(bundle, tmp_path):
     bundle.save(tmp_path)
     for name in ("model.json", "weights.safetensors", "materials.safetensors"):
         assert stat.S_IMODE((tmp_path / name).stat().st_mode) & 0o044 == 0o044, name
+
+
+def test_rungs_travel_with_the_bundle_on_disk_and_on_the_wire(tmp_path):
+    """A bundle's rungs keep their states, weights, losses and mean latent; a tampered rungs file is
+    refused by name."""
+    from neuenh.checkpoint import Rung
+
+    base = Bundle.initial("ggx", ["a", "b", "c"])
+    one = base.model.enhance("00000100000", seed=1)
+    two = one.enhance("00001100100", seed=2)
+    with torch.no_grad():
+        base.materials.latent[1] = 2.0
+    rungs = [Rung.of(0, 0.05, Bundle(base.model, base.materials)), Rung.of(1, 0.03, Bundle(one, base.materials)),
+             Rung.of(3, 0.02, Bundle(two, base.materials))]
+    bundle = Bundle(two, base.materials, rungs=rungs)
+    for back in (Bundle.load(bundle.save(tmp_path / "m")), Bundle.from_bytes(bundle.to_bytes())):
+        assert [(r.round, r.state, r.val_loss) for r in back.rungs] == [(0, "00000000000", 0.05),
+                                                                       (1, "00000100000", 0.03),
+                                                                       (3, "00001100100", 0.02)]
+        assert back.rungs[0].latent_mean is None  # no module reads the latent there
+        assert torch.allclose(back.rungs[1].latent_mean, torch.full((27,), (0.5 + 2.0 + 0.5) / 3))
+        for got, want in zip(back.rungs, rungs):
+            for (k, v), (k2, v2) in zip(got.model.neural.state_dict().items(), want.model.neural.state_dict().items()):
+                assert k == k2 and torch.equal(v, v2)
+    meta = (tmp_path / "m" / "model.json").read_text()
+    assert '"params_per_material": 39' in meta and '"rungs"' in meta
+    data = bytearray((tmp_path / "m" / "rungs.safetensors").read_bytes())
+    data[-5] ^= 0xFF
+    (tmp_path / "m" / "rungs.safetensors").write_bytes(bytes(data))
+    with pytest.raises(BundleError, match="rungs.safetensors: does not match model.json"):
+        Bundle.load(tmp_path / "m")

@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import pytest
+import torch
 
 from neuenh.checkpoint import Bundle
 from neuenh.pretrained import load_model, shipped_models
@@ -39,3 +40,23 @@ def test_the_shipped_enhanced_ggx_is_small_enhanced_and_trained_without_rgl():
     size = sum(p.stat().st_size for p in (REPO_MODELS / "enhanced-ggx").iterdir())
     assert size < 200_000
     assert len(trained) == 200 and not any("rgb" in name for name in trained.names)
+
+
+def test_rungs_of_a_model_are_its_search_winners_or_itself(tmp_path, monkeypatch):
+    from neuenh.checkpoint import Rung
+    from neuenh.pretrained import rungs
+
+    bundle = Bundle.initial("ggx", ["a", "b"])
+    plain = Bundle(bundle.model, bundle.materials)
+    bundle.model = bundle.model.enhance("00000100000", seed=1)
+    bundle.metrics = {"val_loss": 0.02}
+    bundle.save(tmp_path / "bare")
+    [itself] = rungs(str(tmp_path / "bare"))
+    assert (itself.round, itself.state, itself.val_loss) == (-1, "00000100000", 0.02)
+    assert torch.allclose(itself.latent_mean, torch.full((27,), 0.5))
+    bundle.rungs = [Rung.of(0, 0.04, plain), Rung.of(2, 0.02, bundle)]
+    bundle.save(tmp_path / "laddered")
+    monkeypatch.setenv("NEUENH_MODELS_DIR", str(tmp_path))
+    assert [(r.round, r.state) for r in rungs("laddered")] == [(0, "00000000000"), (2, "00000100000")]
+    with pytest.raises(ValueError, match="neither a shipped model"):
+        rungs("ggx")
