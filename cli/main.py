@@ -12,7 +12,7 @@ import sys
 
 from storage import StorageError
 
-from . import data, export, fit, render, report, search, serve
+from . import data, export, fit, render, report, scene, search, serve
 
 
 class UsageError(Exception):
@@ -32,6 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_parser(commands)
     report.add_parser(commands)
     export.add_parser(commands)
+    scene.add_parser(commands)
     return parser
 
 

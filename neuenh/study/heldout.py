@@ -118,23 +118,25 @@ def _samples(name: str, wi, wo, f_r) -> Samples:
     return Samples(wi, wo, f_r, torch.zeros(len(wi), dtype=torch.long), (name,))
 
 
-def _every_azimuth(material, n: int, seed: int):
-    wi, wo = sample_directions(n, seed=seed, anisotropic=True)
+def _every_azimuth(material, n: int, seed: int, near_mirror: float = 0.0):
+    wi, wo = sample_directions(n, seed=seed, anisotropic=True, near_mirror=near_mirror)
     with torch.no_grad():
         return wi, wo, material.evaluate(wi, wo)
 
 
-def draw_fit_test(material, n_fit: int, n_test: int | None, seed: int) -> tuple[Samples, Samples, str]:
+def draw_fit_test(material, n_fit: int, n_test: int | None, seed: int,
+                  near_mirror: float = 0.0) -> tuple[Samples, Samples, str]:
     """``(fit, test, split)`` samples of one measured material, see the module doc; ``split`` is
     ``"disjoint rows"`` (tables) or ``"independent draws"`` (continuous sources, where ``n_test``
-    is required)."""
+    is required). ``near_mirror``: the share of a continuous source's pairs (fit and test alike)
+    drawn near the mirror direction (``data.directions.sample_directions``); tables have their rows."""
     if callable(getattr(material, "evaluate", None)):
         if n_test is None:
             raise ValueError(f"{material.name}: a continuous source needs the number of test samples")
         if n_fit < 1 or n_test < 1:
             raise ValueError(f"need at least 1 fit and 1 test sample, got {n_fit} and {n_test}")
-        fit = _samples(material.name, *_every_azimuth(material, n_fit, 2 * seed))
-        test = _samples(material.name, *_every_azimuth(material, n_test, 2 * seed + 1))
+        fit = _samples(material.name, *_every_azimuth(material, n_fit, 2 * seed, near_mirror))
+        test = _samples(material.name, *_every_azimuth(material, n_test, 2 * seed + 1, near_mirror))
         return fit, test, "independent draws"
     table = getattr(material, "table", None)
     if not isinstance(table, Samples):

@@ -1,0 +1,105 @@
+"""``neuenh scene plan``: model only what a scene needs.
+
+    neuenh scene plan scene.yaml -o DIR [--json]
+
+For every material of the scene (``neuenh.scene.spec``: measured files, tables or an EXR capture's
+texels, each with a weight), fit every rung of its ladder, measure each rung's error on held-out
+samples (or in renders) and its cost on this machine, and choose the cheapest rung within the
+scene's tolerance. Writes DIR/plan.json, DIR/plan.md, DIR/cost_vs_error.png, DIR/contact_sheet.png
+and DIR/bundles/ (only the rungs the plan uses). Each material's result is kept in DIR/materials/ as
+it is planned: running the same command again after an interruption plans only the rest.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+from neuenh.scene import MaterialPlan, load_scene, plan_scene
+from neuenh.scene.outputs import write_plan
+
+
+def add_parser(commands) -> None:
+    p = commands.add_parser("scene", help="plan a scene: per material, the cheapest model within tolerance",
+                            description=__doc__.split("\n\n", 1)[1])
+    actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    plan = actions.add_parser("plan", help="choose each material's rung and write the plan",
+                              description=__doc__.split("\n\n", 1)[1])
+    plan.add_argument("scene", type=Path, metavar="SCENE.yaml")
+    plan.add_argument("-o", "--output", required=True, type=Path, metavar="DIR")
+    plan.add_argument("--json", action="store_true", help="print the plan's totals as JSON")
+    plan.add_argument("--no-sheet", action="store_true", help="skip the contact sheet (its renders)")
+    plan.add_argument("--chunk", type=int, default=8, metavar="N",
+                      help="materials fitted together (each chunk is kept as it finishes; default 8)")
+    plan.set_defaults(run=run)
+
+
+def run(args) -> int:
+    spec, base = load_scene(args.scene)
+    progress = Progress(sys.stderr)
+    kept = args.output / "materials"
+    done = _read_done(kept)
+    if done:
+        progress.note(f"resuming: {len(done)} material(s) already planned in {kept}")
+
+    def keep(plan: MaterialPlan) -> None:
+        kept.mkdir(parents=True, exist_ok=True)
+        tmp = kept / f".{_file(plan.name)}.tmp"
+        tmp.write_text(json.dumps(plan.to_json()))
+        tmp.replace(kept / _file(plan.name))
+
+    if args.chunk < 1:
+        raise ValueError(f"--chunk must be at least 1, got {args.chunk}")
+    plan = plan_scene(spec, base, done=done, on_material=keep, progress=progress, chunk=args.chunk)
+    progress.done()
+    write_plan(plan, args.output, sheet=not args.no_sheet)
+    totals = plan.totals()
+    if args.json:
+        print(json.dumps({"plan": str(args.output / "plan.json"), "totals": totals}, indent=1))
+    else:
+        for m in plan.materials:
+            print(f"{m.name:32s} {plan.rung_info(m.chosen)['label']:40.40s} error {m.result(m.chosen).error:.4f}")
+        p, r, c = totals["plan"], totals["richest"], totals["cheapest"]
+        print(f"frame: plan {p['cost_ns']:.0f} ns, error {p['error']:.4f} | richest everywhere {r['cost_ns']:.0f} ns, "
+              f"{r['error']:.4f} | cheapest everywhere {c['cost_ns']:.0f} ns, {c['error']:.4f}")
+        print(f"wrote {args.output / 'plan.md'}")
+    return 0
+
+
+def _file(name: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name) + ".json"
+
+
+def _read_done(folder: Path) -> dict[str, MaterialPlan]:
+    """Materials an interrupted run planned; an unreadable file is planned again."""
+    out = {}
+    for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
+        try:
+            plan = MaterialPlan.from_json(json.loads(path.read_text()))
+        except (ValueError, KeyError, TypeError):
+            continue
+        out[plan.name] = plan
+    return out
+
+
+class Progress:
+    """A live bar on a terminal, a line per step otherwise."""
+
+    def __init__(self, stream):
+        self.stream, self.live, self.start = stream, stream.isatty(), time.monotonic()
+
+    def __call__(self, what: str, done: int, total: int) -> None:
+        width = 24
+        filled = int(width * done / max(total, 1))
+        text = f"[{'#' * filled}{'.' * (width - filled)}] {done}/{total} {time.monotonic() - self.start:5.0f} s  {what}"
+        self.stream.write(("\r\033[K" + text[:110]) if self.live else text + "\n")
+        self.stream.flush()
+
+    def note(self, text: str) -> None:
+        self.stream.write(text + "\n")
+
+    def done(self) -> None:
+        if self.live:
+            self.stream.write("\n")

@@ -1,0 +1,187 @@
+"""The ladder of a scene: the models a material may be given, cheapest first, behind one interface.
+
+A :class:`Rung` fits many materials at once and gives back, per material, a :class:`FittedRung`:
+its BRDF for rendering (the specialized evaluator, ``neuenh.specialize``), its raw prediction for
+the held-out loss, its parameters as plain data, and their size. Two kinds:
+
+* :class:`GraphRung` — a ``BRDFModel`` with frozen module weights (an analytical model, or one
+  rung of a searched model: ``neuenh.pretrained.rungs``), fitted by ``fit.fit_materials`` on all
+  materials in one batch; its per-material parameters are the ones its state reads;
+* :class:`NBRDFRung` — a 6-21-21-3 network per material (Sztrajman et al. 2021), 675 parameters.
+
+``build_ladder(entries)`` turns a scene's ladder (``SceneSpec.ladder``) into rungs. A rung's
+*cost* is measured, not assumed: nanoseconds per evaluation of a fitted material's BRDF on this
+machine (:func:`measure_cost`, one thread), beside its bytes of per-material parameters.
+"""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, Sequence
+
+import torch
+
+from ..data.directions import sample_directions
+from ..data.samples import Samples
+from ..fit import FitConfig, fit_materials
+from ..graph import BRDFModel
+from ..materials import MaterialTable
+from ..train import log_l1
+
+__all__ = ["FittedRung", "GraphRung", "NBRDFRung", "Rung", "build_ladder", "measure_cost"]
+
+Directions = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+BYTES_PER_PARAMETER = 4  # float32, as the exporters store them
+
+
+@dataclass
+class FittedRung:
+    """One rung fitted to one material."""
+
+    brdf: Directions  # f_r (n, 3): clipped at 0, zero below either horizon (render, export)
+    predict: Directions  # raw f_r (n, 3): what the loss sees
+    params: dict[str, list[float]]  # what the plan stores (a graph rung: the specialize dict)
+    n_params: int
+    fit_loss: float
+
+    @property
+    def param_bytes(self) -> int:
+        return self.n_params * BYTES_PER_PARAMETER
+
+    def heldout_log_l1(self, test: Samples) -> float:
+        with torch.no_grad():
+            return float(log_l1(self.predict(test.wi, test.wo), test.f_r, test.wi).double().mean())
+
+
+class Rung(ABC):
+    """A model of the ladder: ``label`` for people, ``key`` stable for files and resumes."""
+
+    label: str
+    key: str
+    model_name: str  # the registered model, or "nbrdf"
+    state: str | None  # the enhancement state of a graph rung
+    shared_weights: int
+
+    @abstractmethod
+    def fit(self, samples: Samples, config: FitConfig, seed: int) -> list[FittedRung]:
+        """Every material of ``samples`` fitted, in ``samples.names`` order."""
+
+    @abstractmethod
+    def brdf_of(self, params: Mapping[str, Sequence[float]]) -> Directions:
+        """The BRDF of a material fitted earlier, from its ``FittedRung.params``."""
+
+
+class GraphRung(Rung):
+    def __init__(self, label: str, key: str, model: BRDFModel, latent_mean: torch.Tensor | None = None,
+                 source: str | None = None, round_index: int | None = None, val_loss: float | None = None):
+        self.label, self.key, self.model = label, key, model
+        self.model_name, self.state, self.shared_weights = model.name, model.state, model.n_weights()
+        self.source, self.round = source, round_index  # the shipped model or bundle it is a rung of
+        self.val_loss, self.latent_mean = val_loss, latent_mean  # the search's, carried into plans' bundles
+        self.trained = None
+        if latent_mean is not None and model.uses_latent:
+            self.trained = MaterialTable(model.specs, ["mean"], model.latent_dim,
+                                         latent=latent_mean.reshape(1, -1).float())
+
+    def fit(self, samples: Samples, config: FitConfig, seed: int) -> list[FittedRung]:
+        model = self.model
+        result = fit_materials(model, samples, config, seed=seed, trained=self.trained)
+        used = set(model.used_specs().names)
+        out = []
+        for i in range(len(samples.names)):
+            params = {k: v for k, v in result.materials.as_params(i).items()
+                      if k in used or (k == "latent" and model.uses_latent)}
+            values = {k: v.reshape(1, -1) for k, v in params.items() if k != "latent"}
+            latent = params.get("latent")
+
+            @torch.no_grad()
+            def predict(wi, wo, values=values, latent=latent):
+                n = len(wi)
+                full = {**{k: v.expand(n, -1) for k, v in values.items()},
+                        **{s.name: torch.full((n, s.width), s.init) for s in model.specs if s.name not in values}}
+                return model(wi, wo, full, None if latent is None else latent.reshape(1, -1).expand(n, -1))
+
+            out.append(FittedRung(model.specialize(params), predict,
+                                  {k: [float(x) for x in v.reshape(-1)] for k, v in params.items()},
+                                  model.n_material_params(), result.losses[i]))
+        return out
+
+    def brdf_of(self, params):
+        return self.model.specialize({k: torch.tensor(v, dtype=torch.float32) for k, v in params.items()})
+
+
+class NBRDFRung(Rung):
+    label, key, model_name, state, shared_weights = "NBRDF (per material)", "nbrdf", "nbrdf", None, 0
+
+    def __init__(self, epochs: int | None = None):
+        self.epochs = epochs
+
+    def fit(self, samples: Samples, config: FitConfig, seed: int) -> list[FittedRung]:
+        from ..study.nbrdf_fit import NBRDFConfig, fit_nbrdf
+
+        result = fit_nbrdf(samples, NBRDFConfig(epochs=self.epochs) if self.epochs else NBRDFConfig(), seed=seed)
+        out = []
+        for net, loss in zip(result.networks, result.losses):
+            params = {name: [float(x) for x in p.detach().reshape(-1)] for name, p in net.state_dict().items()}
+            out.append(FittedRung(net.evaluate, torch.no_grad()(net.forward), params, net.n_weights(), loss))
+        return out
+
+    def brdf_of(self, params):
+        from ..study.nbrdf_fit import NBRDFNetwork
+
+        net = NBRDFNetwork()
+        shapes = {k: v.shape for k, v in net.state_dict().items()}
+        net.load_state_dict({k: torch.tensor(v, dtype=torch.float32).reshape(shapes[k]) for k, v in params.items()})
+        return net.eval().evaluate
+
+
+def build_ladder(entries: Sequence[Any], where: str = "ladder") -> list[Rung]:
+    """The scene's ladder entries as rungs, in order: a model name (``ggx``, a shipped model, a bundle
+    folder: its final model) or ``nbrdf``, or ``{rungs: MODEL}`` (every rung of a searched model).
+    Every problem is a ValueError naming the entry."""
+    from ..pretrained import load_model, rungs
+
+    out: list[Rung] = []
+    for i, entry in enumerate(entries):
+        name = entry if isinstance(entry, str) else entry.rungs
+        try:
+            if isinstance(entry, str) and entry == "nbrdf":
+                out.append(NBRDFRung())
+            elif isinstance(entry, str):
+                model, trained = load_model(entry, f"{where}.{i}")
+                latent = trained.latent.detach().mean(0) if trained is not None and len(trained) else None
+                out.append(GraphRung(entry, entry, model, latent, source=entry))
+            else:
+                for r in rungs(name):
+                    label = f"{name} r{r.round}" if r.round >= 0 else name
+                    out.append(GraphRung(f"{label} {r.model.describe()}", f"{name}@{r.round}:{r.state}", r.model,
+                                         r.latent_mean, source=name, round_index=r.round, val_loss=r.val_loss))
+        except ValueError as exc:
+            message = str(exc)
+            raise ValueError(message if message.startswith(f"{where}.{i}") else f"{where}.{i}: {message}") from None
+    keys = [r.key for r in out]
+    duplicated = sorted({k for k in keys if keys.count(k) > 1})
+    if duplicated:
+        raise ValueError(f"{where}: {', '.join(duplicated)} more than once")
+    return out
+
+
+@torch.no_grad()
+def measure_cost(brdf: Directions, n: int = 65_536, repeats: int = 5) -> float:
+    """Nanoseconds per evaluation of ``brdf`` on one thread: the median of ``repeats`` timed calls on
+    ``n`` Rusinkiewicz-uniform pairs (float32) after a warm-up call."""
+    wi, wo = (t.float() for t in sample_directions(n, seed=12345))
+    saved = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        brdf(wi, wo)
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            brdf(wi, wo)
+            times.append(time.perf_counter() - start)
+    finally:
+        torch.set_num_threads(saved)
+    return sorted(times)[len(times) // 2] / n * 1e9

@@ -1,0 +1,102 @@
+"""The scene planner on scenes whose answer is known: a material that plain GGX generated stays
+analytical, a material GGX cannot represent climbs the ladder; the tolerance and the weights are
+respected, plans reproduce, an interrupted plan resumes (tests/cli/test_scene_cli.py), and a bad scene is one line naming it.
+
+The ladder is [ggx, nbrdf] (a per-material network surely beats GGX on a retro-reflective material,
+and GGX is exact on its own), so the expected choices do not hang on a trained model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from neuenh.scene import SceneError, parse_scene, plan_scene
+from neuenh.scene.ladder import GraphRung
+from neuenh.scene.planner import RungResult, choose
+from neuenh.scene.spec import Tolerance
+from scene_files import scene, write_tables
+
+
+@pytest.fixture(scope="module")
+def tables(tmp_path_factory) -> Path:
+    return write_tables(tmp_path_factory.mktemp("scene"))
+
+
+@pytest.fixture(scope="module")
+def known_plan(tables):
+    return plan_scene(parse_scene(scene(tables)), tables)
+
+
+def test_the_ggx_material_stays_analytical_and_the_retro_one_climbs(known_plan):
+    chosen = {m.name: m.chosen for m in known_plan.materials}
+    assert chosen == {"gloss": "ggx", "retro": "nbrdf"}
+    gloss, retro = known_plan.materials
+    assert gloss.result("ggx").error < 1e-3  # GGX is exact on its own material (float32 table)
+    assert retro.result("nbrdf").error < 0.5 * retro.result("ggx").error
+
+
+def test_the_tolerance_is_respected_and_the_weights_make_the_totals(known_plan):
+    for m in known_plan.materials:
+        best = min(r.error for r in m.results)
+        assert m.result(m.chosen).error <= best * 1.1 + 1e-12
+    totals = known_plan.totals()
+    costs = {r["key"]: r["cost_ns"] for r in known_plan.ladder}
+    gloss, retro = known_plan.materials
+    assert totals["plan"]["error"] == pytest.approx((3 * gloss.result("ggx").error + retro.result("nbrdf").error) / 4)
+    assert totals["plan"]["cost_ns"] == pytest.approx((3 * costs["ggx"] + costs["nbrdf"]) / 4)
+    assert totals["richest"]["rungs"] == {"nbrdf": 2} and totals["cheapest"]["rungs"] == {"ggx": 2}
+    assert totals["plan"]["cost_ns"] < totals["richest"]["cost_ns"]
+    assert totals["plan"]["error"] < totals["cheapest"]["error"]
+    assert totals["plan"]["param_bytes"] == 4 * (12 + 675)
+
+
+def test_the_same_scene_plans_the_same(tables, known_plan):
+    again = plan_scene(parse_scene(scene(tables)), tables)
+    for a, b in zip(known_plan.materials, again.materials):
+        assert a.chosen == b.chosen and [r.error for r in a.results] == [r.error for r in b.results]
+
+
+def test_an_absolute_tolerance_takes_the_cheapest_rung_within_it_or_the_best():
+    results = [RungResult("a", 0.05, 0.05, 0.0, 12, 48, {}), RungResult("b", 0.02, 0.02, 0.0, 39, 156, {}),
+               RungResult("c", 0.01, 0.01, 0.0, 675, 2700, {})]
+    costs = {"a": 100.0, "b": 250.0, "c": 260.0}
+    assert choose(results, costs, Tolerance(absolute=0.06)) == "a"
+    assert choose(results, costs, Tolerance(absolute=0.03)) == "b"
+    assert choose(results, costs, Tolerance(absolute=0.001)) == "c"  # none within: the best
+    assert choose(results, costs, Tolerance(relative=1.5)) == "b"  # 0.02 <= 0.01 * 2.5, 0.05 is not
+    # a later rung only when clearly cheaper: c at 95 % of b's cost is within the margin, so b stays
+    assert choose(results, {"a": 100.0, "b": 250.0, "c": 240.0}, Tolerance(relative=1.5)) == "b"
+    assert choose(results, {"a": 100.0, "b": 250.0, "c": 200.0}, Tolerance(relative=1.5)) == "c"
+
+
+def test_rungs_of_a_searched_model_join_the_ladder(tmp_path, tables):
+    from neuenh.checkpoint import Bundle, Rung
+
+    bundle = Bundle.initial("ggx", ["a"])
+    plain = Bundle(bundle.model, bundle.materials)
+    bundle.model = bundle.model.enhance("00000100000", seed=1)
+    bundle.rungs = [Rung.of(0, 0.03, plain), Rung.of(1, 0.02, bundle)]
+    bundle.save(tmp_path / "searched")
+    spec = parse_scene(scene(tables, materials=[{"path": str(tables / "gloss.npz")}],
+                             ladder=[{"rungs": str(tmp_path / "searched")}]))
+    plan = plan_scene(spec, tables)
+    assert [r["state"] for r in plan.ladder] == ["00000000000", "00000100000"]
+    assert [r["shared_weights"] > 0 for r in plan.ladder] == [False, True]
+    assert isinstance(plan.rungs[1], GraphRung) and plan.rungs[1].round == 1
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"materials": [{"path": "nowhere.npz"}]}, "materials.0: .*nowhere.npz"),
+    ({"ladder": ["phong"]}, r"ladder.0 'phong' is neither an analytical model"),
+    ({"ladder": []}, "ladder: List should have at least 1 item"),
+    ({"materials": [{"path": "gloss.npz", "weight": -1}]}, "materials.0.*weight: Input should be greater than"),
+    ({"tolerance": {"metric": "ssim", "relative": 0.1}}, "tolerance.metric ssim renders .* use metric log_l1"),
+    ({"tolerance": {"relative": 0.1, "absolute": 1}}, "exactly one of 'relative'"),
+    ({"materials": [{"path": "gloss.npz"}, {"path": "gloss.npz"}]}, "gloss more than once"),
+], ids=["missing-file", "unknown-model", "empty-ladder", "negative-weight", "render-metric-on-a-table",
+        "two-tolerances", "same-name"])
+def test_bad_scenes_are_one_line_naming_the_problem(tables, changes, message):
+    with pytest.raises(SceneError, match=message) as info:
+        plan_scene(parse_scene(scene(tables, **changes)), tables)
+    assert "\n" not in str(info.value)

@@ -1,0 +1,31 @@
+"""Scene files the scene tests write themselves: measurement tables of materials whose best rung is
+known, and a scene over them (``neuenh.scene``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from neuenh.data.directions import sample_directions
+from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
+from neuenh.data.table import write_table
+
+
+def write_material(path: Path, material, n: int = 1600, seed: int = 0) -> Path:
+    wi, wo = sample_directions(n, seed=seed, near_mirror=0.3)
+    return write_table(path, wi, wo, material.evaluate(wi, wo))
+
+
+def write_tables(folder: Path) -> Path:
+    """gloss.npz: plain anisotropic GGX without noise; retro.npz and sheen.npz: zoo materials."""
+    [gloss] = synthetic_ggx(1, seed=3, noise_sigma=0.0)
+    write_material(folder / "gloss.npz", gloss)
+    write_material(folder / "retro.npz", synthetic_zoo(1, seed=1, families=("retro",))[0])
+    write_material(folder / "sheen.npz", synthetic_zoo(1, seed=2, families=("sheen",))[0])
+    return folder
+
+
+def scene(folder: Path, **changes) -> dict:
+    """GGX's own material (weight 3) and a retro-reflective one, on the ladder [ggx, nbrdf]."""
+    return {"name": "known", "materials": [{"path": "gloss.npz", "weight": 3.0}, {"path": "retro.npz"}],
+            "ladder": ["ggx", "nbrdf"], "tolerance": {"metric": "log_l1", "relative": 0.1},
+            "fit": {"samples": 1000, "test_samples": 500, "seed": 0}, **changes}
