@@ -15,6 +15,8 @@ import math
 import time
 from typing import Callable
 
+from neuenh.checkpoint import Bundle
+from neuenh.scene.ladder import measure_cost
 from neuenh.search import Outcome, candidate_seed, hamming_ball, initial_state, keep_better_half, select, weight_cost
 from storage import (ArtifactStore, CandidateRecord, FinishedCandidate, HalvingRecord, JobStatus, JobStore, RoundKind,
                      RoundRecord, WarmupRecord)
@@ -76,6 +78,8 @@ class JobRun:
         self.names: list[str] = []  # the dataset's materials, once prepared
         self.dataset: object | None = None  # the executor's handle, once prepared
         self.recovered: dict[int, int] = {}  # round -> candidates read back instead of trained
+        self.costs_ns: dict[str, float] | None = None  # state -> measured evaluation cost (search.cost "time")
+        self.stop_reason: str | None = None  # why search.stop_when ended the search
         job = jobs.get_job(job_id)
         self.used_wall_s, self.used_cpu_s = job.used_wall_s, job.used_cpu_s  # as stored, over restarts
         self.charged_at = time.monotonic()  # wall time since then is not yet charged
@@ -107,24 +111,28 @@ class JobRun:
         else:
             k, state = last.index + 1, self.parse(last.winner_state)
             parent = self.artifacts.get(last.artifact_key)
-            finished = last.converged
+            self.stop_reason = last.extra.get("stop_when")
+            finished = last.converged or self.stop_reason is not None
         while not finished and k < self.spec.search.max_rounds:
             self.check_cancel()
             started = time.time()
             result = self.search_round(k, state, parent)
             winner = result.winner
-            self.commit(k, state, winner, result.reports, started, warmup=warmup if k == 0 else None,
-                        halving=result.halving, pruned=result.pruned)
-            self.charge()
             finished = winner.task.state == self.format(state)
+            stop = None if finished else self.good_enough(state, winner, result.reports)
+            self.commit(k, state, winner, result.reports, started, warmup=warmup if k == 0 else None,
+                        halving=result.halving, pruned=result.pruned, extra={"stop_when": stop} if stop else None)
+            self.charge()
+            if stop:
+                self.stop_reason, finished = stop, True
             state, parent = self.parse(winner.task.state), winner.bundle
             self.emit(RUNNING, round=k, done=len(result.reports), total=len(result.reports), best=winner.val_loss,
                       state=winner.task.state, message="converged" if finished else "committed")
             k += 1
-        outcome = CONVERGED if finished else STOPPED
+        outcome = CONVERGED if finished and self.stop_reason is None else STOPPED
         if self.spec.search.polish_epochs:
             self.polish(k, state, parent, outcome)
-        self.jobs.set_status(self.job_id, outcome)
+        self.jobs.set_status(self.job_id, outcome, reason="stop_when" if self.stop_reason else None)
 
     def prepare(self) -> None:
         """Materialise (or read from the cache) the job's dataset and hand it to the executor.
@@ -297,15 +305,41 @@ class JobRun:
     def outcomes(self, reports: list[CandidateReport]) -> list[Outcome]:
         """What the selection rule compares: each state's loss, cost and failure."""
         weight = self.spec.search.complexity_weight
-        return [Outcome(self.parse(r.task.state), r.val_loss,
-                        weight_cost(neural_weights(self.spec, r.task.state)) if weight else 0.0,
+        return [Outcome(self.parse(r.task.state), r.val_loss, self.cost(r) if weight and r.ok else 0.0,
                         failed=not r.ok)
                 for r in reports]
+
+    def cost(self, report: CandidateReport) -> float:
+        """A candidate's cost for ``complexity_weight`` (``search.cost``)."""
+        if self.spec.search.cost == "weights":
+            return weight_cost(neural_weights(self.spec, report.task.state))
+        if self.costs_ns is None:  # measured before a restart: the same numbers, so the same choices
+            self.costs_ns = {e.payload["state"]: e.payload["ns"] for e in self.jobs.events(self.job_id)
+                             if e.kind == "cost"}
+        state = report.task.state
+        if state not in self.costs_ns:
+            self.costs_ns[state] = evaluation_cost_ns(Bundle.from_bytes(report.bundle))
+            self.jobs.append_event(self.job_id, "cost", {"state": state, "ns": self.costs_ns[state]})
+        return self.costs_ns[state] / 100.0
+
+    def good_enough(self, state, winner: CandidateReport, reports: list[CandidateReport]) -> str | None:
+        """Why ``search.stop_when`` ends the search after this round (None: go on)."""
+        stop = self.spec.search.stop_when
+        if stop is None:
+            return None
+        if stop.val_loss_below is not None and winner.val_loss <= stop.val_loss_below:
+            return f"validation loss {winner.val_loss:.5g} <= val_loss_below {stop.val_loss_below:g}"
+        stay = next((r for r in reports if r.task.state == self.format(state) and r.ok), None)
+        if stop.gain_below is not None and stay is not None:
+            gain = 1.0 - winner.val_loss / stay.val_loss
+            if gain < stop.gain_below:
+                return f"gain {100 * gain:.2f} % over stay < gain_below {100 * stop.gain_below:g} %"
+        return None
 
     def commit(self, k: int, state, winner: CandidateReport, reports: list[CandidateReport], started: float, *,
                kind: RoundKind = RoundKind.SEARCH, outcome: JobStatus | None = None,
                warmup: WarmupRecord | None = None, halving: HalvingRecord | None = None,
-               pruned: frozenset[str] = frozenset()) -> None:
+               pruned: frozenset[str] = frozenset(), extra: dict | None = None) -> None:
         """Round ``k``'s winner checkpoint, durably, then the round itself in one transaction. The
         checkpoint is content-addressed: the round record holds its SHA-256 (the key), and every
         read re-hashes it, so a changed byte is an error naming it, never a silently wrong model."""
@@ -315,6 +349,7 @@ class JobRun:
             candidates=tuple(_candidate_record(r, r.task.state in pruned) for r in reports),
             started_at=started, finished_at=time.time(), artifact_key=key,
             kind=kind, outcome=outcome, warmup=warmup, halving=halving, recovered=self.recovered.get(k, 0),
+            extra=extra or {},
         ))
 
     # -- cancellation, budget and progress ---------------------------------------------------------
@@ -357,6 +392,11 @@ class JobRun:
 
     def format(self, digits) -> str:
         return self.graph.format_state(digits)
+
+
+def evaluation_cost_ns(bundle: Bundle) -> float:
+    """Nanoseconds per evaluation of a candidate's specialized BRDF on its first training material."""
+    return measure_cost(bundle.model.specialize(bundle.materials.as_params(0)))
 
 
 def _candidate_row(r: CandidateReport) -> dict:

@@ -55,6 +55,22 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
 
+class StopWhen(_Strict):
+    """"Enough accuracy for its cost": end the search (STOPPED, reason "stop_when") after a round whose
+    winner is good enough, instead of adding modules until nothing helps. Either or both."""
+
+    val_loss_below: float | None = Field(None, gt=0.0, description=(
+        "stop once the round's winner has a validation loss at most this"))
+    gain_below: float | None = Field(None, gt=0.0, lt=1.0, description=(
+        "stop once a round's winner lowers the stay candidate's validation loss by less than this share"))
+
+    @model_validator(mode="after")
+    def _some(self) -> "StopWhen":
+        if self.val_loss_below is None and self.gain_below is None:
+            raise ValueError("give val_loss_below, gain_below or both")
+        return self
+
+
 class SearchSpec(_Strict):
     radius: int = Field(1, ge=0, le=4)
     epochs_per_round: int = Field(30, ge=1)
@@ -66,7 +82,12 @@ class SearchSpec(_Strict):
     max_neural: int | None = Field(None, ge=0)
     fixed: dict[str, int] = Field(default_factory=dict, description="position name -> digit it keeps")
     allowed: dict[str, list[int]] = Field(default_factory=dict, description="position name -> digits it may take")
-    complexity_weight: float = Field(0.0, ge=0.0, description="score = val_loss + weight x (neural weights / 1000)")
+    complexity_weight: float = Field(0.0, ge=0.0, description="score = val_loss + weight x cost (see 'cost')")
+    cost: Literal["weights", "time"] = Field("weights", description=(
+        "what complexity_weight weighs: 'weights', the state's neural weights / 1000; 'time', its specialized "
+        "evaluation cost in units of 100 ns per evaluation, measured once per state on the service's machine "
+        "(on the first training material, one thread) and kept in the job's events so a resumed job reuses it"))
+    stop_when: StopWhen | None = None
     min_improvement: float = Field(0.0, ge=0.0, lt=1.0, description="relative gain a change must bring over stay")
     prune: Literal["none", "halving"] = "none"
     halving_fraction: float = Field(0.34, gt=0.0, lt=1.0, description="share of the epochs before halving")

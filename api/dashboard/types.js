@@ -13,7 +13,7 @@
  *            val_loss: number | null, error: string | null}} Candidate
  * @typedef {{round: number, kind: string, parent_state: string, winner_state: string, change: string,
  *            winner_val_loss: number, gain_over_start: number | null, converged: boolean,
- *            wall_s: number, recovered: number, candidates: Candidate[]}} Round
+ *            wall_s: number, recovered: number, candidates: Candidate[], extra?: {stop_when?: string}}} Round
  * @typedef {{job_id: string, status: string, terminal: boolean, reason: string | null,
  *            start_val_loss: number | null, gain_over_start: number | null, rounds: Round[],
  *            next_since_round: number}} History

@@ -34,7 +34,7 @@ function miniProgress(job) {
   if (job.status === "PREPARING") return el("span", { class: "muted", text: "preparing data" });
   /** @type {Record<string, string>} */
   const ends = { CONVERGED: "converged", STOPPED: "finished", CANCELLED: "cancelled", FAILED: "failed" };
-  const end = job.reason === "budget" ? "budget spent" : ends[job.status];
+  const end = job.reason === "budget" ? "budget spent" : job.reason === "stop_when" ? "good enough" : ends[job.status];
   return el("span", { class: "muted", text: end || "–" });
 }
 
@@ -186,7 +186,8 @@ function choicesAt(job, position) {
  * @param {Round} r */
 function changeText(r) {
   if (r.kind === "polish") return "polish: trained on, lr decaying";
-  if (r.change !== "stay") return r.change;
+  const stop = r.extra && r.extra.stop_when ? ` · stopped: ${r.extra.stop_when}` : "";
+  if (r.change !== "stay") return r.change + stop;
   return r.converged ? "stay: converged" : "stay";
 }
 
@@ -270,6 +271,9 @@ export function renderFinal(job, state, rounds, positions) {
   const parts = [neural.length ? `neural at ${neural.join(", ")}` : "all terms analytical"];
   if (last) parts.push(`validation loss ${fmtLoss(last.winner_val_loss)} after round ${last.round}`);
   if (job.status === "CONVERGED") parts.push("converged: no single change improved it further");
-  else if (job.status === "STOPPED") parts.push(job.reason === "budget" ? "stopped: its budget ran out" : "stopped at max_rounds");
+  else if (job.status === "STOPPED") {
+    parts.push(job.reason === "budget" ? "stopped: its budget ran out"
+      : job.reason === "stop_when" ? "stopped: good enough for its cost (search.stop_when)" : "stopped at max_rounds");
+  }
   text.textContent = parts.join(" · ");
 }

@@ -429,3 +429,41 @@ def test_a_search_with_alternatives_tries_every_choice_and_ships_what_won(orches
     assert winner.model.state == r.winner_state and winner.model.has_alternatives
     assert set(winner.materials.raw) == set(model.param_names)  # every alternative's parameters travel along
     assert all(c.ok for c in r.candidates), [c.error for c in r.candidates if not c.ok]
+
+
+def test_stop_when_ends_the_search_once_good_enough_and_says_why(orchestrator, stores):
+    jobs, _ = stores
+    spec = tiny_spec(max_rounds=5, stop_when={"gain_below": 0.99})  # no round removes 99 % of the loss
+    job = orchestrator.run(orchestrator.submit(spec)[0].id)
+    rounds = jobs.rounds(job.id)
+    if rounds[0].converged:
+        pytest.skip("round 0's stay candidate won: nothing to stop")
+    assert len(rounds) == 1 and job.status == JobStatus.STOPPED and job.reason == "stop_when"
+    assert rounds[0].extra["stop_when"].startswith("gain ") and "< gain_below 99 %" in rounds[0].extra["stop_when"]
+    loose = tiny_spec(max_rounds=5, stop_when={"val_loss_below": 10.0})
+    job = orchestrator.run(orchestrator.submit(loose)[0].id)
+    assert job.reason == "stop_when" and "<= val_loss_below 10" in jobs.rounds(job.id)[0].extra["stop_when"]
+
+
+def test_a_time_cost_is_measured_once_per_state_and_kept_for_a_resume(orchestrator, stores):
+    """search.cost 'time': each state's specialized evaluation cost is measured once and recorded as
+    an event; a large complexity weight then allows only changes that cost no time (a module of S
+    reads no direction: the specialized evaluator folds it into a constant)."""
+    jobs, _ = stores
+    spec = tiny_spec(max_rounds=1, complexity_weight=10.0, cost="time")
+    job = orchestrator.run(orchestrator.submit(spec)[0].id)
+    costs = [e.payload for e in jobs.events(job.id) if e.kind == "cost"]
+    [r] = jobs.rounds(job.id)
+    assert sorted(c["state"] for c in costs) == sorted(c.state for c in r.candidates)  # once each
+    by_state = {c["state"]: c["ns"] for c in costs}
+    assert all(ns > 0 for ns in by_state.values())
+    assert max(by_state.values()) > 1.5 * by_state["00000000000"]  # a module costs time
+    assert by_state[r.winner_state] < 1.25 * by_state["00000000000"]  # 10 per 100 ns outweighs any loss gain
+    assert by_state["01000000000"] < 1.25 * by_state["00000000000"] < by_state["00100000000"]
+    # a run of the same job after a restart reads the costs back instead of measuring (no bundle needed)
+    from orchestrator.executor import CandidateReport, CandidateTask
+    from orchestrator.job_run import JobRun
+
+    again = JobRun(job.id, spec, jobs, stores[1], InlineExecutor(), lambda p: None, lambda: False)
+    report = CandidateReport(CandidateTask("00100000000", 0, 1), 0.1, 0.1, 1, 0.0, "inline", bundle=None)
+    assert again.cost(report) == by_state["00100000000"] / 100.0

@@ -14,7 +14,7 @@ def test_the_reference_spec_decays_its_lr_and_polishes():
     spec = load_spec("examples/reference.yaml")
     assert spec.train_config().lr_final == spec.train.lr_final == 5e-4
     polish = spec.polish_config()
-    assert (polish.epochs, polish.lr, polish.lr_final) == (30, 5e-3, 5e-4)
+    assert (polish.epochs, polish.lr, polish.lr_final) == (40, 5e-3, 5e-4)
 
 
 @pytest.mark.parametrize(
