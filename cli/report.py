@@ -52,6 +52,10 @@ def add_parser(commands) -> None:
                    help="starting points of the models with modules (neuenh.fit): several, or the paper's alone")
     p.add_argument("--eval-pairs", type=int, default=200_000, help="direction pairs timing each BRDF's evaluation")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--efficiency", type=int, nargs="*", metavar="N", default=None,
+                   help="also fit the enhanced model, GGX, the small residual MLP and NBRDF on N samples per material "
+                        "under both protocols (uniform; half near the mirror direction): the data-efficiency table "
+                        "and plot (with no N: 100 300 1000 3000 10000)")
     # the defaults, to print the regenerating command with only the flags that differ
     p.set_defaults(run=run, defaults=vars(p.parse_args([])))
 
@@ -62,10 +66,20 @@ _NOT_IN_COMMAND = {"run", "defaults", "jobs", "work_dir", "train_baselines", "ma
 def command(args) -> str:
     """``neuenh report`` with the flags that differ from the defaults and change the results."""
     flags = [f"--{key.replace('_', '-')} {getattr(args, key)}" for key, default in args.defaults.items()
-             if key not in _NOT_IN_COMMAND and getattr(args, key) != default]
+             if key not in _NOT_IN_COMMAND | {"efficiency"} and getattr(args, key) != default]
+    if args.efficiency is not None:
+        flags.append(" ".join(["--efficiency", *map(str, args.efficiency)]))
     if args.materials:
         flags.append("--materials " + " ".join(args.materials))
     return " ".join(["neuenh report", *flags])
+
+
+def _sizes(efficiency: list[int] | None) -> tuple[int, ...]:
+    from neuenh.study.efficiency import SIZES
+
+    if efficiency is None:
+        return ()
+    return tuple(efficiency) or SIZES
 
 
 def run(args) -> int:
@@ -75,7 +89,8 @@ def run(args) -> int:
         rgl=args.rgl, model=args.model, baselines=args.baselines, out=args.out, command=command(args),
         materials=tuple(args.materials) if args.materials else None, fit_samples=args.fit_samples,
         test_samples=args.test_samples, size=args.size, samples=args.samples, scene=args.scene, jobs=args.jobs,
-        fit_epochs=args.fit_epochs, fit_starts=args.fit_starts, eval_pairs=args.eval_pairs, seed=args.seed)
+        fit_epochs=args.fit_epochs, fit_starts=args.fit_starts, eval_pairs=args.eval_pairs, seed=args.seed,
+        efficiency=_sizes(args.efficiency))
     if args.train_baselines:
         from neuenh.checkpoint import Bundle
         from neuenh.pretrained import bundle_path, load_model

@@ -18,7 +18,7 @@ from typing import Sequence
 import torch
 
 from .contenders import Contender, Directions
-from ..data.directions import sample_directions
+from ..data.directions import near_mirror_mask, sample_directions
 from .heldout import draw_fit_test
 from ..render import EnvironmentMap, ball_scene, render, sphere_scene
 from ..render.envmaps import studio_environment
@@ -60,6 +60,8 @@ class ContenderResult:
     render_s: float
     rays: int  # (covered pixel, light sample) pairs of the render
     evals_per_s: float  # eval_throughput of the fitted BRDF
+    heldout_near: float = float("nan")  # held-out log-L1 over the test pairs near the mirror direction
+    heldout_away: float = float("nan")  # ... and over the others
 
     def row(self) -> dict:
         return dict(self.__dict__)
@@ -80,12 +82,10 @@ class MaterialComparison:
         return {r.contender: r for r in self.results}
 
 
-def _mean_log_l1(predict: Directions, wi, wo, f_r, batch: int = 100_000) -> float:
-    total = 0.0
-    for lo in range(0, len(wi), batch):
-        s = slice(lo, lo + batch)
-        total += float(log_l1(predict(wi[s], wo[s]), f_r[s], wi[s]).double().sum())
-    return total / len(wi)
+def _log_l1_rows(predict: Directions, wi, wo, f_r, batch: int = 100_000) -> torch.Tensor:
+    """The loss of every test pair (n,) float64."""
+    return torch.cat([log_l1(predict(wi[s], wo[s]), f_r[s], wi[s]).double()
+                      for s in (slice(lo, lo + batch) for lo in range(0, len(wi), batch))])
 
 
 def compare_material(material, contenders: Sequence[Contender], n_fit: int, n_test: int, seed: int = 0,
@@ -94,13 +94,15 @@ def compare_material(material, contenders: Sequence[Contender], n_fit: int, n_te
     measured source with ``evaluate`` and ``samples`` (RGL, MERL, NBRDF, analytical);
     ``eval_pairs`` direction pairs time the evaluation throughput."""
     fit, test, split = draw_fit_test(material, n_fit, n_test, seed)
+    near = near_mirror_mask(test.wi.double(), test.wo.double())
     scene, lights = setup.build_scene(), setup.lights()
     truth = render(lambda wi, wo: material.evaluate(wi, wo).float(), scene, lights)
     rays = int(scene.mask.sum()) * setup.samples_per_axis ** 2
     results, images = [], {}
     for contender in contenders:
         fitted = contender.fit(fit, seed=seed)
-        heldout = _mean_log_l1(fitted.predict, test.wi, test.wo, test.f_r)
+        with torch.no_grad():
+            losses = _log_l1_rows(fitted.predict, test.wi, test.wo, test.f_r)
         start = time.perf_counter()
         image = render(fitted.brdf, scene, lights)
         render_s = time.perf_counter() - start
@@ -108,7 +110,9 @@ def compare_material(material, contenders: Sequence[Contender], n_fit: int, n_te
             raise ValueError(f"{contender.name} on {material.name}: the render has non-finite pixels")
         images[contender.name] = image
         results.append(ContenderResult(
-            contender=contender.name, fit_loss=fitted.fit_loss, heldout_log_l1=heldout, fit_s=fitted.fit_s,
+            contender=contender.name, fit_loss=fitted.fit_loss, heldout_log_l1=float(losses.mean()),
+            heldout_near=float(losses[near].mean()) if near.any() else float("nan"),
+            heldout_away=float(losses[~near].mean()) if (~near).any() else float("nan"), fit_s=fitted.fit_s,
             params_per_material=fitted.params_per_material, shared_weights=fitted.shared_weights,
             ssim=ssim(truth, image, mask=scene.mask), delta_e_itp=delta_e_itp(truth, image, mask=scene.mask),
             render_s=render_s, rays=rays, evals_per_s=eval_throughput(fitted.brdf, eval_pairs)))

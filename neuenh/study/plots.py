@@ -98,6 +98,31 @@ def search_path(path: Path, rounds: list[dict]) -> Path:
     return _save(fig, path)
 
 
+def efficiency(path: Path, points: list, labels: dict[str, str]) -> Path:
+    """Median held-out log-L1 against the number of fit samples, one panel per protocol, one line per
+    model (``study.efficiency``)."""
+    from .efficiency import medians
+
+    plt = _plt()
+    protocols = list(dict.fromkeys(p.protocol for p in points))
+    fig, axes = plt.subplots(1, len(protocols), figsize=(6.5 * len(protocols), 4.6), constrained_layout=True,
+                             squeeze=False)
+    styles = {"enhanced": ("#d62728", "o"), "ggx": ("#1f77b4", "s"), "nbrdf": ("#9467bd", "^")}
+    for ax, protocol in zip(axes[0], protocols):
+        for name, by_n in medians(points, protocol).items():
+            colour, marker = styles.get(name, ("#2ca02c", "D"))
+            ax.plot(list(by_n), list(by_n.values()), marker=marker, color=colour, label=labels.get(name, name))
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("fit samples per material")
+        ax.set_ylabel("median held-out log-L1")
+        ax.set_title(f"protocol: {protocol}")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+    fig.suptitle("Data efficiency on the RGL materials: where does the shared model's prior pay?")
+    return _save(fig, path)
+
+
 def heldout_bars(path: Path, materials: list[str], models: list[ModelSummary], values: dict[str, list[float]]) -> Path:
     """Held-out log-L1 per material (groups) and model (bars), log scale."""
     plt = _plt()

@@ -10,7 +10,8 @@ from pathlib import Path
 from ..modules import ModuleConfig
 from ..models.ggx_residual import RESIDUAL_STATE
 
-__all__ = ["ANALYTICAL", "BASELINES", "Baseline", "ContenderInfo", "ENHANCED", "contender_infos"]
+__all__ = ["ANALYTICAL", "BASELINES", "Baseline", "ContenderInfo", "EFFICIENCY_CONTENDERS", "ENHANCED",
+           "contender_infos"]
 
 ENHANCED = "enhanced"
 ANALYTICAL = {"ggx": "GGX", "cook_torrance": "Cook-Torrance", "ward": "Ward"}
@@ -56,3 +57,8 @@ def contender_infos() -> list[ContenderInfo]:
             *(ContenderInfo(n, label, "analytical") for n, label in ANALYTICAL.items()),
             *(ContenderInfo(b.name, b.label, b.family) for b in BASELINES.values()),
             ContenderInfo("nbrdf", "NBRDF (per material)", "neural")]
+
+
+# The models of the data-efficiency curves (``study.efficiency``): the question is where a shared
+# model's prior beats a network fitted from scratch, against the analytical model and the residual MLP.
+EFFICIENCY_CONTENDERS = (ENHANCED, "ggx", "residual-1x", "nbrdf")

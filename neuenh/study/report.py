@@ -12,7 +12,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .registry import ANALYTICAL, BASELINES, ENHANCED, contender_infos
+from .registry import ANALYTICAL, BASELINES, EFFICIENCY_CONTENDERS, ENHANCED, contender_infos
 from .summary import MaterialResult, StudySummary
 
 __all__ = ["StudySettings", "find_materials", "run_study"]
@@ -36,11 +36,14 @@ class StudySettings:
     fit_starts: str = "analytical"
     eval_pairs: int = 200_000
     seed: int = 0
+    efficiency: tuple[int, ...] = ()  # fit-set sizes of the data-efficiency curves (none: skipped)
 
     def check(self) -> None:
         for name in ("fit_samples", "test_samples", "size", "samples", "jobs", "eval_pairs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(self, name)}")
+        if any(n < 1 for n in self.efficiency):
+            raise ValueError(f"--efficiency sizes must be at least 1, got {list(self.efficiency)}")
         if self.fit_epochs is not None and self.fit_epochs < 1:
             raise ValueError(f"--fit-epochs must be at least 1, got {self.fit_epochs}")
         if not self.rgl.is_dir():
@@ -91,7 +94,7 @@ def run_study(settings: StudySettings) -> StudySummary:
         wall_s=time.perf_counter() - start,
         settings={"fit_samples": s.fit_samples, "test_samples": s.test_samples, "size": s.size, "scene": s.scene,
                   "eval_pairs": s.eval_pairs, "fit_starts": s.fit_starts, "light_samples": s.samples ** 2,
-                  "seed": s.seed, "jobs": s.jobs},
+                  "seed": s.seed, "jobs": s.jobs, "efficiency": list(s.efficiency)},
         enhanced={"model": s.model, "state": enhanced.state, "formula": enhanced.describe(),
                   "weights": enhanced.n_weights()})
     img = s.out / "img" / "results"
@@ -140,10 +143,17 @@ def _measure(s: StudySettings, path: Path) -> MaterialResult:
     from .comparison import RenderSetup, compare_material
 
     torch.set_num_threads(1)
-    c = compare_material(load_measured(path), _contenders(s), s.fit_samples, s.test_samples, seed=s.seed,
+    material, contenders = load_measured(path), _contenders(s)
+    c = compare_material(material, contenders, s.fit_samples, s.test_samples, seed=s.seed,
                          setup=RenderSetup(s.size, s.samples, s.seed, s.scene), eval_pairs=s.eval_pairs)
+    curve = []
+    if s.efficiency:
+        from .efficiency import measure_curve
+
+        curve = measure_curve(material, [x for x in contenders if x.name in EFFICIENCY_CONTENDERS], s.efficiency,
+                              n_test=s.test_samples, seed=s.seed)
     return MaterialResult(c.material, c.n_fit, c.n_test, c.split, c.results, truth=c.truth.numpy(),
-                          mask=c.mask.numpy(), images={k: v.numpy() for k, v in c.images.items()})
+                          mask=c.mask.numpy(), images={k: v.numpy() for k, v in c.images.items()}, curve=curve)
 
 
 def _figures(img: Path, summary: StudySummary, materials: list[MaterialResult], provenance: dict) -> None:
@@ -153,6 +163,9 @@ def _figures(img: Path, summary: StudySummary, materials: list[MaterialResult], 
     plots.speed_vs_error(img / "speed_vs_error.png", models)
     plots.heldout_bars(img / "heldout.png", [m.material for m in materials], models,
                        {x.name: [m.by_name()[x.name].heldout_log_l1 for m in materials] for x in models})
+    if summary.settings.get("efficiency"):
+        points = [p for m in materials for p in m.curve]
+        plots.efficiency(img / "efficiency.png", points, {x.name: x.label for x in models})
     rounds = provenance.get("search", {}).get("rounds")
     if rounds:
         plots.search_path(img / "search.png", rounds)

@@ -9,6 +9,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .comparison import ContenderResult
+from .efficiency import CurvePoint, crossover, medians, wins
 from .registry import ENHANCED, ContenderInfo
 
 __all__ = ["MaterialResult", "ModelSummary", "StudySummary"]
@@ -27,13 +28,14 @@ class MaterialResult:
     truth: np.ndarray | None = field(default=None, repr=False)  # (H, W, 3) linear render
     mask: np.ndarray | None = field(default=None, repr=False)
     images: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    curve: list[CurvePoint] = field(default_factory=list, repr=False)  # data efficiency (study.efficiency)
 
     def by_name(self) -> dict[str, ContenderResult]:
         return {r.contender: r for r in self.results}
 
     def to_json(self) -> dict:
         return {"material": self.material, "n_fit": self.n_fit, "n_test": self.n_test, "split": self.split,
-                "results": [r.row() for r in self.results]}
+                "results": [r.row() for r in self.results], "efficiency": [p.row() for p in self.curve]}
 
 
 @dataclass(frozen=True)
@@ -102,8 +104,60 @@ class StudySummary:
 
     def markdown(self, materials: list[MaterialResult], provenance: dict) -> str:
         """RESULTS.md: held-out error, render metrics, speed against error, the search, the grids."""
-        return "\n".join([*self._heldout(materials), *self._renders(materials), *self._speed(),
-                          *_search(provenance.get("search")), *_grids(materials)])
+        return "\n".join([*self._heldout(materials), *self._near_away(materials), *self._renders(materials),
+                          *self._speed(), *self._efficiency(materials), *_search(provenance.get("search")),
+                          *_grids(materials)])
+
+    def _near_away(self, materials: list[MaterialResult]) -> list[str]:
+        """The held-out error split at the mirror direction (the test pairs of the main protocol)."""
+        lines = ["### Near and away from the mirror direction", "",
+                 "The same held-out log-L1, over the test pairs whose half vector lies within 10° of the normal "
+                 "(*near*: where highlights are, a sixth of the uniform pairs) and over the others (*away*). Medians "
+                 "over the materials.", "", "| model | near | away | all |", "|---|---:|---:|---:|"]
+        for info in self.models:
+            rows = [m.by_name()[info.name] for m in materials]
+            med = lambda f: statistics.median(getattr(r, f) for r in rows)  # noqa: E731
+            lines.append(f"| {info.label} | {med('heldout_near'):.4f} | {med('heldout_away'):.4f} | "
+                         f"{med('heldout_log_l1'):.4f} |")
+        return [*lines, ""]
+
+    def _efficiency(self, materials: list[MaterialResult]) -> list[str]:
+        points = [p for m in materials for p in m.curve]
+        if not points:
+            return []
+        labels = {x.name: x.label for x in self.models}
+        params = {x.name: x.params_per_material for x in self.models}
+        speed = {x.name: x.evals_per_s for x in self.models}
+        n = len(materials)
+        lines = ["## Data efficiency: held-out error against the number of fit samples", "",
+                 "Each model fitted to 100 to 10,000 measurements of each material and tested on the same "
+                 f"{self.settings['test_samples']:,} others, under two protocols (`neuenh.study.efficiency`): "
+                 "*uniform* in the four Rusinkiewicz angles, as above, and *mirror*: half the fit and test pairs "
+                 "near the mirror direction (half vector within 10° of the normal), the way the reference values "
+                 "of ../shared draw theirs. Medians over the materials; beside each model its parameters per "
+                 "material and its evaluation speed (specialized, one thread, from the table above).", ""]
+        for protocol in dict.fromkeys(p.protocol for p in points):
+            table = medians(points, protocol)
+            near, away = medians(points, protocol, "near"), medians(points, protocol, "away")
+            sizes = sorted({p.n_fit for p in points if p.protocol == protocol})
+            lines += [f"### Protocol: {protocol}", "",
+                      "| model | params / material | evaluations/s | " + " | ".join(f"{s:,}" for s in sizes) + " |",
+                      "|---|---:|---:|" + "---:|" * len(sizes)]
+            for name, by_n in table.items():
+                lines.append(f"| {labels.get(name, name)} | {params.get(name, '')} | {_rate(speed[name]) if name in speed else ''} | "
+                             + " | ".join(f"{by_n.get(s, float('nan')):.4f}" for s in sizes) + " |")
+            ahead = wins(points, protocol, ENHANCED, "nbrdf")
+            lines.append("| *enhanced ahead of NBRDF on* | | | "
+                         + " | ".join(f"{ahead[s][0]}/{ahead[s][1]}" if s in ahead else "" for s in sizes) + " |")
+            lines.append("| *near / away, enhanced* | | | " + " | ".join(
+                f"{near[ENHANCED][s]:.3f} / {away[ENHANCED][s]:.3f}" for s in sizes) + " |")
+            lines.append("| *near / away, NBRDF* | | | " + " | ".join(
+                f"{near['nbrdf'][s]:.3f} / {away['nbrdf'][s]:.3f}" for s in sizes) + " |")
+            threshold = (3 * n + 3) // 4  # 6 of 8
+            cross = crossover(points, protocol, ENHANCED, "nbrdf", threshold)
+            lines += ["", f"Largest fit-set size at which the enhanced model is ahead of NBRDF on at least "
+                      f"{threshold} of {n} materials: **{f'{cross:,}' if cross else 'none'}**.", ""]
+        return [*lines, "![held-out error against fit samples](img/results/efficiency.png)", ""]
 
     def _heldout(self, materials: list[MaterialResult]) -> list[str]:
         names, labels = [m.name for m in self.models], [m.label for m in self.models]

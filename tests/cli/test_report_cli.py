@@ -50,7 +50,7 @@ def bundles(tmp_path_factory):
 def report(bundles, tmp_path_factory):
     out = tmp_path_factory.mktemp("report")
     done = neuenh("--rgl", RGL, "--model", bundles / "enhanced", "--baselines", bundles / "baselines",
-                  "--materials", "paper_white_rgb", "--out", out, *SMALL)
+                  "--materials", "paper_white_rgb", "--out", out, *SMALL, "--efficiency", 100, 300)
     return done, out
 
 
@@ -71,7 +71,14 @@ def test_the_report_measures_every_model_and_writes_its_files(report):
     assert results["enhanced_beats_ggx"] == int(reduction > 0)
     text = (out / "RESULTS.md").read_text()
     assert f"{100 * reduction:+.1f} %" in text and "| paper_white |" in text and "## The search" in text
-    for png in ("speed_vs_error", "heldout", "search", "paper_white_rgb"):
+    for r in material["results"]:  # the test pairs split at the mirror direction
+        assert np.isfinite([r["heldout_near"], r["heldout_away"]]).all()
+    curve = material["efficiency"]
+    assert {(p["protocol"], p["n_fit"]) for p in curve} == {(p, n) for p in ("uniform", "mirror") for n in (100, 300)}
+    assert {p["contender"] for p in curve} == {"enhanced", "ggx", "residual-1x", "nbrdf"}
+    assert "## Data efficiency" in text and "### Protocol: mirror" in text and "ahead of NBRDF on" in text
+    assert "--efficiency 100 300" in text  # the regenerating command
+    for png in ("speed_vs_error", "heldout", "search", "paper_white_rgb", "efficiency"):
         image = __import__("matplotlib.image", fromlist=["imread"]).imread(out / "img" / "results" / f"{png}.png")
         assert image.shape[0] > 200 and image[..., :3].std() > 0.05, png  # drawn, not blank
     assert not list(out.rglob(".*tmp*"))
