@@ -1,5 +1,6 @@
-"""Durable state of the search service: the ``JobStore`` (jobs, committed rounds, events) and the
-``ArtifactStore`` (checkpoints, cached datasets). Abstract contracts plus their backends
+"""Durable state of the search service: the ``JobStore`` (jobs, committed rounds, events), the
+``PlanStore`` (scene plans, material by material) and the ``ArtifactStore`` (checkpoints, cached
+datasets, plans' files). Abstract contracts plus their backends
 (``SQLiteJobStore``; ``LocalArtifactStore`` and ``S3ArtifactStore``); the service builds them and
 passes them in.
 
@@ -15,7 +16,9 @@ from .jobs import (EVENT_ROUND, EVENT_STATUS, TRANSITIONS, UNFINISHED, Candidate
                    StoreStatistics, WarmupRecord, start_val_loss, trained_epochs)
 from .local import LocalArtifactStore
 from .lock import OwnerLock, StoreLockedError
-from .sqlite import SQLiteJobStore
+from .plans import PLAN_TRANSITIONS, PlanRecord, PlanStatus, PlanStore
+from .sqlite import SQLiteDatabase, SQLiteJobStore
+from .sqlite_plans import SQLitePlanStore
 
 __all__ = [
     "ArtifactStore", "LocalArtifactStore", "S3ArtifactStore", "checkpoint_key", "content_digest", "content_key",
@@ -26,6 +29,7 @@ __all__ = [
     "StorageError", "NotFoundError", "ConflictError", "IllegalTransitionError", "InvalidRecordError",
     "SchemaVersionError", "InvalidKeyError", "CorruptArtifactError",
     "OwnerLock", "StoreLockedError",
+    "PlanStore", "SQLitePlanStore", "PlanStatus", "PlanRecord", "PLAN_TRANSITIONS", "SQLiteDatabase",
 ]
 
 

@@ -120,6 +120,29 @@ MIGRATIONS: tuple[Migration, ...] = (
         "ALTER TABLE jobs ADD COLUMN used_cpu_s REAL NOT NULL DEFAULT 0 CHECK (used_cpu_s >= 0)",
         "ALTER TABLE rounds ADD COLUMN recovered INTEGER NOT NULL DEFAULT 0 CHECK (recovered >= 0)",
     )),
+    Migration(6, "scene plans and their planned materials", (
+        """CREATE TABLE plans (
+            seq             INTEGER PRIMARY KEY AUTOINCREMENT,  -- creation order
+            id              TEXT    NOT NULL UNIQUE,
+            scene           TEXT    NOT NULL,                   -- canonical JSON
+            status          TEXT    NOT NULL,                   -- checked in Python (PlanStatus)
+            created_at      REAL    NOT NULL,
+            updated_at      REAL    NOT NULL,
+            owner           TEXT,
+            error           TEXT,
+            idempotency_key TEXT    UNIQUE,
+            materials_total INTEGER CHECK (materials_total >= 0),
+            result          TEXT                                -- canonical JSON, when DONE
+        )""",
+        "CREATE INDEX plans_by_owner ON plans(owner, seq)",
+        """CREATE TABLE plan_materials (
+            plan_id         TEXT    NOT NULL REFERENCES plans(id) ON DELETE CASCADE,
+            name            TEXT    NOT NULL,
+            recorded        INTEGER NOT NULL,                   -- recording order within the plan
+            result          TEXT    NOT NULL,                   -- canonical JSON MaterialPlan
+            PRIMARY KEY (plan_id, name)
+        )""",
+    )),
 )
 
 SCHEMA_VERSION = MIGRATIONS[-1].version

@@ -34,12 +34,14 @@ from .jobs import (EVENT_ROUND, EVENT_STATUS, UNFINISHED, CandidateRecord, Event
 from .migrations import migrate
 
 
-class SQLiteJobStore(JobStore):
-    """A ``JobStore`` in the SQLite file ``path`` (created, with its parent directory, if missing)."""
+class SQLiteDatabase:
+    """The SQLite file ``path`` (created, with its parent directory, if missing) at the latest schema,
+    and the transaction policy of the module doc: ``_write`` and ``_read`` are the only ways in. The
+    stores of the service (``SQLiteJobStore``, ``storage.sqlite_plans.SQLitePlanStore``) share it."""
 
     def __init__(self, path: str | os.PathLike, *, busy_timeout_s: float = 10.0) -> None:
         if str(path) == ":memory:" or str(path).startswith("file:"):
-            raise ValueError("SQLiteJobStore needs a file path (each thread opens its own connection)")
+            raise ValueError(f"{type(self).__name__} needs a file path (each thread opens its own connection)")
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._busy_timeout_s = float(busy_timeout_s)
@@ -77,7 +79,7 @@ class SQLiteJobStore(JobStore):
         if self._closed:
             raise StorageError(f"the job store {self.path} is closed")
         if os.getpid() != self._pid:
-            raise StorageError("a SQLiteJobStore cannot cross a fork; open a new one in this process")
+            raise StorageError(f"a {type(self).__name__} cannot cross a fork; open a new one in this process")
         conn = getattr(self._local, "conn", None)
         if conn is None:
             conn = sqlite3.connect(self.path, timeout=self._busy_timeout_s, isolation_level=None,
@@ -131,6 +133,10 @@ class SQLiteJobStore(JobStore):
             connections, self._connections = self._connections, []
         for conn in connections:
             conn.close()
+
+
+class SQLiteJobStore(SQLiteDatabase, JobStore):
+    """A ``JobStore`` in the SQLite file ``path`` (created, with its parent directory, if missing)."""
 
     # ----------------------------------------------------------------------------------- jobs
 

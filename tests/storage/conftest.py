@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from s3_server import CREDENTIALS, MotoServer, s3_server  # noqa: F401  (fixture)
-from storage import ArtifactStore, JobStore, LocalArtifactStore, SQLiteJobStore
+from storage import ArtifactStore, JobStore, LocalArtifactStore, SQLiteJobStore, SQLitePlanStore
 
 
 @dataclass
@@ -66,6 +66,7 @@ def _s3(request, tmp_path: Path) -> Harness:
 
 
 JOB_BACKENDS = {"sqlite": _sqlite}
+PLAN_BACKENDS = {"sqlite": lambda request, tmp_path: Harness(lambda: SQLitePlanStore(tmp_path / "jobs.sqlite3"))}
 ARTIFACT_BACKENDS = {"local": _local, "s3": _s3}
 
 
@@ -91,3 +92,10 @@ def artifact_backend(request, tmp_path) -> Harness:
 @pytest.fixture
 def artifact_store(artifact_backend) -> ArtifactStore:
     return artifact_backend.open()
+
+
+@pytest.fixture(params=sorted(PLAN_BACKENDS))
+def plan_backend(request, tmp_path) -> Harness:
+    harness = PLAN_BACKENDS[request.param](request, tmp_path)
+    yield harness
+    harness.close_all()
