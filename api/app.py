@@ -9,6 +9,8 @@
 * the ``JobQueue`` (one thread running jobs one at a time through the ``Orchestrator``; it
   resumes unfinished jobs at start),
 * the lock that lets one ``/fit`` run at a time,
+* the ``SQLitePlanStore`` (on the same file) and the ``PlanQueue`` (scene plans, one at a time on a
+  thread of their own; it resumes unfinished plans at start),
 
 puts them on ``app.state`` for ``deps.py``, and on shutdown stops the job queue at a safe point (the
 running job is not cancelled: it resumes on the next start) and closes the executor and stores.
@@ -28,15 +30,16 @@ from fastapi import APIRouter, Depends, FastAPI
 
 import neuenh
 from orchestrator.executor import Executor
-from storage import ArtifactStore, LocalArtifactStore, OwnerLock, SQLiteJobStore
+from storage import ArtifactStore, LocalArtifactStore, OwnerLock, SQLiteJobStore, SQLitePlanStore
 
 from . import deps, errors
 from .auth import TokenTable
 from .middleware import AuthFirst, BodyLimit, HostCheck
 from .metrics import ServiceMetrics
-from .routes import cluster, dashboard, docs, fit, health, jobs, metrics
+from .routes import cluster, dashboard, docs, fit, health, jobs, metrics, plans
 from .settings import Settings
 from .job_queue import JobQueue
+from .plan_queue import PlanQueue
 
 log = logging.getLogger("neuenh.api")
 
@@ -88,19 +91,23 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
         app.state.tokens = TokenTable(s)  # a bad tokens file fails the start (serve checks it first)
         _reload_tokens_on_sighup(app.state.tokens)
         app.state.job_queue = job_queue
+        plan_store = SQLitePlanStore(s.data_dir / "jobs.sqlite")
+        app.state.plans, app.state.plan_queue = plan_store, PlanQueue(plan_store, artifacts)
         app.state.metrics = ServiceMetrics(store, job_queue, executor)
         # Fits share the CPUs with the candidates being trained: two at once would only slow each other.
         app.state.fit_lock = threading.Lock()
         job_queue.start()
+        app.state.plan_queue.start()
         log.info("neuenh service: data in %s, artifacts in %r, auth %s", s.data_dir, artifacts,
                  "on" if s.api_token else "off")
         try:
             yield
         finally:
-            stopped = job_queue.stop(s.shutdown_grace_s)
-            if stopped:  # never pull the store or executor from under a job still running
+            stopped = job_queue.stop(s.shutdown_grace_s) & app.state.plan_queue.stop(s.shutdown_grace_s)
+            if stopped:  # never pull the store or executor from under a job or plan still running
                 executor.close()
                 store.close()
+                plan_store.close()
                 artifacts.close()
                 owned.release()  # also serve's: uvicorn ends the process by re-raising the signal
 
@@ -114,7 +121,7 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
     )
     errors.install(app)
     v1 = APIRouter(prefix="/v1", dependencies=[Depends(deps.known_query_only)])
-    for resource in (health, jobs, fit, cluster):
+    for resource in (health, jobs, fit, plans, cluster):
         v1.include_router(resource.router)
     app.include_router(v1)
     app.include_router(metrics.router)

@@ -10,11 +10,12 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from storage import ArtifactStore, JobRecord, JobStore, NotFoundError
+from storage import ArtifactStore, JobRecord, JobStore, NotFoundError, PlanRecord, PlanStore
 
 from .auth import Principal, Role
 from .settings import Settings
 from .job_queue import JobQueue
+from .plan_queue import PlanQueue
 
 
 def get_settings(request: Request) -> Settings:
@@ -33,6 +34,14 @@ def get_job_queue(request: Request) -> JobQueue:
     return request.app.state.job_queue
 
 
+def get_plans(request: Request) -> PlanStore:
+    return request.app.state.plans
+
+
+def get_plan_queue(request: Request) -> PlanQueue:
+    return request.app.state.plan_queue
+
+
 def get_fit_lock(request: Request) -> threading.Lock:
     return request.app.state.fit_lock
 
@@ -42,6 +51,8 @@ JobStoreDep = Annotated[JobStore, Depends(get_jobs)]
 ArtifactStoreDep = Annotated[ArtifactStore, Depends(get_artifacts)]
 JobQueueDep = Annotated[JobQueue, Depends(get_job_queue)]
 FitLockDep = Annotated[threading.Lock, Depends(get_fit_lock)]
+PlanStoreDep = Annotated[PlanStore, Depends(get_plans)]
+PlanQueueDep = Annotated[PlanQueue, Depends(get_plan_queue)]
 
 _bearer = HTTPBearer(auto_error=False, description="a named token (NEUENH_TOKENS_FILE) or NEUENH_API_TOKEN")
 
@@ -105,3 +116,14 @@ def known_query_only(request: Request) -> None:
         expected = ", ".join(sorted(known)) or "none"
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"unknown query parameter(s) {', '.join(unknown)}; this route takes: {expected}")
+
+
+def visible_plan(plan_id: str, plans: PlanStoreDep, principal: PrincipalDep) -> PlanRecord:
+    """The plan, if the caller may see it (as ``visible_job``)."""
+    plan = plans.get_plan(plan_id)
+    if not principal.may_see(plan.owner):
+        raise NotFoundError(f"no plan {plan_id!r}")
+    return plan
+
+
+VisiblePlan = Annotated[PlanRecord, Depends(visible_plan)]

@@ -15,8 +15,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from neuenh.search import describe_change
 from orchestrator.progress import Progress
 from orchestrator.spec import JobSpec
-from storage import (CandidateRecord, JobRecord, JobStatus, RoundKind, RoundRecord, WarmupRecord,
-                     start_val_loss)
+from storage import (CandidateRecord, JobRecord, JobStatus, PlanRecord, PlanStatus, RoundKind, RoundRecord,
+                     WarmupRecord, start_val_loss)
 
 
 def _time(t: float | None) -> datetime | None:
@@ -296,6 +296,47 @@ class FitPublic(BaseModel):
     epochs: int
     wall_s: float
     materials: list[FittedMaterial]
+
+
+class PlanProgressPublic(BaseModel):
+    message: str = Field(description="what the planner fits now")
+    step: int
+    steps: int
+
+
+class PlanPublic(BaseModel):
+    """A scene plan (``neuenh.scene``): per material the cheapest rung of the ladder within tolerance."""
+
+    id: str
+    name: str | None
+    status: PlanStatus
+    terminal: bool
+    error: str | None
+    created_at: datetime
+    updated_at: datetime
+    materials_total: int | None = Field(description="the scene's materials, once read")
+    materials_done: int = Field(description="materials planned so far (kept across restarts)")
+    progress: PlanProgressPublic | None
+    scene: dict[str, Any]
+    plan: dict[str, Any] | None = Field(description="when DONE: the ladder with measured costs, every material's "
+                                                    "choice and results, the frame totals (plan.json)")
+    files: dict[str, str] = Field(description="when DONE: file name -> its URL (plan.json, plan.md, "
+                                              "cost_vs_error.png, contact_sheet.png, bundles.zip)")
+
+    @classmethod
+    def from_record(cls, p: PlanRecord, files: list[str], base: str = "/v1",
+                    progress: Any = None) -> "PlanPublic":
+        url = f"{base}/plans/{p.id}/files"
+        return cls(id=p.id, name=p.scene.get("name"), status=p.status, terminal=p.terminal, error=p.error,
+                   created_at=_time(p.created_at), updated_at=_time(p.updated_at), materials_total=p.materials_total,
+                   materials_done=p.materials_done,
+                   progress=PlanProgressPublic(message=progress.message, step=progress.step, steps=progress.steps)
+                   if progress is not None and not p.terminal else None,
+                   scene=p.scene, plan=p.result, files={name: f"{url}/{name}" for name in files})
+
+
+class PlanList(BaseModel):
+    plans: list[PlanPublic]
 
 
 class ErrorPublic(BaseModel):

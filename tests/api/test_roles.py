@@ -32,17 +32,25 @@ def as_(name: str) -> dict:
 def server(tmp_path_factory):
     root = tmp_path_factory.mktemp("roles")
     write_tokens(root / "tokens.json", TOKENS)
-    with running_server(root / "data", tokens_file=root / "tokens.json", api_token="t-legacy") as s:
+    with running_server(root / "data", tokens_file=root / "tokens.json", api_token="t-legacy",
+                        data_roots=[root]) as s:
         with s.client() as c:
             s.jobs = {owner: c.post("/jobs", json=tiny_spec(max_rounds=1).model_dump(mode="json"),
                                     headers=as_(owner)).json()["id"] for owner in ("alice", "bob")}
+            s.plans = {owner: c.post("/plans", json=scene_of(root), headers=as_(owner)).json()["id"]
+                       for owner in ("alice", "bob")}
         with s.client(headers=as_("ops")) as c:
             for job_id in s.jobs.values():
                 wait_for(c, job_id)
         yield s
 
 
-# (route, whose job) -> expected status per caller; "own" is alice's job, "other" bob's.
+def scene_of(root) -> dict:
+    """A scene the service accepts (its file lies under the data roots) and then fails to plan."""
+    return {"materials": [{"path": str(root / "missing.npz")}], "ladder": ["ggx"], "tolerance": {"relative": 0.1}}
+
+
+# (route, whose job) -> expected status per caller; "own" is alice's job (or plan), "other" bob's.
 MATRIX = [
     ("GET", "/jobs/{own}", {"ops": 200, "alice": 200, "wall": 200, "bob": 404}),
     ("GET", "/jobs/{own}/history", {"ops": 200, "alice": 200, "wall": 200, "bob": 404}),
@@ -51,6 +59,9 @@ MATRIX = [
     ("POST", "/jobs/{own}/fit", {"wall": 403, "bob": 404, "alice": 422, "ops": 422}),  # 422: no files sent
     ("GET", "/cluster", {"ops": 200, "alice": 200, "wall": 200, "bob": 200}),
     ("POST", "/jobs", {"wall": 403}),
+    ("GET", "/plans/{own_plan}", {"ops": 200, "alice": 200, "wall": 200, "bob": 404}),
+    ("GET", "/plans/{own_plan}/files/plan.md", {"bob": 404, "wall": 404, "alice": 404}),  # 404: not DONE
+    ("POST", "/plans", {"wall": 403}),
 ]
 
 
@@ -58,8 +69,9 @@ MATRIX = [
 def test_role_matrix(server, method, path, expected):
     with server.client() as c:
         for caller, code in expected.items():
-            url = path.format(own=server.jobs["alice"])
-            body = {"json": tiny_spec().model_dump(mode="json")} if path == "/jobs" else {}
+            url = path.format(own=server.jobs["alice"], own_plan=server.plans["alice"])
+            body = ({"json": tiny_spec().model_dump(mode="json")} if path == "/jobs"
+                    else {"json": scene_of(server.settings.data_roots[0])} if path == "/plans" else {})
             r = c.request(method, url, headers=as_(caller), **body)
             assert r.status_code == code, f"{caller} {method} {url}: {r.status_code} {r.text[:200]}"
 
@@ -69,6 +81,9 @@ def test_a_submitter_lists_its_own_jobs_and_others_list_all(server):
         listed = {name: {j["id"] for j in c.get("/jobs", headers=as_(name)).json()["jobs"]} for name in TOKENS}
     assert listed["alice"] == {server.jobs["alice"]} and listed["bob"] == {server.jobs["bob"]}
     assert listed["ops"] >= set(server.jobs.values()) and listed["wall"] == listed["ops"]
+    with server.client() as c:
+        plans = {name: {p["id"] for p in c.get("/plans", headers=as_(name)).json()["plans"]} for name in TOKENS}
+    assert plans["alice"] == {server.plans["alice"]} and plans["ops"] == plans["wall"] == set(server.plans.values())
 
 
 def test_the_legacy_token_is_an_admin_and_unknown_tokens_are_401(server):

@@ -1,0 +1,110 @@
+"""``/v1/plans``: plan a scene on the service (``neuenh.scene``; ``orchestrator.plans``) — per material
+the cheapest rung of a ladder within a tolerance — follow it, and download its files.
+
+The scene is the JSON form of ``scene.yaml``; its files (measured materials, captures, bundle folders
+of the ladder) are paths the service reads, relative to its working directory, and must lie under
+its data roots (``NEUENH_DATA_ROOTS``), as a job's data do. Plans run one at a time beside the jobs
+and survive restarts material by material.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+from fastapi import APIRouter, Body, Header, HTTPException, Response, status
+
+from neuenh.scene import SceneSpec
+from neuenh.scene.spec import CaptureEntry, FileEntry, RungsEntry
+from orchestrator.plans import CONTENT_TYPES, PLAN_FILES, plan_file_key
+from storage import ArtifactStore, PlanRecord, PlanStatus
+
+from ..auth import LOCAL
+from ..deps import (ArtifactStoreDep, Authorized, PlanQueueDep, PlanStoreDep, PrincipalDep, SettingsDep,
+                    SubmitterDep, VisiblePlan)
+from ..errors import COMMON, documented
+from ..schemas import PlanList, PlanPublic
+from ..settings import Settings
+
+router = APIRouter(prefix="/plans", tags=["plans"], dependencies=[Authorized], responses=COMMON)
+
+_ERRORS = documented({404: "no such plan"})
+
+
+@router.post("", status_code=status.HTTP_202_ACCEPTED, response_model=PlanPublic,
+             responses={200: {"model": PlanPublic, "description": "the plan already submitted under this Idempotency-Key"},
+                        **documented({400: "a body that is not JSON", 409: "Idempotency-Key reused for another scene",
+                                      422: "an invalid scene, or files outside the data roots"})})
+def submit_plan(spec: Annotated[SceneSpec, Body(description="a scene (the JSON form of scene.yaml)")],
+                response: Response, plans: PlanStoreDep, plan_queue: PlanQueueDep, settings: SettingsDep,
+                principal: SubmitterDep,
+                idempotency_key: Annotated[str | None, Header(max_length=200)] = None) -> PlanPublic:
+    """Validate and queue a plan (202)."""
+    outside = _outside_data_roots(spec, settings)
+    if outside:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "; ".join(outside))
+    plan, created = plans.create_plan(spec.model_dump(mode="json", exclude_none=True),
+                                      owner=None if principal is LOCAL else principal.name,
+                                      idempotency_key=idempotency_key)
+    if created:
+        plan_queue.enqueue(plan.id)
+    else:
+        response.status_code = status.HTTP_200_OK
+    response.headers["Location"] = f"/v1/plans/{plan.id}"
+    return PlanPublic.from_record(plan, [], progress=plan_queue.progress(plan.id))
+
+
+@router.get("", response_model=PlanList)
+def list_plans(plans: PlanStoreDep, plan_queue: PlanQueueDep, artifacts: ArtifactStoreDep,
+               principal: PrincipalDep) -> PlanList:
+    """Plans, newest first (a submit token sees its own)."""
+    found = plans.list_plans(owner=None if principal.sees_all else principal.name)
+    return PlanList(plans=[PlanPublic.from_record(p, _files(p, artifacts), progress=plan_queue.progress(p.id))
+                           for p in found])
+
+
+@router.get("/{plan_id}", response_model=PlanPublic, responses=_ERRORS)
+def get_plan(plan: VisiblePlan, plan_queue: PlanQueueDep, artifacts: ArtifactStoreDep) -> PlanPublic:
+    return PlanPublic.from_record(plan, _files(plan, artifacts), progress=plan_queue.progress(plan.id))
+
+
+@router.get("/{plan_id}/files/{name}", response_class=Response, responses={
+    **_ERRORS, 200: {"content": {t: {} for t in CONTENT_TYPES.values()}, "description": "one file of a DONE plan"}})
+def plan_file(plan: VisiblePlan, name: str, artifacts: ArtifactStoreDep) -> Response:
+    """One of the plan's files: plan.json, plan.md, cost_vs_error.png, contact_sheet.png, bundles.zip."""
+    if name not in PLAN_FILES:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"a plan has no file {name!r}; it has {', '.join(PLAN_FILES)}")
+    key = plan_file_key(plan.id, name)
+    if plan.status is not PlanStatus.DONE or not artifacts.exists(key):
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"plan {plan.id} has no {name}"
+                            + ("" if plan.status is PlanStatus.DONE else f" yet (status {plan.status.value})"))
+    return Response(artifacts.get(key), media_type=CONTENT_TYPES[Path(name).suffix],
+                    headers={"Content-Disposition": f'inline; filename="{name}"'})
+
+
+def _files(plan: PlanRecord, artifacts: ArtifactStore) -> list[str]:
+    if plan.status is not PlanStatus.DONE:
+        return []
+    return [name for name in PLAN_FILES if artifacts.exists(plan_file_key(plan.id, name))]
+
+
+def _outside_data_roots(spec, settings: Settings) -> list[str]:
+    """Files and folders the scene would read outside the data roots (after resolving ``..`` and links).
+    Ladder entries that are not paths (model names) read nothing of the user's."""
+    roots = [root.resolve() for root in settings.data_roots]
+    allowed = ", ".join(map(str, roots)) or "none configured"
+    paths = [(f"materials.{i}", e.path if isinstance(e, FileEntry) else e.capture)
+             for i, e in enumerate(spec.materials) if isinstance(e, (FileEntry, CaptureEntry))]
+    paths += [(f"ladder.{i}", e.rungs if isinstance(e, RungsEntry) else e) for i, e in enumerate(spec.ladder)]
+    problems = []
+    for where, path in paths:
+        if where.startswith("ladder") and "/" not in path and not Path(path).exists():
+            continue  # a model's name
+        try:
+            resolved = Path(path).resolve()
+        except (ValueError, OSError) as exc:
+            problems.append(f"{where}: {path!r} is not a usable path ({exc})")
+            continue
+        if not any(resolved.is_relative_to(root) for root in roots):
+            problems.append(f"{where}: {path} is outside the data roots ({allowed}; NEUENH_DATA_ROOTS)")
+    return problems
