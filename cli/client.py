@@ -8,6 +8,7 @@
     neuenh-client cancel JOB
     neuenh-client download JOB [-o DIR|FILE.zip]
     neuenh-client fit JOB measurements.npz ...  # fit materials with the job's model, on the service
+    neuenh-client plan SCENE.yaml [--wait] [-o DIR]  # plan a scene on the service (neuenh scene plan)
 
 The service is ``--url`` or ``$NEUENH_URL`` (default http://127.0.0.1:8000); its token ``--token``
 or ``$NEUENH_API_TOKEN`` (prefer the variable: flags show in ``ps``). ``--json`` prints what the
@@ -132,6 +133,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fast (default): Adam with cosine decay; paper: RMSProp lr 1e-3, 1000 epochs")
     p.add_argument("--epochs", type=int, help="override the method's epoch count")
     json_arg(p)
+
+    p = command("plan", plan, "plan a scene on the service: per material the cheapest model within tolerance")
+    p.add_argument("scene", type=Path, metavar="SCENE.yaml",
+                   help="a scene (neuenh scene plan's format); its files are read by the service, under its data roots")
+    p.add_argument("--wait", action="store_true", help="follow the plan until it ends; exit 1 if it failed")
+    p.add_argument("-o", "--output", type=Path, metavar="DIR", help="with --wait: save the plan's files here")
+    p.add_argument("--idempotency-key", metavar="KEY", help="submitting again with the same key returns the same plan")
+    p.add_argument("--interval", type=float, default=1.0, metavar="SECONDS", help="how often to poll (default 1)")
+    json_arg(p, "print the plan as JSON")
     return parser
 
 
@@ -252,6 +262,51 @@ def fit(args, api: Api) -> int:
 
         print(f"job {report['job_id']} round {report['round']}: {_table(report)}")
     return 0
+
+
+def plan(args, api: Api) -> int:
+    import time
+
+    from neuenh.scene import load_scene
+
+    spec, _ = load_scene(args.scene)  # a bad scene is a usage error before the service is contacted
+    found, created = api.submit_plan(spec.model_dump(mode="json", exclude_none=True), args.idempotency_key)
+    _note(f"plan {found['id']} {'submitted' if created else 'already submitted with this key'} "
+          f"({found['status'].lower()})")
+    if not args.wait:
+        print(json.dumps(found, indent=2) if args.json else found["id"])
+        return 0
+    last = None
+    while not found["terminal"]:
+        progress = found.get("progress")
+        line = (f"plan {found['id']}: {found['materials_done']}/{found['materials_total'] or '?'} materials"
+                + (f", {progress['step']}/{progress['steps']} fits ({progress['message']})" if progress else ""))
+        if line != last:
+            _note(line)
+            last = line
+        time.sleep(max(args.interval, 0.05))
+        found = api.plan(found["id"])
+    if args.output and found["status"] == "DONE":
+        args.output.mkdir(parents=True, exist_ok=True)
+        for name in found["files"]:
+            (args.output / name).write_bytes(api.plan_file(found["id"], name))
+    if args.json:
+        _print_json(found)
+    elif found["status"] == "DONE":
+        result = found["plan"]
+        labels = {r["key"]: r["label"] for r in result["ladder"]}
+        print(_table([("material", "chosen rung", "error", "cost (ns)")]
+                     + [(m["name"], labels[m["chosen"]][:40], f"{m['error']:.4f}", f"{m['cost_ns']:.0f}")
+                        for m in result["materials"]], right=(2, 3)))
+        t = result["totals"]
+        print(f"frame: plan {t['plan']['cost_ns']:.0f} ns, error {t['plan']['error']:.4f} | richest everywhere "
+              f"{t['richest']['cost_ns']:.0f} ns, {t['richest']['error']:.4f} | cheapest everywhere "
+              f"{t['cheapest']['cost_ns']:.0f} ns, {t['cheapest']['error']:.4f}")
+        if args.output:
+            _note(f"saved {', '.join(found['files'])} to {args.output}")
+    else:
+        _note(f"plan {found['id']}: FAILED: {found['error']}")
+    return 0 if found["status"] == "DONE" else 1
 
 
 # -- helpers ----------------------------------------------------------------------------------

@@ -107,6 +107,18 @@ class Api:
     def fit(self, job_id: str, files: list, data: dict, read_timeout: float) -> dict:
         return self.call("POST", f"/jobs/{job_id}/fit", files=files, data=data, read_timeout=read_timeout)
 
+    def submit_plan(self, scene: dict, idempotency_key: str | None = None) -> tuple[dict, bool]:
+        """The plan, and whether the service created it."""
+        headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
+        r = self.request("POST", "/plans", json=scene, headers=headers)
+        return self._json(r), r.status_code == 202
+
+    def plan(self, plan_id: str) -> dict:
+        return self.call("GET", f"/plans/{plan_id}")
+
+    def plan_file(self, plan_id: str, name: str) -> bytes:
+        return self.request("GET", f"/plans/{plan_id}/files/{name}").content
+
     def cluster(self) -> dict | None:
         """``GET /v1/cluster``, or None from a service that does not have it."""
         try:

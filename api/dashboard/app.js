@@ -14,6 +14,7 @@
 import { ApiError, getJSON, request, setToken, token } from "./api.js";
 import { lossChart } from "./chart.js";
 import { $, clear, el } from "./dom.js";
+import { fetchPlan, fetchPlans, renderPlan, renderPlans } from "./plans.js";
 import { renderFinal, renderHeader, renderJobs, renderProgress, renderRunning, renderTrail } from "./views.js";
 
 /** @typedef {import("./types.js").Job} Job */
@@ -143,7 +144,8 @@ async function runningJobs(jobs, cluster) {
 async function pollList() {
   clearTimeout(S.listTimer);
   try {
-    const [page, cluster] = await Promise.all([getJSON("/jobs?limit=50"), getCluster()]);
+    const [page, cluster, plans] = await Promise.all([getJSON("/jobs?limit=50"), getCluster(), fetchPlans()]);
+    renderPlans(plans, planSelected());
     S.jobs = page.jobs;
     S.cluster = cluster;
     S.running = await runningJobs(page.jobs, cluster);
@@ -157,8 +159,33 @@ async function pollList() {
   if (!S.needsToken) S.listTimer = setTimeout(pollList, S.running.length ? LIVE_MS : LIST_MS);
 }
 
+/** The plan id in the hash (#plan=<id>), if any. */
+function planSelected() {
+  return new URLSearchParams(location.hash.replace(/^#/, "")).get("plan");
+}
+
+/** @type {ReturnType<typeof setTimeout> | undefined} */
+let planTimer = undefined;
+
+/** The plan named in the hash, polled until it ends. */
+async function pollPlan() {
+  clearTimeout(planTimer);
+  const id = planSelected();
+  $("plan").hidden = !id;
+  if (!id || S.needsToken) return;
+  try {
+    const plan = await fetchPlan(id);
+    if (id !== planSelected()) return;
+    await renderPlan(plan);
+    if (!plan.terminal) planTimer = setTimeout(pollPlan, JOB_MS);
+  } catch (err) {
+    handleError(err);
+  }
+}
+
 /** @param {boolean} poll */
 function selectFromHash(poll) {
+  if (poll) pollPlan();
   const id = new URLSearchParams(location.hash.replace(/^#/, "")).get("job");
   if (id === S.selected) return;
   S.select(id);
@@ -281,6 +308,7 @@ function start() {
   S.needsToken = false;
   $("forget-token").hidden = !token();
   pollList();
+  pollPlan();
   if (S.selected) {
     $("job").hidden = false;
     pollJob();

@@ -19,6 +19,16 @@
  *            next_since_round: number}} History
  * @typedef {{job_id: string, candidates: number, cpus: number, gpus: number}} Holder
  * @typedef {{running_jobs: string[], max_running_jobs: number, holders: Holder[]}} Cluster
+ * @typedef {{key: string, label: string, cost_ns: number}} PlanRung
+ * @typedef {{name: string, weight: number, chosen: string, error: number, cost_ns: number,
+ *            richest: {error: number, cost_ns: number}}} PlanMaterial
+ * @typedef {{cost_ns: number, error: number}} FrameTotal
+ * @typedef {{ladder: PlanRung[], materials: PlanMaterial[],
+ *            totals: {plan: FrameTotal, richest: FrameTotal, cheapest: FrameTotal}}} PlanResult
+ * @typedef {{id: string, name: string | null, status: string, terminal: boolean, error: string | null,
+ *            created_at: string, materials_total: number | null, materials_done: number,
+ *            progress: {message: string, step: number, steps: number} | null, plan: PlanResult | null,
+ *            files: Record<string, string>}} Plan
  */
 
 export {};

@@ -14,6 +14,7 @@ import os
 import re
 import shutil
 import threading
+import time
 import zipfile
 from pathlib import Path
 from urllib.parse import urlparse
@@ -521,3 +522,30 @@ def test_token_protected_server_asks_for_the_token_then_works(page, live_server)
     page.reload()
     page.locator(f"#jobs tbody tr[data-job='{job['id']}']").wait_for()
     assert page.locator("#auth").is_hidden()
+
+
+def test_a_plan_shows_its_materials_totals_and_plot(page, tmp_path):
+    """A scene planned on the service: the plans table lists it, and its view shows each material's
+    chosen rung, the frame totals and the cost-against-error plot (fetched with the token)."""
+    from scene_files import scene, write_tables
+
+    (tmp_path / "roots").mkdir()
+    tables = write_tables(tmp_path / "roots")
+    data = scene(tables)
+    data["materials"] = [{**m, "path": str(tables / m["path"])} for m in data["materials"]]
+    with running_server(tmp_path / "data", data_roots=[tables], api_token="t0k") as server:
+        with server.client(headers={"Authorization": "Bearer t0k"}) as c:
+            plan_id = c.post("/plans", json=data).json()["id"]
+            deadline = time.monotonic() + 120
+            while not c.get(f"/plans/{plan_id}").json()["terminal"]:
+                assert time.monotonic() < deadline
+                time.sleep(0.2)
+        page.goto(f"{server.url}/#plan={plan_id}")
+        page.fill("#token", "t0k")
+        page.click("#token-submit")
+        page.wait_for_selector(f"#plans tr[data-plan='{plan_id}']")
+        page.wait_for_function("document.querySelectorAll('#plan-table tbody tr').length === 2")
+        rows = page.eval_on_selector_all("#plan-table tbody tr", "rs => rs.map(r => r.cells[2].textContent)")
+        assert rows == ["ggx", "NBRDF (per material)"]
+        assert "frame cost" in page.text_content("#plan-totals")
+        page.wait_for_function("document.querySelector('#plan-plot').naturalWidth > 100")

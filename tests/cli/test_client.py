@@ -358,3 +358,22 @@ def test_fit_measurements_with_a_jobs_model(server, submitted, ggx_table, as_jso
         first, material = out.stdout.splitlines()[:2]
         assert first.startswith(f"job {job['id']} round {job['last_round']}: ggx (state {job['current_state']})")
         assert re.match(r"\s+steel: log-L1 \d+\.\d{5}\s", material)
+
+
+def test_plan_a_scene_on_the_service_wait_and_save_its_files(live_server, tmp_path):
+    from scene_files import scene, write_tables
+
+    (tmp_path / "roots").mkdir()
+    tables = write_tables(tmp_path / "roots")
+    server = live_server(data_roots=[tables], api_token=TOKEN)
+    data = scene(tables)
+    data["materials"] = [{**m, "path": str(tables / m["path"])} for m in data["materials"]]
+    (tmp_path / "scene.yaml").write_text(yaml.safe_dump(data))
+    out = client("plan", tmp_path / "scene.yaml", "--wait", "-o", tmp_path / "files", url=server.url)
+    assert out.returncode == 0, out.stderr
+    assert re.search(r"gloss +ggx +[0-9.]+", out.stdout) and re.search(r"retro +NBRDF", out.stdout)
+    assert "frame: plan" in out.stdout and "materials" in out.stderr
+    assert sorted(p.name for p in (tmp_path / "files").iterdir()) == ["cost_vs_error.png", "plan.json", "plan.md"]
+    bad = dict(data, ladder=[])
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
+    one_line_error(client("plan", tmp_path / "bad.yaml", url=server.url), "ladder: List should have at least 1 item")
