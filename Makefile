@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: install browser compiler gl demo test bench report clean
+.PHONY: install browser compiler gl mitsuba demo test bench report clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -42,9 +42,18 @@ gl:
 	    --no-install-recommends glslang-tools libegl1 libegl-mesa0 libgl1-mesa-dri >/dev/null; } || \
 	  echo "note: glslang-tools or Mesa's EGL is not installed and this is not root; the GLSL export tests will skip"
 
+# Mitsuba's LLVM variant (the Mitsuba export) JIT-compiles with the system's libLLVM, version 17 or
+# newer (Debian 12's Mesa brings 15, which Dr.Jit's kernels crash). Installed when missing and root;
+# else those tests skip.
+mitsuba: $(STAMP)
+	@$(PY) -c "from neuenh.export.mitsuba import find_libllvm; raise SystemExit(find_libllvm() is None)" || \
+	  { [ "$$(id -u)" = 0 ] && apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+	    --no-install-recommends libllvm19 >/dev/null; } || \
+	  echo "note: libLLVM 17+ is not installed and this is not root; the Mitsuba export tests will skip"
+
 # The dashboard's pure modules under Node's own test runner, then every Python test with the 25
 # slowest listed (make them cheaper before adding more).
-test: $(STAMP) browser compiler gl
+test: $(STAMP) browser compiler gl mitsuba
 	@if command -v node >/dev/null; then node --test tests/dashboard/; \
 	  else echo "note: node is not installed; the dashboard's unit tests (tests/dashboard) skip"; fi
 	$(PY) -m pytest -q --durations=25

@@ -11,9 +11,9 @@ material's parameters and the modules' weights folded in, f_r without the cosine
 either horizon. Every format is checked by running the artifact in its real runtime (tests):
 
 * ``glsl`` (``neuenh.export.glsl``): GLSL 4.50 functions, run on Mesa's llvmpipe;
-* ``onnx`` (``neuenh.export.onnx``): ONNX graphs, run with onnxruntime.
-
-(A Mitsuba 3 plugin is the third format the design names; it is not written yet.)
+* ``onnx`` (``neuenh.export.onnx``): ONNX graphs, run with onnxruntime;
+* ``mitsuba`` (``neuenh.export.mitsuba``): a Mitsuba 3 BSDF plugin (Python, Dr.Jit) and a scene per
+  material, run in Mitsuba (its chi-square test, against its built-in GGX).
 
 The runtimes are the optional extra ``neuenh[export]``; this package imports them only inside the
 format that needs them. Imports neither Ray, FastAPI nor SQL.
@@ -28,7 +28,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, Mapping
 
-FORMATS = ("glsl", "onnx")
+FORMATS = ("glsl", "onnx", "mitsuba")
 
 
 def export(model, materials: Mapping[str, Mapping[str, Any]], fmt: str, out_dir: Path) -> list[Path]:

@@ -1,0 +1,382 @@
+"""Mitsuba 3 export: a fitted material as a ``neuenh`` BSDF plugin, written in Python with Dr.Jit.
+
+    from neuenh.export import mitsuba as nm
+    mi = nm.set_variant("llvm_ad_rgb")       # finds a libLLVM Dr.Jit can use (or scalar_rgb, cuda_ad_rgb)
+    nm.register()                            # the plugin "neuenh"
+    scene = mi.load_file("out/paper_white.xml")   # written by neuenh export --format mitsuba
+    image = mi.render(scene)
+
+``eval`` is the specialized evaluator (``neuenh.specialize``) run on Dr.Jit arrays: the same
+backend-neutral formulas as the torch model (``neuenh.ops``; here ``DrJitOps``), the material's
+shading frame as a constant rotation, the neural modules with the per-material inputs folded into
+their first-layer biases — so it cannot drift from the model. Conventions: Mitsuba's local frame
+is neuenh's (z the shading normal, x the tangent ``sh_frame.s`` before ``t_theta``); Mitsuba's
+``si.wi`` points to the viewer and ``wo`` to the light, neuenh's ``wi`` is the light: the plugin
+evaluates ``f_r(wi=wo_mitsuba, wo=si.wi)`` and returns it times the light's cosine, as Mitsuba's
+own BSDFs do.
+
+``sample``/``pdf`` draw the material's fitted analytical lobe, as the paper samples a refitted
+analytical model: with probability ``p_spec`` (the specular albedo's share of the fitted albedos,
+kept in [0.1, 0.9]) Mitsuba's visible-normal sampling of a GGX with the material's ``alpha_x,
+alpha_y`` in its shading frame (``mi.MicrofacetDistribution``, Heitz 2018), else a cosine lobe.
+The weight is ``eval / pdf``, so the estimator is unbiased whatever the lobe's fit.
+
+Files (``write``): ``neuenh-model/`` (the model's bundle: module weights, no materials), per
+material ``NAME.json`` (its parameters and the bundle's folder) and ``NAME.xml`` (the ball under the
+studio environment map ``studio.exr``, a path tracer, the plugin with ``filename`` = ``NAME.json``).
+
+Imports ``mitsuba`` only inside ``set_variant``, ``register`` and the plugin (the ``neuenh[export]``
+extra). The LLVM variants JIT-compile with the system's libLLVM, which must be version 17 or newer
+(Dr.Jit 1.5 emits ``llvm.minimum``/``maximum``, which LLVM 15 and 16 cannot select on x86 and abort
+on): ``set_variant`` points ``DRJIT_LIBLLVM_PATH`` at the newest one installed when it is unset
+(Debian 12: ``apt-get install libllvm19``; ``make mitsuba``).
+"""
+
+from __future__ import annotations
+
+import glob
+import json
+import math
+import os
+import re
+from pathlib import Path
+from typing import Any, Mapping
+
+import torch
+
+from ..graph import Term
+from ..ops import _is_const
+from ..shading import shade
+from . import atomic_write, file_names
+
+PLUGIN = "neuenh"
+FORMAT = "neuenh-mitsuba-material"
+BUNDLE_DIR = "neuenh-model"
+ENVMAP = "studio.exr"
+
+
+LLVM_MIN = 17  # the oldest libLLVM Dr.Jit 1.5's kernels compile with on x86 (module doc)
+LLVM_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64", "/usr/lib", "/usr/local/lib")
+
+
+def find_libllvm() -> str | None:
+    """The newest ``libLLVM`` of version ``LLVM_MIN`` or newer in the usual library folders, or None."""
+    found = []
+    for folder in LLVM_DIRS:
+        for path in glob.glob(os.path.join(folder, "libLLVM*.so*")):
+            match = re.search(r"libLLVM(?:-|\.so\.)(\d+)", os.path.basename(path))
+            if match and int(match.group(1)) >= LLVM_MIN:
+                found.append((int(match.group(1)), path))
+    return max(found)[1] if found else None
+
+
+def set_variant(variant: str = "llvm_ad_rgb"):
+    """``mitsuba`` with ``variant`` set; for an LLVM variant ``DRJIT_LIBLLVM_PATH`` is pointed at
+    ``find_libllvm()`` first, unless set. A RuntimeError says what to install when there is none."""
+    if variant.startswith("llvm") and not os.environ.get("DRJIT_LIBLLVM_PATH"):
+        path = find_libllvm()
+        if path is None:
+            raise RuntimeError(f"Mitsuba's {variant} variant needs libLLVM {LLVM_MIN} or newer (Debian 12: "
+                               "apt-get install libllvm19, or make mitsuba); or set DRJIT_LIBLLVM_PATH")
+        os.environ["DRJIT_LIBLLVM_PATH"] = path
+    import mitsuba as mi
+
+    mi.set_variant(variant)
+    return mi
+
+
+# -- the ops vocabulary on Dr.Jit arrays --------------------------------------------------------------
+class DrJitOps:
+    """``neuenh.ops``' vocabulary on the active Mitsuba variant's Dr.Jit types: per-sample scalars are
+    ``mi.Float``, RGB values ``mi.Color3f``, directions ``mi.Vector3f``; Python floats fold."""
+
+    name = "drjit"
+
+    def __init__(self):
+        import drjit as dr
+        import mitsuba as mi
+
+        self.dr, self.mi = dr, mi
+
+    def _unary(fn_name: str, const_fn):  # noqa: N805  (a factory of methods)
+        def method(self, x):
+            return const_fn(x) if _is_const(x) else getattr(self.dr, fn_name)(x)
+        return method
+
+    sqrt = _unary("sqrt", math.sqrt)
+    exp = _unary("exp", math.exp)
+    log = _unary("log", math.log)
+    sin = _unary("sin", math.sin)
+    cos = _unary("cos", math.cos)
+    tan = _unary("tan", math.tan)
+    erf = _unary("erf", math.erf)
+    abs = _unary("abs", abs)
+    del _unary
+
+    def minimum(self, a, b):
+        return min(a, b) if _is_const(a) and _is_const(b) else self.dr.minimum(a, b)
+
+    def maximum(self, a, b):
+        return max(a, b) if _is_const(a) and _is_const(b) else self.dr.maximum(a, b)
+
+    def clamp(self, x, lo: float | None = None, hi: float | None = None):
+        if _is_const(x):
+            return min(max(x, -math.inf if lo is None else lo), math.inf if hi is None else hi)
+        if lo is not None:
+            x = self.dr.maximum(x, lo)
+        return x if hi is None else self.dr.minimum(x, hi)
+
+    def where(self, cond, a, b):
+        if isinstance(b, tuple):
+            b = self.mi.Vector3f(*b)
+        return self.dr.select(cond, a, b)
+
+    def vec3(self, x, y, z):
+        return self.mi.Vector3f(x, y, z)
+
+    def dot(self, a, b):
+        return self.dr.dot(a, b)
+
+    def normalize(self, a):
+        return self.dr.normalize(a)
+
+    @staticmethod
+    def as_vec3(v):
+        return v
+
+    @staticmethod
+    def component(p, i: int):
+        return p[i]
+
+
+# -- the material, evaluated ----------------------------------------------------------------------------
+class DrJitMaterial:
+    """A specialized material (``SpecializedBRDF``) evaluated on Dr.Jit arrays: ``f_r(wi, wo)`` ->
+    ``mi.Color3f`` without the cosine factor, neuenh's convention (``wi`` the light)."""
+
+    def __init__(self, special):
+        self.xp = DrJitOps()
+        mi = self.xp.mi
+        k = special.folded.to(torch.float64)
+        self.expression = special.expression
+        self.rotation = None if k.rotation is None else [[float(v) for v in row] for row in k.rotation.tolist()]
+        self.params = {name: self._constant(v) for name, v in k.params.items()}
+        self.constants = {name: self._constant(v) for name, v in k.constants.items()}
+        self.modules = {name: ([[[float(w) for w in row] for row in weight.tolist()] for weight, _ in m.layers],
+                               [[float(b) for b in bias.tolist()] for _, bias in m.layers], m.negative_slope)
+                        for name, m in k.modules.items()}
+        self._mi = mi
+
+    def _constant(self, value):
+        if isinstance(value, float):
+            return value
+        flat = [float(v) for v in torch.as_tensor(value).reshape(-1).tolist()]
+        if len(flat) == 1:
+            return flat[0]
+        return self.xp.mi.Color3f(*flat) if len(flat) == 3 else tuple(flat)
+
+    def _rotate(self, w):
+        if self.rotation is None:
+            return w
+        (a, b, c), (d, e, f), (g, h, i) = self.rotation
+        return self._mi.Vector3f(a * w.x + b * w.y + c * w.z, d * w.x + e * w.y + f * w.z, g * w.x + h * w.y + i * w.z)
+
+    def _mlp(self, name: str, inputs: list):
+        weights, biases, slope = self.modules[name]
+        x = inputs
+        for layer, (weight, bias) in enumerate(zip(weights, biases)):
+            out = []
+            for row, b in zip(weight, bias):
+                acc = b
+                for w, v in zip(row, x):
+                    if w != 0.0:
+                        acc = acc + w * v
+                out.append(acc)
+            if layer < len(weights) - 1:  # LeakyReLU: max(x, slope x) for a slope below 1
+                out = [self.xp.dr.maximum(v, slope * v) if not _is_const(v) else max(v, slope * v) for v in out]
+            x = out
+        return x[0] if len(x) == 1 else self._mi.Color3f(*x)
+
+    def _flat(self, value, width: int) -> list:
+        if width == 1:
+            return [value]
+        if isinstance(value, self._mi.Color3f):
+            return [value.x, value.y, value.z]
+        return [value] * 3
+
+    def __call__(self, wi, wo):
+        mi, xp = self._mi, self.xp
+        s = shade(xp, wi, wo, self._rotate(wi), self._rotate(wo), self.params)
+        directions = [s.wi.x, s.wi.y, s.wi.z, s.wo.x, s.wo.y, s.wo.z]
+
+        def run(expr):
+            if expr.name in self.constants:
+                return self.constants[expr.name]
+            if isinstance(expr, Term):
+                return self._mlp(expr.name, directions) if expr.name in self.modules else expr.formula(s)
+            left, right = run(expr.left), run(expr.right)
+            if expr.name in self.modules:
+                return self._mlp(expr.name, self._flat(left, expr.left.width) + self._flat(right, expr.right.width))
+            return left + right if expr.op == "+" else left * right
+
+        value = mi.Color3f(run(self.expression))
+        return xp.dr.maximum(xp.dr.select(s.above, value, mi.Color3f(0.0)), 0.0)
+
+
+# -- the plugin -------------------------------------------------------------------------------------------
+def load_material(path: str | Path):
+    """(model, params) of an exported ``NAME.json`` (``write``)."""
+    from ..checkpoint import Bundle
+
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: not a neuenh Mitsuba material ({exc})") from None
+    if data.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a neuenh Mitsuba material (format {data.get('format')!r})")
+    bundle = Bundle.load(path.parent / data["bundle"])
+    params = {k: torch.tensor(v, dtype=torch.float64) for k, v in data["params"].items()}
+    return bundle.model, params
+
+
+def _plugin_class():
+    import drjit as dr
+    import mitsuba as mi
+
+    class NeuenhBSDF(mi.BSDF):
+        """The ``neuenh`` BSDF (module doc). Properties: ``filename``, an exported ``NAME.json``."""
+
+        def __init__(self, props):
+            super().__init__(props)
+            # relative to the scene file, as Mitsuba resolves every file a scene names
+            self.filename = str(mi.file_resolver().resolve(str(props["filename"])))
+            model, params = load_material(self.filename)
+            special = model.specialize(params)
+            self.material = DrJitMaterial(special)
+            values = {k: v.reshape(-1).tolist() for k, v in params.items()}
+            ax = values.get("alpha_x", [0.5])[0]
+            ay = values.get("alpha_y", [ax])[0]
+            self.lobe = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, max(ax, 1e-4), max(ay, 1e-4), True)
+            specular = sum(values.get("rho_s", [0.5])) / 3.0
+            diffuse = sum(values.get("rho_d", [0.5])) / 3.0
+            self.p_spec = min(max(specular / max(specular + diffuse, 1e-8), 0.1), 0.9)
+            rotation = special.folded.rotation
+            self.frame = None if rotation is None else [[float(v) for v in row] for row in rotation.tolist()]
+            self.m_components = [mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide,
+                                 mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide]
+            self.m_flags = self.m_components[0] | self.m_components[1]
+
+        # the material's shading frame (where its GGX lobe lives) and back
+        def _to_shading(self, w):
+            return self.material._rotate(w)
+
+        def _from_shading(self, w):
+            if self.frame is None:
+                return w
+            (a, b, c), (d, e, f), (g, h, i) = self.frame  # the transpose of the rotation
+            return mi.Vector3f(a * w.x + d * w.y + g * w.z, b * w.x + e * w.y + h * w.z, c * w.x + f * w.y + i * w.z)
+
+        def _pdf(self, wi, wo, active):
+            """The lobe mixture's density of ``wo``; 0 where the material is (below either horizon,
+            geometric or shading), so that every sample of positive density has a positive weight."""
+            wi_s, wo_s = self._to_shading(wi), self._to_shading(wo)
+            m = dr.normalize(wi_s + wo_s)
+            glossy = self.lobe.pdf(wi_s, m) / (4.0 * dr.abs(dr.dot(wo_s, m)))
+            glossy = dr.select(dr.dot(wo_s, m) > 0, glossy, 0.0)
+            diffuse = mi.warp.square_to_cosine_hemisphere_pdf(wo)
+            pdf = self.p_spec * glossy + (1.0 - self.p_spec) * diffuse
+            above = (wi.z > 0) & (wo.z > 0) & (wi_s.z > 0) & (wo_s.z > 0)
+            return dr.select(active & above, pdf, 0.0)
+
+        def _value(self, si, wo, active):
+            value = self.material(wo, si.wi) * dr.maximum(wo.z, 0.0)  # neuenh's wi is the light: Mitsuba's wo
+            return dr.select(active & (si.wi.z > 0) & (wo.z > 0), value, mi.Color3f(0.0))
+
+        def eval(self, ctx, si, wo, active=True):
+            return self._value(si, wo, active)
+
+        def pdf(self, ctx, si, wo, active=True):
+            return self._pdf(si.wi, wo, active)
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            return self._value(si, wo, active), self._pdf(si.wi, wo, active)
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            wi_s = self._to_shading(si.wi)
+            m, _ = self.lobe.sample(wi_s, sample2)
+            glossy_wo = self._from_shading(mi.reflect(wi_s, m))
+            diffuse_wo = mi.warp.square_to_cosine_hemisphere(sample2)
+            glossy = sample1 < self.p_spec
+            bs = dr.zeros(mi.BSDFSample3f)
+            bs.wo = dr.select(glossy, glossy_wo, diffuse_wo)
+            bs.pdf = self._pdf(si.wi, bs.wo, active)
+            bs.eta = 1.0
+            bs.sampled_type = dr.select(glossy, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                        mi.UInt32(+mi.BSDFFlags.DiffuseReflection))
+            bs.sampled_component = dr.select(glossy, mi.UInt32(0), mi.UInt32(1))
+            ok = active & (si.wi.z > 0) & (bs.wo.z > 0) & (bs.pdf > 0)
+            weight = self._value(si, bs.wo, ok) / dr.select(ok, bs.pdf, 1.0)
+            return bs, dr.select(ok, weight, mi.Color3f(0.0))
+
+        def traverse(self, callback):
+            pass
+
+        def to_string(self):
+            return f"NeuenhBSDF[filename={self.filename!r}, p_spec={self.p_spec:.3f}]"
+
+    return NeuenhBSDF
+
+
+def register() -> None:
+    """Register the ``neuenh`` BSDF with Mitsuba (its variant must be set first)."""
+    import mitsuba as mi
+
+    if mi.variant() is None:
+        raise RuntimeError("set a Mitsuba variant first, e.g. mi.set_variant('llvm_ad_rgb')")
+    cls = _plugin_class()
+    mi.register_bsdf(PLUGIN, lambda props: cls(props))
+
+
+# -- files ------------------------------------------------------------------------------------------------
+def write(model, materials: Mapping[str, Mapping[str, Any]], out_dir: Path) -> list[Path]:
+    """The model's bundle, ``NAME.json`` and ``NAME.xml`` per material, and the environment map."""
+    from ..checkpoint import Bundle
+    from ..data.exr import write_rgb_exr
+    from ..render.envmaps import studio_environment
+
+    names = file_names(materials, ".json")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = [Bundle(model).save(out_dir / BUNDLE_DIR), write_rgb_exr(out_dir / ENVMAP, studio_environment())]
+    for name, material in names.items():
+        params = {k: [float(x) for x in torch.as_tensor(v).reshape(-1).tolist()]
+                  for k, v in model.complete_params(materials[material]).items()}
+        model.specialize(materials[material])  # a bad material fails here, before its files exist
+        data = {"format": FORMAT, "version": 1, "material": material, "model": model.name, "state": model.state,
+                "bundle": BUNDLE_DIR, "params": params}
+        written.append(atomic_write(out_dir / f"{name}.json", json.dumps(data, indent=1) + "\n"))
+        written.append(atomic_write(out_dir / f"{name}.xml", scene_xml(f"{name}.json")))
+    return written
+
+
+def scene_xml(material_file: str, size: int = 256, spp: int = 64) -> str:
+    """The ball under the studio environment map, path traced, the plugin loading ``material_file``."""
+    return f"""<scene version="3.0.0">
+    <!-- neuenh export: the material on a sphere under the studio environment (neuenh.render.envmaps).
+         Render after registering the plugin (docs/EXPORT.md): mi = neuenh.export.mitsuba.set_variant();
+         neuenh.export.mitsuba.register(); mi.render(mi.load_file(this, spp=256, size=512)) -->
+    <default name="spp" value="{spp}"/>
+    <default name="size" value="{size}"/>
+    <integrator type="path"><integer name="max_depth" value="8"/></integrator>
+    <sensor type="perspective">
+        <float name="fov" value="30"/>
+        <transform name="to_world"><lookat origin="0, 1.2, 4.2" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
+        <film type="hdrfilm"><integer name="width" value="$size"/><integer name="height" value="$size"/></film>
+    </sensor>
+    <emitter type="envmap"><string name="filename" value="{ENVMAP}"/></emitter>
+    <shape type="sphere">
+        <bsdf type="{PLUGIN}"><string name="filename" value="{material_file}"/></bsdf>
+    </shape>
+</scene>
+"""
