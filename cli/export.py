@@ -1,11 +1,14 @@
 """``neuenh export``: fitted materials of a model, in a renderer's own format.
 
-    neuenh export MODEL --format glsl|onnx -o DIR [--params FIT.json] [--material NAME ...]
+    neuenh export MODEL --format glsl|onnx|mitsuba -o DIR [--params FIT.json] [--material NAME ...]
+    neuenh export --plan DIR/plan.json --format glsl|onnx|mitsuba -o OUT [--material NAME ...]
 
 ``MODEL`` is a bundle folder (e.g. one written by ``neuenh fit -o DIR``, which holds the fitted
 materials), a shipped model or an analytical model. The materials exported are the bundle's own, or
 with ``--params`` those of a fit report (``neuenh fit --json``, or the answer of ``POST
 /v1/jobs/{id}/fit``), which must be a fit of this very model; ``--material`` picks some by name.
+With ``--plan`` (written by ``neuenh scene plan``) every material is exported with the rung the plan
+chose for it, one folder per rung (``OUT/<rung>/``), each holding only that rung's modules.
 Each format's files are described in docs/EXPORT.md and ``neuenh.export``.
 """
 
@@ -21,27 +24,43 @@ from neuenh.pretrained import load_model
 
 
 def add_parser(commands) -> None:
-    p = commands.add_parser("export", help="write fitted materials as GLSL functions or ONNX graphs",
+    p = commands.add_parser("export", help="write fitted materials as GLSL, ONNX or a Mitsuba 3 plugin",
                             description=__doc__.split("\n\n", 1)[1].split("\n\n", 1)[1])
-    p.add_argument("model", metavar="MODEL", help="a bundle folder, a shipped model or an analytical model")
+    p.add_argument("model", metavar="MODEL", nargs="?",
+                   help="a bundle folder, a shipped model or an analytical model (not with --plan)")
     p.add_argument("--format", required=True, choices=FORMATS, help="what to write")
     p.add_argument("-o", "--output", required=True, type=Path, metavar="DIR", help="folder to write into")
     p.add_argument("--params", type=Path, metavar="FIT.json",
                    help="a fit report of this model (neuenh fit --json); default: the bundle's own materials")
+    p.add_argument("--plan", type=Path, metavar="PLAN.json",
+                   help="a scene plan (neuenh scene plan): each material with the rung chosen for it")
     p.add_argument("--material", action="append", metavar="NAME", help="only this material (repeat for more)")
     p.set_defaults(run=run)
 
 
 def run(args) -> int:
-    model, trained = load_model(args.model, "MODEL")
-    materials = fit_report_materials(args.params, model) if args.params else bundle_materials(trained, args.model)
-    if args.material:
-        missing = [m for m in args.material if m not in materials]
-        if missing:
-            raise ValueError(f"no material {', '.join(map(repr, missing))}; there are: {', '.join(materials)}")
-        materials = {m: materials[m] for m in args.material}
-    for path in export(model, materials, args.format, args.output):
-        print(path)
+    if (args.model is None) == (args.plan is None):
+        raise ValueError("give a MODEL or --plan PLAN.json (one of them)")
+    if args.plan and args.params:
+        raise ValueError("--params goes with a MODEL; a plan holds its materials' parameters")
+    if args.plan:
+        from neuenh.scene.outputs import plan_models, safe_name
+
+        groups = [(args.output / safe_name(key), model, materials) for key, model, materials in plan_models(args.plan)]
+    else:
+        model, trained = load_model(args.model, "MODEL")
+        materials = fit_report_materials(args.params, model) if args.params else bundle_materials(trained, args.model)
+        groups = [(args.output, model, materials)]
+    wanted = set(args.material or ())
+    every = {m for _, _, materials in groups for m in materials}
+    missing = sorted(wanted - every)
+    if missing:
+        raise ValueError(f"no material {', '.join(map(repr, missing))}; there are: {', '.join(sorted(every))}")
+    for folder, model, materials in groups:
+        chosen = {m: p for m, p in materials.items() if not wanted or m in wanted}
+        if chosen:
+            for path in export(model, chosen, args.format, folder):
+                print(path)
     return 0
 
 

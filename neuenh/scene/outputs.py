@@ -21,7 +21,7 @@ from pathlib import Path
 
 from .planner import Plan
 
-__all__ = ["write_plan"]
+__all__ = ["plan_models", "safe_name", "write_plan"]
 
 PLAN_JSON, PLAN_MD, PLOT, SHEET = "plan.json", "plan.md", "cost_vs_error.png", "contact_sheet.png"
 
@@ -57,11 +57,53 @@ def _bundles(plan: Plan, folder: Path) -> list[Path]:
                         rungs=[Rung(r.round if r.round is not None else -1,
                                     r.val_loss if r.val_loss is not None else float("nan"), r.model, r.latent_mean)
                                for r in rungs])
-        written.append(bundle.save(folder / _safe(source)))
+        written.append(bundle.save(folder / safe_name(source)))
     return written
 
 
-def _safe(name: str) -> str:
+def plan_models(plan_json: Path) -> list[tuple[str, object, dict[str, dict]]]:
+    """The models a written plan uses, each with its materials' parameters: ``[(rung key, BRDFModel,
+    {material: params})]`` in ladder order, read from ``plan.json`` and the bundles beside it (what the
+    exporters take, ``neuenh export --plan``). A material planned with the NBRDF rung, or a rung
+    whose bundle is missing, is a ValueError naming it."""
+    import torch
+
+    from ..checkpoint import Bundle, BundleError
+    from ..models import get_model
+
+    try:
+        plan = json.loads(Path(plan_json).read_text())
+        ladder = {r["key"]: r for r in plan["ladder"]}
+        chosen = [(m["name"], m["chosen"], m["params"]) for m in plan["materials"]]
+    except FileNotFoundError:
+        raise ValueError(f"{plan_json}: no such file") from None
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{plan_json}: not a scene plan (neuenh scene plan): {type(exc).__name__}: {exc}") from None
+    out: dict[str, tuple[object, dict]] = {}
+    for name, key, params in chosen:
+        rung = ladder[key]
+        if rung["model"] == "nbrdf":
+            raise ValueError(f"{plan_json}: material {name!r} was planned with the per-material NBRDF rung, which "
+                             "the exporters do not write; plan the scene without nbrdf in its ladder")
+        if key not in out:
+            if rung["shared_weights"]:
+                folder = Path(plan_json).parent / "bundles" / safe_name(rung["source"])
+                try:
+                    bundle = Bundle.load(folder)
+                except BundleError as exc:
+                    raise ValueError(f"{plan_json}: rung {rung['label']!r} needs its bundle: {exc}") from None
+                model = next((r.model for r in bundle.rungs if r.state == rung["state"]), None)
+                if model is None:
+                    raise ValueError(f"{folder}: holds no rung in state {rung['state']} (plan.json's {rung['label']!r})")
+            else:
+                model = get_model(rung["model"], state=rung["state"], alternatives=rung.get("alternatives", False))
+            out[key] = (model, {})
+        out[key][1][name] = {k: torch.tensor(v, dtype=torch.float32) for k, v in params.items()}
+    return [(key, model, materials) for key, (model, materials) in out.items()]
+
+
+def safe_name(name: str) -> str:
+    """A rung key or model source as a folder name."""
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in Path(name).name) or "model"
 
 

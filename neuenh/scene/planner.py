@@ -226,6 +226,7 @@ def plan_scene(spec: SceneSpec, base: Path, *, done: Mapping[str, MaterialPlan] 
     if not costs:  # everything came from ``done``: measure the costs on the first material again
         costs = _remeasure(rungs, materials[0], spec, draw_fit_test, config)
     info = [{"key": r.key, "label": r.label, "model": r.model_name, "state": r.state,
+             "alternatives": bool(getattr(getattr(r, "model", None), "has_alternatives", False)),
              "shared_weights": r.shared_weights, "cost_ns": costs[r.key],
              "source": getattr(r, "source", None), "round": getattr(r, "round", None)} for r in rungs]
     return Plan(spec, info, [done[m.name] for m in materials], list(rungs), materials)

@@ -86,6 +86,87 @@ def test_bad_inputs_are_one_line_errors(fitted, tmp_path):
     (tmp_path / "junk.json").write_text("{")
     one_line_error(neuenh("export", "ggx", "--params", tmp_path / "junk.json", "--format", "glsl", "-o", tmp_path),
                    "not a fit report")
-    out = neuenh("export", "ggx", "--format", "mitsuba", "-o", tmp_path)
-    assert out.returncode == 2 and "invalid choice: 'mitsuba'" in out.stderr
+    out = neuenh("export", "ggx", "--format", "renderman", "-o", tmp_path)
+    assert out.returncode == 2 and "invalid choice: 'renderman'" in out.stderr
+    one_line_error(neuenh("export", "--format", "glsl", "-o", tmp_path), "give a MODEL or --plan")
+    one_line_error(neuenh("export", "--plan", tmp_path / "none.json", "--format", "glsl", "-o", tmp_path),
+                   "none.json: no such file")
     assert list(tmp_path.glob("*.glsl")) == []  # nothing half-written
+
+
+@pytest.fixture(scope="module")
+def plan(tmp_path_factory):
+    """A scene plan over a searched model's rungs (the analytical start, then invE neural), written
+    by neuenh scene plan, with one material's choice moved to the module rung (whatever its error)."""
+    import yaml
+
+    from neuenh.checkpoint import Bundle, Rung
+    from scene_files import write_tables
+
+    where = tmp_path_factory.mktemp("plan")
+    tables = write_tables(where)
+    bundle = Bundle.initial("ggx", ["a"])
+    plain = Bundle(bundle.model, bundle.materials)
+    bundle.model = bundle.model.enhance("00000100000", seed=1)
+    bundle.rungs = [Rung.of(0, 0.03, plain), Rung.of(1, 0.02, bundle)]
+    bundle.save(where / "searched")
+    scene = {"materials": [{"path": str(tables / "gloss.npz")}, {"path": str(tables / "retro.npz")}],
+             "ladder": [{"rungs": str(where / "searched")}], "tolerance": {"relative": 0.1},
+             "fit": {"samples": 300, "test_samples": 200, "epochs": 20}}
+    (where / "scene.yaml").write_text(yaml.safe_dump(scene))
+    out = neuenh("scene", "plan", where / "scene.yaml", "-o", where / "plan", "--no-sheet")
+    assert out.returncode == 0, out.stderr
+    data = json.loads((where / "plan" / "plan.json").read_text())
+    module_rung = data["ladder"][1]
+    retro = data["materials"][1]
+    retro["chosen"], retro["params"] = module_rung["key"], retro["results"][1]["params"]
+    (where / "plan" / "plan.json").write_text(json.dumps(data))
+    bundle.save(where / "plan" / "bundles" / "searched")  # as the plan writes the bundles of the rungs it uses
+    return where / "plan" / "plan.json", data
+
+
+def test_a_plan_exports_each_material_with_its_rung_and_only_its_modules(plan, tmp_path):
+    import onnxruntime as ort
+
+    from neuenh.scene.outputs import safe_name
+
+    path, data = plan
+    out = neuenh("export", "--plan", path, "--format", "onnx", "-o", tmp_path)
+    assert out.returncode == 0, out.stderr
+    gloss_rung, retro_rung = (m["chosen"] for m in data["materials"])
+    assert (tmp_path / safe_name(gloss_rung) / "gloss.onnx").exists() or gloss_rung == retro_rung
+    retro = tmp_path / safe_name(retro_rung) / "retro.onnx"
+    session = ort.InferenceSession(retro.read_bytes(), providers=["CPUExecutionProvider"])
+    model = Bundle_rung(path, retro_rung)
+    params = {k: torch.tensor(v) for k, v in data["materials"][1]["params"].items()}
+    rng = np.random.default_rng(0)
+    wi, wo = ((w / np.linalg.norm(w, axis=1, keepdims=True)).astype(np.float32)
+              for w in (np.abs(rng.normal(size=(512, 3))) for _ in range(2)))
+    got = session.run(["f_r"], {"wi": wi, "wo": wo})[0]
+    want = model.specialize(params)(torch.as_tensor(wi), torch.as_tensor(wo)).numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)
+    assert model.state == "00000100000" and len(model.neural) == 1  # the module rung, with its one module
+
+
+def Bundle_rung(plan_json: Path, key: str):
+    from neuenh.checkpoint import Bundle
+
+    [rung] = [r for r in Bundle.load(plan_json.parent / "bundles" / "searched").rungs if key.endswith(r.state)]
+    return rung.model
+
+
+def test_a_plan_without_its_bundle_or_with_nbrdf_is_a_one_line_error(plan, tmp_path):
+    import shutil
+
+    path, data = plan
+    copy = tmp_path / "plan"
+    shutil.copytree(path.parent, copy)
+    shutil.rmtree(copy / "bundles")
+    one_line_error(neuenh("export", "--plan", copy / "plan.json", "--format", "glsl", "-o", tmp_path / "o"),
+                   "needs its bundle")
+    data = json.loads(path.read_text())
+    data["ladder"].append({"key": "nbrdf", "label": "NBRDF", "model": "nbrdf", "state": None, "shared_weights": 0})
+    data["materials"][0]["chosen"] = "nbrdf"
+    (copy / "plan.json").write_text(json.dumps(data))
+    one_line_error(neuenh("export", "--plan", copy / "plan.json", "--format", "glsl", "-o", tmp_path / "o"),
+                   "material 'gloss' was planned with the per-material NBRDF rung")
