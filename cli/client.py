@@ -7,6 +7,7 @@
     neuenh-client watch JOB                     # follow a job until it ends
     neuenh-client cancel JOB
     neuenh-client download JOB [-o DIR|FILE.zip]
+    neuenh-client export JOB --format glsl|onnx|mitsuba [-o DIR] [--material NAME ...]
     neuenh-client fit JOB measurements.npz ...  # fit materials with the job's model, on the service
     neuenh-client plan SCENE.yaml [--wait] [-o DIR]  # plan a scene on the service (neuenh scene plan)
 
@@ -125,6 +126,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace an existing non-empty directory or zip")
     json_arg(p, "print what was saved as JSON")
 
+    p = command("export", export_job, "a job's model and materials in a renderer's format (GLSL, ONNX, Mitsuba 3)")
+    job_arg(p)
+    p.add_argument("--format", required=True, choices=("glsl", "onnx", "mitsuba"), help="what to write")
+    p.add_argument("-o", "--output", type=Path, metavar="DIR", help="where to extract the files (default ./neuenh-JOB-FORMAT)")
+    p.add_argument("--material", action="append", metavar="NAME", help="only this material (repeat); default all")
+    p.add_argument("--force", action="store_true", help="write into an existing non-empty directory")
+
     p = command("fit", fit, "fit measured materials with a job's model on the service (module weights frozen)")
     job_arg(p)
     p.add_argument("tables", nargs="+", type=Path, metavar="MEASUREMENTS",
@@ -239,6 +247,24 @@ def download(args, api: Api) -> int:
     else:
         print(target)
         _note(f"job {args.job} round {saved['round']} (state {saved['state']}) saved to {target}")
+    return 0
+
+
+def export_job(args, api: Api) -> int:
+    import io
+    import zipfile
+
+    target = args.output or Path(f"neuenh-{args.job}-{args.format}")
+    if target.exists() and (not target.is_dir() or (any(target.iterdir()) and not args.force)):
+        raise ValueError(f"{target} exists and is not empty; choose another -o or pass --force")
+    data = api.export(args.job, args.format, args.material, read_timeout=args.timeout or DOWNLOAD_TIMEOUT_S)
+    with zipfile.ZipFile(io.BytesIO(data)) as archive:
+        names = archive.namelist()
+        if any(n.startswith("/") or ".." in Path(n).parts for n in names):
+            raise ClientError(f"the service sent an archive with unsafe paths: {names[:3]}", 1)
+        archive.extractall(target)
+    for name in names:
+        print(target / name)
     return 0
 
 

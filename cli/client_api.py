@@ -107,6 +107,10 @@ class Api:
     def fit(self, job_id: str, files: list, data: dict, read_timeout: float) -> dict:
         return self.call("POST", f"/jobs/{job_id}/fit", files=files, data=data, read_timeout=read_timeout)
 
+    def export(self, job_id: str, fmt: str, materials: list[str] | None, read_timeout: float) -> bytes:
+        params = [("format", fmt), *(("material", m) for m in materials or ())]
+        return self.request("GET", f"/jobs/{job_id}/export", params=params, read_timeout=read_timeout).content
+
     def submit_plan(self, scene: dict, idempotency_key: str | None = None) -> tuple[dict, bool]:
         """The plan, and whether the service created it."""
         headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}

@@ -7,12 +7,12 @@ import io
 import tempfile
 import zipfile
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Header, HTTPException, Query, Response, status
 
 from neuenh.checkpoint import Bundle
-from storage import JobStatus
+from storage import JobStatus, RoundRecord
 
 from ..auth import LOCAL
 from ..deps import (ArtifactStoreDep, Authorized, ChangeableJob, JobQueueDep, JobStoreDep, PrincipalDep,
@@ -24,6 +24,7 @@ from ..schemas import HistoryPublic, JobCreate, JobList, JobPublic
 router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized], responses=COMMON)
 
 _ERRORS = documented({404: "no such job"})
+MAX_EXPORTED = 64  # materials one export request may ask for (the files of each are written and zipped)
 
 
 @router.post("", status_code=status.HTTP_202_ACCEPTED, response_model=JobPublic,
@@ -95,17 +96,61 @@ def cancel_job(job: ChangeableJob, jobs: JobStoreDep) -> JobPublic:
     return JobPublic.from_record(jobs.set_status(job_id, JobStatus.CANCELLED))  # a lost race is 409 too
 
 
+@router.get("/{job_id}/export", response_class=Response, responses={
+    **_ERRORS, **documented({422: "a material the model does not hold, or too many"}),
+    200: {"content": {"application/zip": {}},
+          "description": "the exported files (neuenh export --format FORMAT): GLSL, ONNX or the Mitsuba plugin's"}})
+def export_model(job: VisibleJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep,
+                 format: Annotated[Literal["glsl", "onnx", "mitsuba"], Query(description="what to write")],
+                 material: Annotated[list[str] | None, Query(max_length=MAX_EXPORTED,
+                                                             description="repeat for several; default all")] = None
+                 ) -> Response:
+    """The last committed model's materials in a renderer's own format, as a zip archive (the files
+    ``neuenh export MODEL --format FORMAT`` writes; docs/EXPORT.md)."""
+    from neuenh.export import export
+
+    bundle = Bundle.from_bytes(artifacts.get(_last_round(job, jobs).artifact_key))
+    names = list(bundle.materials.names) if bundle.materials is not None else []
+    wanted = material or names
+    missing = [m for m in wanted if m not in names]
+    if missing or not wanted:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"job {job.id}'s model holds no material {', '.join(map(repr, missing[:5]))}"
+                            if missing else f"job {job.id}'s model holds no materials")
+    if len(wanted) > MAX_EXPORTED:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"{len(wanted)} materials; export at most {MAX_EXPORTED} at a time (?material=NAME)")
+    params = {m: bundle.materials.as_params(names.index(m)) for m in wanted}
+    buffer = io.BytesIO()
+    with tempfile.TemporaryDirectory(prefix="neuenh-export-") as tmp:
+        out = Path(tmp) / "export"
+        export(bundle.model, params, format, out)
+        with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
+            for path in sorted(out.rglob("*")):
+                if path.is_file():
+                    archive.write(path, path.relative_to(out))
+    filename = f"neuenh-{job.id}-{format}.zip"
+    return Response(buffer.getvalue(), media_type="application/zip",
+                    headers={"Content-Disposition": f'attachment; filename="{filename}"'})
+
+
+def _last_round(job, jobs) -> RoundRecord:
+    """The job's last committed round (404 before round 0 commits)."""
+    last = jobs.last_round(job.id)
+    if last is None or last.artifact_key is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"job {job.id} has no committed round yet (status {job.status.value}); "
+                            f"its model is available once round 0 is committed")
+    return last
+
+
 @router.get("/{job_id}/model", response_class=Response, responses={
     **_ERRORS, 200: {"content": {"application/zip": {}},
                      "description": "model.json, weights.safetensors, materials.safetensors"}})
 def download_model(job: VisibleJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep) -> Response:
     """The last committed bundle as a zip archive (load it with ``Bundle.load`` once extracted)."""
     job_id = job.id
-    last = jobs.last_round(job_id)
-    if last is None or last.artifact_key is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND,
-                            f"job {job_id} has no committed round yet (status {job.status.value}); "
-                            f"its model is available once round 0 is committed")
+    last = _last_round(job, jobs)
     bundle = Bundle.from_bytes(artifacts.get(last.artifact_key))
     bundle.provenance.update({"job": job_id, "round": last.index, "status": job.status.value})
     buffer = io.BytesIO()

@@ -4,6 +4,7 @@ cancel, list, errors."""
 from __future__ import annotations
 
 import io
+import json
 import zipfile
 
 import httpx
@@ -262,3 +263,21 @@ def test_no_token_no_network_listening(host, token, ok):
 def test_the_dashboard_ignores_query_strings(server):
     r = httpx.get(server.url + "/", params={"utm_source": "mail"})
     assert r.status_code == 200 and "text/html" in r.headers["content-type"]
+
+
+@pytest.mark.parametrize("fmt, suffix", [("glsl", ".glsl"), ("onnx", ".onnx")])
+def test_export_zips_the_models_materials_in_a_renderers_format(client, finished, fmt, suffix):
+    job = finished[2]
+    model = client.get(f"/jobs/{job['id']}/model")
+    with zipfile.ZipFile(io.BytesIO(model.content)) as archive:
+        names = json.loads(archive.read("model.json"))["materials"]
+    r = client.get(f"/jobs/{job['id']}/export", params={"format": fmt, "material": names[:1]})
+    assert r.status_code == 200 and r.headers["content-type"] == "application/zip", r.text
+    with zipfile.ZipFile(io.BytesIO(r.content)) as archive:
+        files = archive.namelist()
+        assert any(f.endswith(suffix) for f in files)
+        if fmt == "glsl":
+            assert "vec3 neuenh_brdf(vec3 wi, vec3 wo)" in archive.read(files[0]).decode()
+    bad = client.get(f"/jobs/{job['id']}/export", params={"format": fmt, "material": ["nope"]})
+    assert bad.status_code == 422 and "holds no material 'nope'" in bad.json()["detail"]
+    assert client.get(f"/jobs/{job['id']}/export", params={"format": "renderman"}).status_code == 422

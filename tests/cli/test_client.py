@@ -322,6 +322,21 @@ def test_download_extracts_a_bundle_and_refuses_to_overwrite(server, submitted, 
     assert Bundle.load(target).model.state == job["current_state"]
 
 
+def test_export_writes_a_jobs_materials_as_glsl(server, submitted, tmp_path):
+    job = submitted[1]
+    assert client("download", job["id"], "-o", tmp_path / "m.zip", url=server.url).returncode == 0
+    with zipfile.ZipFile(tmp_path / "m.zip") as z:
+        first = json.loads(z.read("model.json"))["materials"][0]
+    out = client("export", job["id"], "--format", "glsl", "--material", first, url=server.url, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    [path] = out.stdout.split()
+    assert path.endswith(".glsl") and "vec3 neuenh_brdf(vec3 wi, vec3 wo)" in (tmp_path / path).read_text()
+    one_line_error(client("export", job["id"], "--format", "glsl", url=server.url, cwd=tmp_path),
+                   "exists and is not empty")
+    one_line_error(client("export", job["id"], "--format", "glsl", "--material", "nope", "-o", tmp_path / "n",
+                          url=server.url), "holds no material 'nope'")
+
+
 def test_download_keeps_a_zip(server, submitted, tmp_path):
     out = client("download", submitted[1]["id"], "-o", tmp_path / "m.zip", url=server.url)
     assert out.returncode == 0, out.stderr
