@@ -68,6 +68,7 @@ bench: $(STAMP)
 	$(PY) bench/bench_api.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_cluster.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_shared_cluster.py --write docs/BENCHMARKS.md
+	$(PY) bench/bench_export.py --write docs/BENCHMARKS.md
 
 # docs/RESULTS.md, docs/results.json and docs/img/results/: every model on the RGL materials
 # (../shared/data/rgl) with the shipped models/enhanced-ggx and models/baselines; about half an hour.
