@@ -30,8 +30,8 @@ import torch
 
 from ..graph import Term
 from ..ops import _is_const
-from ..shading import shade
-from ..specialize import FoldedModule, SpecializedBRDF
+from ..shading import make_shading, shade
+from ..specialize import FoldedModule, SpecializedBRDF, _fold
 from . import atomic_write, file_names
 
 VERSION = 450  # the GLSL version the source is written for (core profile)
@@ -326,10 +326,107 @@ def _ident(position: str) -> str:
     return re.sub(r"[^A-Za-z0-9_]", "_", position.replace("*", "_x_").replace("+", "_p_"))
 
 
+# -- the model for any material ---------------------------------------------------------------------
+def parameter_layout(model) -> list[tuple[str, int, int]]:
+    """(name, offset, width) of every parameter in the generic function's ``float p[]``: the model's
+    parameters in ``model.param_names`` order, then ``latent`` when a module reads it."""
+    layout, offset = [], 0
+    for spec in model.specs:
+        layout.append((spec.name, offset, spec.width))
+        offset += spec.width
+    if model.uses_latent and model.latent_dim:
+        layout.append(("latent", offset, model.latent_dim))
+    return layout
+
+
+def model_source(model) -> str:
+    """``vec3 neuenh_MODEL_brdf(vec3 wi, vec3 wo, float p[N])``: the model for any material, its
+    physical parameter values in ``p`` (``parameter_layout``), and, unless
+    ``NEUENH_MODEL_NO_UNIFORM`` is defined, ``neuenh_MODEL_material_brdf(wi, wo)`` reading them from
+    the uniform block ``NeuenhMODELParams`` (std140: ``vec4 neuenh_MODEL_params[K]``, component i at
+    ``[i / 4][i % 4]``). The frame, the terms and the modules run per call (nothing is folded): the
+    specialized per-material files are faster; this one serves materials that change at run time."""
+    name = _ident(model.name)
+    prefix = f"neuenh_{name}_"
+    code = Code(prefix)
+    xp = GlslOps(code)
+    wi, wo = Expr(code, "vec3", "wi"), Expr(code, "vec3", "wo")
+    layout = parameter_layout(model)
+    n = layout[-1][1] + layout[-1][2]
+    values = {}
+    for pname, offset, width in layout:
+        if pname == "latent":
+            continue
+        cells = [Expr(code, "float", f"p[{offset + i}]") for i in range(width)]
+        values[pname] = cells[0] if width == 1 else (
+            code.let("vec3", f"vec3({', '.join(c.text for c in cells)})") if width == 3 else tuple(cells))
+    s = make_shading(wi, wo, values, xp)
+    # every module reads the model's own parameters as unit values (ParamSpec.to_unit), then the latent
+    unit = []
+    for spec in model.module_specs:
+        offset = next(o for pn, o, _ in layout if pn == spec.name)
+        lo, hi = (math.log(spec.low), math.log(spec.high)) if spec.scale == "log" else (spec.low, spec.high)
+        for i in range(spec.width):
+            value = f"log(p[{offset + i}])" if spec.scale == "log" else f"p[{offset + i}]"
+            unit.append(code.let("float", f"({value} - {literal(lo)}) * {literal(1.0 / (hi - lo))}"))
+    latent = [Expr(code, "float", f"p[{o + i}]") for pn, o, w in layout if pn == "latent" for i in range(w)]
+    modules = {position: _fold(position, module, None, True) for position, module in model.neural.items()}
+    functions = [_module_function(prefix, m) for m in modules.values()]
+    k = model.module_config.digits
+
+    def run(expr):
+        digit = model.digits[model.graph.index[expr.name]]
+        if isinstance(expr, Term):
+            if 1 <= digit < k:
+                inputs = unit + latent + ([s.wi, s.wo] if expr.reads_directions else [])
+                widths = [1] * (len(unit) + len(latent)) + ([3, 3] if expr.reads_directions else [])
+                return _call_module(code, prefix, modules[expr.name], inputs, widths)
+            return expr.formula(s)
+        left, right = run(expr.left), run(expr.right)
+        if 1 <= digit < k:
+            return _call_module(code, prefix, modules[expr.name], [left, right], (expr.left.width, expr.right.width))
+        return left + right if expr.op == "+" else left * right
+
+    value = xp.where(s.above, run(model.expression()), (0.0, 0.0, 0.0))
+    if _type(value) != "vec3":
+        value = code.let("vec3", f"vec3({_text(value)})")
+    blocks = -(-n // 4)
+    fields = ", ".join(f"{pname} [{offset}" + (f"..{offset + width - 1}]" if width > 1 else "]")
+                       for pname, offset, width in layout)
+    header = [f"// neuenh export: the generic {model.name} in state {model.state}, for any material",
+              f"// f_r = {model.describe()}",
+              "// f_r(wi, wo, p) without the cosine factor, local shading frame, zero below either horizon;",
+              f"// p: {n} physical parameter values: {fields}."]
+    body = [f"vec3 {prefix}brdf(vec3 wi, vec3 wo, float p[{n}]) {{", *code.lines,
+            f"    return max({value.text}, vec3(0.0));", "}"]
+    uniform = ["#ifndef NEUENH_MODEL_NO_UNIFORM",
+               f"layout(std140) uniform Neuenh{name}Params {{ vec4 {prefix}params[{blocks}]; }};",
+               f"vec3 {prefix}material_brdf(vec3 wi, vec3 wo) {{",
+               f"    float p[{n}];",
+               f"    for (int i = 0; i < {n}; ++i) p[i] = {prefix}params[i / 4][i % 4];",
+               f"    return {prefix}brdf(wi, wo, p);", "}", "#endif"]
+    return "\n".join(header + [""] + [f for fn in functions for f in (fn, "")] + body + [""] + uniform) + "\n"
+
+
+def pack_parameters(model, params: Mapping[str, Any]) -> list[float]:
+    """One material's parameters (the dict ``specialize`` takes) as the generic function's ``p``."""
+    params = model.complete_params(params)
+    out = []
+    for pname, _, width in parameter_layout(model):
+        values = [float(v) for v in torch.as_tensor(params[pname]).reshape(-1).tolist()]
+        if len(values) != width:
+            raise ValueError(f"parameter {pname!r} has width {width}, got {len(values)} values")
+        out += values
+    return out
+
+
 # -- files ---------------------------------------------------------------------------------------------
 def write(model, materials: Mapping[str, Mapping[str, Any]], out_dir: Path) -> list[Path]:
-    """``NAME.glsl`` per material (``NAME``: ``neuenh.export.identifier``), written atomically."""
+    """``NAME.glsl`` per material (``NAME``: ``neuenh.export.identifier``) and ``MODEL-generic.glsl``
+    (``model_source``), written atomically."""
     names = file_names(materials, ".glsl")
+    generic = f"{_ident(model.name)}-generic.glsl"  # material files are identifiers: no '-', no clash
     out_dir.mkdir(parents=True, exist_ok=True)
-    return [atomic_write(out_dir / f"{name}.glsl", material_source(model.specialize(materials[material]), name))
-            for name, material in names.items()]
+    written = [atomic_write(out_dir / f"{name}.glsl", material_source(model.specialize(materials[material]), name))
+               for name, material in names.items()]
+    return written + [atomic_write(out_dir / generic, model_source(model))]

@@ -48,8 +48,9 @@ def test_a_fit_report_exports_to_glsl_that_runs_on_llvmpipe(fitted, tmp_path):
     report, _ = fitted
     out = neuenh("export", "enhanced-ggx", "--params", report, "--format", "glsl", "-o", tmp_path / "glsl")
     assert out.returncode == 0, out.stderr
-    [path] = [Path(line) for line in out.stdout.split()]
+    path, generic = [Path(line) for line in out.stdout.split()]
     assert path == tmp_path / "glsl" / "brushed_steel.glsl" and path.stat().st_mode & 0o777 == 0o644
+    assert generic.name == "ggx-generic.glsl"
 
     model, _ = load_model("enhanced-ggx")
     params = {k: torch.tensor(v) for k, v in json.loads(report.read_text())["materials"][0]["params"].items()}
@@ -71,7 +72,7 @@ def test_a_fitted_bundle_exports_its_own_materials(fitted, tmp_path):
     _, bundle = fitted
     out = neuenh("export", bundle, "--format", "glsl", "-o", tmp_path)
     assert out.returncode == 0, out.stderr
-    assert [Path(p).name for p in out.stdout.split()] == ["brushed_steel.glsl"]
+    assert [Path(p).name for p in out.stdout.split()] == ["brushed_steel.glsl", "ggx-generic.glsl"]
 
 
 def test_bad_inputs_are_one_line_errors(fitted, tmp_path):

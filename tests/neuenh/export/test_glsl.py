@@ -124,7 +124,7 @@ def test_write_names_files_and_refuses_clashes(tmp_path):
     model = get_model("ggx")
     one = {k: v for k, v in torch_params({s.name: np.full(s.width, s.init) for s in model.specs}).items()}
     paths = write(model, {"brushed steel": one, "9-gold": one}, tmp_path)
-    assert [p.name for p in paths] == ["brushed_steel.glsl", "m9_gold.glsl"]
+    assert [p.name for p in paths] == ["brushed_steel.glsl", "m9_gold.glsl", "ggx-generic.glsl"]
     text = paths[0].read_text()
     assert "vec3 neuenh_brushed_steel_brdf(vec3 wi, vec3 wo)" in text and "#ifndef NEUENH_NO_DEFAULT_BRDF" in text
     assert not any(line.startswith("#version") for line in text.splitlines()) and "void main" not in text
@@ -176,3 +176,44 @@ def test_a_sphere_shaded_by_the_export_equals_the_renderer(gl, state):
     assert want.max() > 0.1 and np.isfinite(got).all()
     error = np.abs(got - want) / np.maximum(np.abs(want), 1e-3 * want.max())
     assert error.max() <= 1e-3, f"max relative error {error.max():.3g} over {len(want)} pixels"
+
+
+GENERIC_CASES = [("ggx", "00000000000"), ("ggx", PAPER_STATE), ("ggx-alternatives", ALTERNATIVES_STATE),
+                 ("cook_torrance", "00000000000")]
+
+
+@pytest.mark.parametrize("name, state", GENERIC_CASES)
+def test_the_generic_model_function_equals_the_model_for_any_material(gl, name, state, tmp_path):
+    """``neuenh_MODEL_brdf(wi, wo, p)``, the model for any material: compiled by glslangValidator, run
+    on llvmpipe with several materials' parameters packed into ``p`` (``pack_parameters``), against
+    the float64 model on the hard cases and random pairs."""
+    from neuenh.export.glsl import model_source, pack_parameters, parameter_layout
+
+    torch.manual_seed(0)
+    model = model_for(name, state)
+    source = model_source(model)
+    rng = np.random.default_rng(3)
+    ident = model.name
+    n = sum(width for _, _, width in parameter_layout(model))
+    for i, params in enumerate(materials(model, rng)[1:4]):
+        material = torch_params({k: v[0] for k, v in params.items()}, torch.float64)
+        if model.uses_latent:
+            material["latent"] = torch.as_tensor(rng.random(model.latent_dim))
+        packed = ", ".join(literal(v) for v in pack_parameters(model, material))
+        wrapper = source + (f"vec3 call(vec3 wi, vec3 wo) {{ float p[{n}] = float[{n}]({packed}); "
+                            f"return neuenh_{ident}_brdf(wi, wo, p); }}\n")
+        if i == 0:
+            validate(wrapper, tmp_path, call="call")
+        wi, wo = directions(model, params, rng)
+        wi32, wo32 = wi.astype(np.float32), wo.astype(np.float32)
+        got = run_brdf(gl, wrapper, wi32, wo32, call="call").astype(np.float64)
+        with torch.no_grad():
+            want = copy.deepcopy(model).double().evaluate(torch.as_tensor(wi32, dtype=torch.float64),
+                                                          torch.as_tensor(wo32, dtype=torch.float64), material).numpy()
+            own = model.float().evaluate(torch.as_tensor(wi32), torch.as_tensor(wo32),
+                                         {k: v.float() for k, v in material.items()}).double().numpy()
+        assert np.isfinite(got).all() and (got[(want == 0).all(1)] == 0).all()
+        scale = np.maximum(np.abs(want), 1e-3 * want.max())
+        bound = max(1e-4, 2.5 * float((np.abs(own - want) / scale).max()))  # as float32 torch can do
+        assert (np.abs(got - want) / scale).max() <= bound, f"{name} {state} material {i}"
+    assert "uniform Neuenh" in source and "material_brdf" in source
