@@ -100,3 +100,11 @@ def test_bad_scenes_are_one_line_naming_the_problem(tables, changes, message):
     with pytest.raises(SceneError, match=message) as info:
         plan_scene(parse_scene(scene(tables, **changes)), tables)
     assert "\n" not in str(info.value)
+
+
+def test_the_example_scene_is_valid_and_names_files_beside_it():
+    from neuenh.scene import load_scene
+
+    spec, base = load_scene(Path(__file__).resolve().parents[3] / "examples" / "scene.yaml")
+    assert len(spec.materials) == 8 and spec.tolerance.relative == 0.1
+    assert all((base / m.path).resolve().name.endswith("_rgb.bsdf") for m in spec.materials)
