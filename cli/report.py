@@ -83,6 +83,7 @@ def _sizes(efficiency: list[int] | None) -> tuple[int, ...]:
 
 
 def run(args) -> int:
+    from neuenh.study.registry import shipped_others
     from neuenh.study.report import StudySettings, run_study
 
     settings = StudySettings(
@@ -90,7 +91,7 @@ def run(args) -> int:
         materials=tuple(args.materials) if args.materials else None, fit_samples=args.fit_samples,
         test_samples=args.test_samples, size=args.size, samples=args.samples, scene=args.scene, jobs=args.jobs,
         fit_epochs=args.fit_epochs, fit_starts=args.fit_starts, eval_pairs=args.eval_pairs, seed=args.seed,
-        efficiency=_sizes(args.efficiency))
+        efficiency=_sizes(args.efficiency), others=shipped_others())
     if args.train_baselines:
         from neuenh.checkpoint import Bundle
         from neuenh.pretrained import bundle_path, load_model

@@ -11,7 +11,7 @@ from ..modules import ModuleConfig
 from ..models.ggx_residual import RESIDUAL_STATE
 
 __all__ = ["ANALYTICAL", "BASELINES", "Baseline", "ContenderInfo", "EFFICIENCY_CONTENDERS", "ENHANCED",
-           "contender_infos"]
+           "OTHER_ENHANCED", "contender_infos", "shipped_others"]
 
 ENHANCED = "enhanced"
 ANALYTICAL = {"ggx": "GGX", "cook_torrance": "Cook-Torrance", "ward": "Ward"}
@@ -51,12 +51,28 @@ class ContenderInfo:
     family: str  # "enhanced", "analytical", "residual" or "neural"
 
 
-def contender_infos() -> list[ContenderInfo]:
-    """Every model of the study, in the order of its tables."""
+# The paper's other enhancements (its "enhancing other models"): shipped models, each measured beside
+# the analytical model it enhances, when they are shipped (``neuenh.pretrained``).
+OTHER_ENHANCED = {"enhanced-cook-torrance": ("Enhanced Cook-Torrance", "cook_torrance"),
+                  "enhanced-ward": ("Enhanced Ward", "ward")}
+
+
+def contender_infos(others: tuple[str, ...] = ()) -> list[ContenderInfo]:
+    """Every model of the study, in the order of its tables; ``others``: the names of
+    ``OTHER_ENHANCED`` to include (those shipped)."""
     return [ContenderInfo(ENHANCED, "Enhanced GGX (ours)", "enhanced"),
             *(ContenderInfo(n, label, "analytical") for n, label in ANALYTICAL.items()),
+            *(ContenderInfo(n, OTHER_ENHANCED[n][0], "enhanced") for n in others),
             *(ContenderInfo(b.name, b.label, b.family) for b in BASELINES.values()),
             ContenderInfo("nbrdf", "NBRDF (per material)", "neural")]
+
+
+def shipped_others() -> tuple[str, ...]:
+    """The names of ``OTHER_ENHANCED`` that are shipped."""
+    from ..pretrained import shipped_models
+
+    shipped = shipped_models()
+    return tuple(n for n in OTHER_ENHANCED if n in shipped)
 
 
 # The models of the data-efficiency curves (``study.efficiency``): the question is where a shared

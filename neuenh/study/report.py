@@ -12,7 +12,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .registry import ANALYTICAL, BASELINES, EFFICIENCY_CONTENDERS, ENHANCED, contender_infos
+from .registry import ANALYTICAL, BASELINES, EFFICIENCY_CONTENDERS, ENHANCED, OTHER_ENHANCED, contender_infos
 from .summary import MaterialResult, StudySummary
 
 __all__ = ["StudySettings", "find_materials", "run_study"]
@@ -36,7 +36,8 @@ class StudySettings:
     fit_starts: str = "analytical"
     eval_pairs: int = 200_000
     seed: int = 0
-    efficiency: tuple[int, ...] = ()  # fit-set sizes of the data-efficiency curves (none: skipped)
+    efficiency: tuple[int, ...] = ()
+    others: tuple[str, ...] = ()  # the shipped OTHER_ENHANCED models measured beside their originals  # fit-set sizes of the data-efficiency curves (none: skipped)
 
     def check(self) -> None:
         for name in ("fit_samples", "test_samples", "size", "samples", "jobs", "eval_pairs"):
@@ -90,7 +91,7 @@ def run_study(settings: StudySettings) -> StudySummary:
     materials.sort(key=lambda m: m.material)
     s = settings
     summary = StudySummary.of(
-        materials, contender_infos(), command=s.command, generated=time.strftime("%Y-%m-%d", time.gmtime()),
+        materials, contender_infos(s.others), command=s.command, generated=time.strftime("%Y-%m-%d", time.gmtime()),
         wall_s=time.perf_counter() - start,
         settings={"fit_samples": s.fit_samples, "test_samples": s.test_samples, "size": s.size, "scene": s.scene,
                   "eval_pairs": s.eval_pairs, "fit_starts": s.fit_starts, "light_samples": s.samples ** 2,
@@ -118,9 +119,11 @@ def _contenders(s: StudySettings) -> list:
 
     fit = FitConfig(epochs=s.fit_epochs, starts=s.fit_starts)
     out = []
-    for info in contender_infos():
+    for info in contender_infos(s.others):
         if info.name == ENHANCED:
             model, trained = load_model(s.model)
+        elif info.name in OTHER_ENHANCED:
+            model, trained = load_model(info.name)
         elif info.name in ANALYTICAL:
             model, trained = get_model(info.name), None
         elif info.name in BASELINES:
