@@ -28,4 +28,4 @@ def scene(folder: Path, **changes) -> dict:
     """GGX's own material (weight 3) and a retro-reflective one, on the ladder [ggx, nbrdf]."""
     return {"name": "known", "materials": [{"path": "gloss.npz", "weight": 3.0}, {"path": "retro.npz"}],
             "ladder": ["ggx", "nbrdf"], "tolerance": {"metric": "log_l1", "relative": 0.1},
-            "fit": {"samples": 1000, "test_samples": 500, "seed": 0}, **changes}
+            "fit": {"samples": 1000, "test_samples": 500, "seed": 0, "epochs": 100}, **changes}

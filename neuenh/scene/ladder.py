@@ -115,13 +115,11 @@ class GraphRung(Rung):
 class NBRDFRung(Rung):
     label, key, model_name, state, shared_weights = "NBRDF (per material)", "nbrdf", "nbrdf", None, 0
 
-    def __init__(self, epochs: int | None = None):
-        self.epochs = epochs
-
     def fit(self, samples: Samples, config: FitConfig, seed: int) -> list[FittedRung]:
+        """Adam, ``NBRDFConfig``'s defaults (300 epochs) unless ``config.epochs`` says otherwise."""
         from ..study.nbrdf_fit import NBRDFConfig, fit_nbrdf
 
-        result = fit_nbrdf(samples, NBRDFConfig(epochs=self.epochs) if self.epochs else NBRDFConfig(), seed=seed)
+        result = fit_nbrdf(samples, NBRDFConfig(epochs=config.epochs) if config.epochs else NBRDFConfig(), seed=seed)
         out = []
         for net, loss in zip(result.networks, result.losses):
             params = {name: [float(x) for x in p.detach().reshape(-1)] for name, p in net.state_dict().items()}

@@ -33,7 +33,7 @@ def test_the_ggx_material_stays_analytical_and_the_retro_one_climbs(known_plan):
     assert chosen == {"gloss": "ggx", "retro": "nbrdf"}
     gloss, retro = known_plan.materials
     assert gloss.result("ggx").error < 1e-3  # GGX is exact on its own material (float32 table)
-    assert retro.result("nbrdf").error < 0.5 * retro.result("ggx").error
+    assert retro.result("nbrdf").error < 0.75 * retro.result("ggx").error
 
 
 def test_the_tolerance_is_respected_and_the_weights_make_the_totals(known_plan):
