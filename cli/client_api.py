@@ -94,8 +94,11 @@ class Api:
 
     def submit(self, spec: dict, idempotency_key: str | None = None) -> tuple[dict, bool]:
         """The job, and whether the service created it (False: the key's earlier job)."""
+        return self._create("/jobs", spec, idempotency_key)
+
+    def _create(self, path: str, body: dict, idempotency_key: str | None) -> tuple[dict, bool]:
         headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
-        r = self.request("POST", "/jobs", json=spec, headers=headers)
+        r = self.request("POST", path, json=body, headers=headers)
         return self._json(r), r.status_code == 202
 
     def cancel(self, job_id: str) -> dict:
@@ -113,9 +116,7 @@ class Api:
 
     def submit_plan(self, scene: dict, idempotency_key: str | None = None) -> tuple[dict, bool]:
         """The plan, and whether the service created it."""
-        headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
-        r = self.request("POST", "/plans", json=scene, headers=headers)
-        return self._json(r), r.status_code == 202
+        return self._create("/plans", scene, idempotency_key)
 
     def plan(self, plan_id: str) -> dict:
         return self.call("GET", f"/plans/{plan_id}")

@@ -15,10 +15,11 @@
 
 from __future__ import annotations
 
+import io
 import json
-import os
 from pathlib import Path
 
+from ..export import atomic_write
 from .planner import Plan
 
 __all__ = ["plan_models", "safe_name", "write_plan"]
@@ -28,14 +29,14 @@ PLAN_JSON, PLAN_MD, PLOT, SHEET = "plan.json", "plan.md", "cost_vs_error.png", "
 
 def write_plan(plan: Plan, out: Path, *, sheet: bool = True) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
-    written = [_atomic(out / PLAN_JSON, json.dumps(plan.to_json(), indent=1) + "\n")]
+    written = [atomic_write(out / PLAN_JSON, json.dumps(plan.to_json(), indent=1) + "\n")]
     written += _bundles(plan, out / "bundles")
     _plot(plan, out / PLOT)
     written.append(out / PLOT)
     if sheet and any(m.renderable for m in plan.sources):
         _contact_sheet(plan, out / SHEET)
         written.append(out / SHEET)
-    written.append(_atomic(out / PLAN_MD, markdown(plan, sheet=(out / SHEET).exists())))
+    written.append(atomic_write(out / PLAN_MD, markdown(plan, sheet=(out / SHEET).exists())))
     return written
 
 
@@ -176,7 +177,7 @@ def _plot(plan: Plan, path: Path) -> None:
     ax.legend(loc="best", frameon=False)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    _atomic(path, None, lambda tmp: fig.savefig(tmp, format="png"))
+    _save(fig, path)
 
 
 def _contact_sheet(plan: Plan, path: Path) -> None:
@@ -204,18 +205,11 @@ def _contact_sheet(plan: Plan, path: Path) -> None:
             ax.set_title(title, fontsize=7)
             ax.axis("off")
     fig.tight_layout()
-    _atomic(path, None, lambda tmp: fig.savefig(tmp, format="png"))
+    _save(fig, path)
 
 
-def _atomic(path: Path, text: str | None, write=None) -> Path:
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        if write is None:
-            tmp.write_text(text)
-        else:
-            write(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+def _save(fig, path: Path) -> Path:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    return atomic_write(path, buffer.getvalue())
 
