@@ -8,7 +8,6 @@ from pathlib import Path
 
 from fastapi import HTTPException, status
 
-from neuenh.models import get_model
 from orchestrator.executor import ClusterInfo, Resources
 from orchestrator.spec import JobSpec
 

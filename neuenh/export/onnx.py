@@ -50,7 +50,7 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from .. import __version__
-from ..graph import BRDFModel, Operator, Term
+from ..graph import BRDFModel, Term
 from ..ops import BatchVec3
 from ..shading import make_shading, shade
 from ..specialize import SpecializedBRDF
