@@ -29,6 +29,8 @@ import torch
 
 from ..data.samples import Samples
 from ..fit import FitConfig
+from ..study.comparison import RenderSetup
+from ..study.heldout import draw_fit_test
 from .ladder import FittedRung, Rung, build_ladder, measure_cost
 from .spec import CaptureEntry, FileEntry, SceneError, SceneSpec
 
@@ -186,9 +188,6 @@ def plan_scene(spec: SceneSpec, base: Path, *, done: Mapping[str, MaterialPlan] 
                ladder: Sequence[Rung] | None = None, chunk: int = CHUNK) -> Plan:
     """Plan every material of ``spec`` (module doc). ``progress(what, done, total)`` is called as
     each (chunk, rung) fit finishes."""
-    from ..study.comparison import RenderSetup
-    from ..study.heldout import draw_fit_test
-
     materials = load_materials(spec, base)
     try:
         rungs = list(ladder) if ladder is not None else build_ladder(spec.ladder)
@@ -205,7 +204,7 @@ def plan_scene(spec: SceneSpec, base: Path, *, done: Mapping[str, MaterialPlan] 
     steps, step = math.ceil(len(todo) / chunk) * len(rungs), 0
     for lo in range(0, len(todo), chunk):
         group = todo[lo : lo + chunk]
-        sets = [_draw(m, spec, draw_fit_test) for m in group]
+        sets = [_draw(m, spec) for m in group]
         fit = Samples.concat([s[0] for s in sets])
         truths = [_truth(m, setup) for m in group] if spec.tolerance.renders else [None] * len(group)
         results: list[list[RungResult]] = [[] for _ in group]
@@ -224,7 +223,7 @@ def plan_scene(spec: SceneSpec, base: Path, *, done: Mapping[str, MaterialPlan] 
             if on_material:
                 on_material(plan)
     if not costs:  # everything came from ``done``: measure the costs on the first material again
-        costs = _remeasure(rungs, materials[0], spec, draw_fit_test, config)
+        costs = _remeasure(rungs, materials[0], spec, config)
     info = [{"key": r.key, "label": r.label, "model": r.model_name, "state": r.state,
              "alternatives": bool(getattr(getattr(r, "model", None), "has_alternatives", False)),
              "shared_weights": r.shared_weights, "cost_ns": costs[r.key],
@@ -232,7 +231,7 @@ def plan_scene(spec: SceneSpec, base: Path, *, done: Mapping[str, MaterialPlan] 
     return Plan(spec, info, [done[m.name] for m in materials], list(rungs), materials)
 
 
-def _draw(m: SceneMaterial, spec: SceneSpec, draw_fit_test) -> tuple[Samples, Samples]:
+def _draw(m: SceneMaterial, spec: SceneSpec) -> tuple[Samples, Samples]:
     n_test = spec.fit.test_samples
     table = getattr(m.material, "table", None)
     if table is not None:  # disjoint rows: what the table holds beyond the fit set, at most n_test
@@ -276,6 +275,6 @@ def _measure(key: str, fitted: FittedRung, test: Samples, truth, setup, metric: 
     return result
 
 
-def _remeasure(rungs, material: SceneMaterial, spec: SceneSpec, draw_fit_test, config) -> dict[str, float]:
-    fit, _ = _draw(material, spec, draw_fit_test)
+def _remeasure(rungs, material: SceneMaterial, spec: SceneSpec, config) -> dict[str, float]:
+    fit, _ = _draw(material, spec)
     return {r.key: measure_cost(r.fit(fit, config, seed=spec.fit.seed)[0].brdf) for r in rungs}
