@@ -35,11 +35,16 @@ def test_an_unknown_name_lists_what_exists(monkeypatch, tmp_path):
 
 @pytest.mark.skipif(not (REPO_MODELS / "enhanced-ggx" / "model.json").exists(), reason="no shipped model in this tree")
 def test_the_shipped_enhanced_ggx_is_small_enhanced_and_trained_without_rgl():
+    from neuenh.pretrained import rungs
+
     model, trained = load_model("enhanced-ggx")
-    assert model.name == "ggx" and set(model.state) != {"0"} and model.latent_dim == 27
+    assert model.name == "ggx" and model.has_modules and model.latent_dim == 27
     size = sum(p.stat().st_size for p in (REPO_MODELS / "enhanced-ggx").iterdir())
-    assert size < 200_000
-    assert len(trained) == 200 and not any("rgb" in name for name in trained.names)
+    assert size < 300_000  # the model, its 260 training materials, its rungs and its search's history
+    assert len(trained) == 260 and not any("rgb" in name for name in trained.names)  # never RGL
+    ladder = rungs("enhanced-ggx")
+    assert len(ladder) >= 2 and ladder[-1].state == model.state  # the search's winners, the model last
+    assert [r.round for r in ladder] == sorted(r.round for r in ladder)
 
 
 def test_rungs_of_a_model_are_its_search_winners_or_itself(tmp_path, monkeypatch):
