@@ -22,7 +22,7 @@ from pathlib import Path
 from neuenh.checkpoint import Bundle
 from orchestrator.dataset import prepare_dataset
 from orchestrator.runner import Orchestrator, Progress, train_plain_baseline
-from orchestrator.spec import load_spec
+from orchestrator.spec import load_spec, parse_spec
 from storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore, trained_epochs
 
 SUCCESS = {JobStatus.CONVERGED, JobStatus.STOPPED}
@@ -55,16 +55,21 @@ def run(args) -> int:
 def _search(spec, args) -> int:
     jobs = SQLiteJobStore(args.data_dir / "jobs.sqlite")
     artifacts = LocalArtifactStore(args.data_dir / "artifacts")
-    key = "spec-" + hashlib.sha256(json.dumps(spec.model_dump(mode="json"), sort_keys=True).encode()).hexdigest()[:32]
+    # The key leaves out fields at their defaults, so a neuenh that adds spec fields (with defaults)
+    # still finds the jobs of an earlier one; a job stored under another key whose spec reads as this
+    # very spec today (an earlier neuenh's key) is found too.
+    key = "spec-" + hashlib.sha256(json.dumps(spec.model_dump(mode="json", exclude_defaults=True),
+                                              sort_keys=True).encode()).hexdigest()[:32]
     if args.new:
         key += f"-{time.time_ns()}"
+    earlier = None if args.new else same_spec_job(jobs, spec)
     from workers.ray_executor import RayExecutor  # Ray only when a job really runs
 
     display = ProgressDisplay(sys.stderr)
     executor = RayExecutor(address=args.ray_address, num_cpus=args.cpus)
     try:
         orchestrator = Orchestrator(jobs, artifacts, executor, on_progress=display)
-        job, created = orchestrator.submit(spec, idempotency_key=key)
+        job, created = (earlier, False) if earlier is not None else orchestrator.submit(spec, idempotency_key=key)
         display.note(f"job {job.id} {'submitted' if created else 'found: ' + job.status.lower()}"
                      f" ({args.data_dir / 'jobs.sqlite'})")
         job = orchestrator.run(job.id)
@@ -75,6 +80,22 @@ def _search(spec, args) -> int:
         jobs.close()
     print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
     return 0 if job.status in SUCCESS else 1
+
+
+def same_spec_job(jobs, spec):
+    """The newest job of the store (not cancelled) whose stored spec is ``spec`` as this neuenh reads it."""
+    from orchestrator.spec import SpecError
+
+    wanted = spec.model_dump(mode="json")
+    for job in jobs.list_jobs(limit=500).jobs:
+        if job.status is JobStatus.CANCELLED:
+            continue
+        try:
+            if parse_spec(job.spec).model_dump(mode="json") == wanted:
+                return job
+        except SpecError:
+            continue
+    return None
 
 
 def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:

@@ -83,3 +83,21 @@ def test_sigkill_mid_round_then_resume(spec_file, uninterrupted, tmp_path):
     assert history(tmp_path)[1] == expected
     assert (resumed["state"], resumed["val_loss"]) == (summary["state"], summary["val_loss"])
     assert json.loads((tmp_path / "results" / job.id / "history.json").read_text())["rounds"][0]["round"] == 0
+
+
+def test_a_job_stored_by_an_earlier_neuenh_is_found_by_its_spec(tmp_path):
+    """A spec stored without fields an upgrade added (their defaults), under another key, is the
+    same spec: neuenh search resumes that job instead of starting afresh; a cancelled one is not."""
+    from cli.search import same_spec_job
+    from orchestrator.spec import parse_spec
+    from storage import JobStatus, SQLiteJobStore
+
+    spec = parse_spec({"search": {"epochs_per_round": 2}, "data": [{"source": "synthetic_zoo", "materials": 2}]})
+    with SQLiteJobStore(tmp_path / "jobs.sqlite") as jobs:
+        old_form = spec.model_dump(mode="json", exclude_defaults=True)  # what an earlier schema held
+        cancelled, _ = jobs.create_job(old_form, idempotency_key="spec-old-1")
+        jobs.set_status(cancelled.id, JobStatus.CANCELLED)
+        assert same_spec_job(jobs, spec) is None
+        kept, _ = jobs.create_job(old_form, idempotency_key="spec-old-2")
+        jobs.create_job({**old_form, "latent_dim": 5}, idempotency_key="spec-other")
+        assert same_spec_job(jobs, spec).id == kept.id
