@@ -95,7 +95,8 @@ def run_study(settings: StudySettings) -> StudySummary:
         wall_s=time.perf_counter() - start,
         settings={"fit_samples": s.fit_samples, "test_samples": s.test_samples, "size": s.size, "scene": s.scene,
                   "eval_pairs": s.eval_pairs, "fit_starts": s.fit_starts, "light_samples": s.samples ** 2,
-                  "seed": s.seed, "jobs": s.jobs, "efficiency": list(s.efficiency)},
+                  "seed": s.seed, "jobs": s.jobs, "efficiency": list(s.efficiency),
+                  "baselines": str(s.baselines), "history": (s.out / "RESULTS_HISTORY.md").exists()},
         enhanced={"model": s.model, "state": enhanced.state, "formula": enhanced.describe(),
                   "weights": enhanced.n_weights()})
     img = s.out / "img" / "results"

@@ -181,7 +181,33 @@ class StudySummary:
             cross = crossover(points, protocol, ENHANCED, "nbrdf", threshold)
             lines += ["", f"Largest fit-set size at which the enhanced model is ahead of NBRDF on at least "
                       f"{threshold} of {n} materials: **{f'{cross:,}' if cross else 'none'}**.", ""]
-        return [*lines, "![held-out error against fit samples](img/results/efficiency.png)", ""]
+        return [*lines, *self._standing(materials, points), "![held-out error against fit samples](img/results/efficiency.png)", ""]
+
+    def _standing(self, materials: list[MaterialResult], points: list[CurvePoint]) -> list[str]:
+        """The figures issue 14 set targets for, from the tables above (medians over the materials)."""
+        n = len(materials)
+        main = {x.name: x.log_l1 for x in self.models}
+        rows = [("uniform protocol, 10,000 fit samples: enhanced / NBRDF (medians)", f"{main[ENHANCED] / main['nbrdf']:.2f}×",
+                 "≤ 1.2×"),
+                ("uniform protocol: enhanced below GGX, median (materials ahead)",
+                 f"{100 * self.median_reduction_vs_ggx:.1f} % ({self.enhanced_beats_ggx}/{n})", f"≥ 45 % ({n}/{n})")]
+        mirror = medians(points, "mirror")
+        if 3000 in mirror.get(ENHANCED, {}) and 3000 in mirror.get("nbrdf", {}):
+            per = {m.material: {p.contender: p.heldout_log_l1 for p in m.curve if p.protocol == "mirror" and p.n_fit == 3000}
+                   for m in materials}
+            reductions = [1 - v[ENHANCED] / v["ggx"] for v in per.values()]
+            rows += [("near-mirror protocol, 3,000 fit samples: enhanced / NBRDF (medians)",
+                      f"{mirror[ENHANCED][3000] / mirror['nbrdf'][3000]:.2f}×", "≤ 1.4×"),
+                     ("near-mirror protocol, 3,000: enhanced below GGX, median (materials ahead)",
+                      f"{100 * statistics.median(reductions):.1f} % ({sum(r > 0 for r in reductions)}/{n})",
+                      f"≥ 35 % ({n}/{n})")]
+        threshold = (3 * n + 3) // 4
+        for protocol in ("uniform", "mirror"):
+            cross = crossover(points, protocol, ENHANCED, "nbrdf", threshold)
+            rows.append((f"largest fit-set size with enhanced ahead of NBRDF on ≥ {threshold} of {n} ({protocol})",
+                         f"{cross:,}" if cross else "none", "≥ 3,000"))
+        return ["### Where the shared model stands", "", "| figure | now | target (issue 14) |", "|---|---:|---:|",
+                *(f"| {a} | {b} | {c} |" for a, b, c in rows), ""]
 
     def _heldout(self, materials: list[MaterialResult]) -> list[str]:
         names, labels = [m.name for m in self.models], [m.label for m in self.models]
@@ -199,7 +225,11 @@ class StudySummary:
             f"procedural studio environment, {s['size']}² pixels, {s['light_samples']} MIS light samples per pixel "
             "shared by truth and models; the metrics cover the sphere.", "",
             f"**The shipped model** (`{e['model'] if '/' in e['model'] else 'models/' + e['model']}`): "
-            f"`{e['formula']}`, state `{e['state']}`, {e['weights']:,} weights.", "",
+            f"`{e['formula']}`, state `{e['state']}`, {e['weights']:,} weights."
+            + (f" Its baselines with shared weights (`{s['baselines']}`) were trained as their bundles' provenance "
+               "says, on the data and budget of the model shipped when they were trained." if s.get("baselines") else "")
+            + (" Figures of earlier shipped models: [RESULTS_HISTORY.md](RESULTS_HISTORY.md)." if s.get("history") else ""),
+            "",
             "## Held-out log-L1 (the paper's loss, lower is better)", "",
             f"The enhanced GGX is ahead of fitted plain GGX on **{self.enhanced_beats_ggx} of {len(materials)}** "
             f"materials; the median reduction is **{100 * self.median_reduction_vs_ggx:.1f} %**.", "",
