@@ -163,9 +163,9 @@ def _plot(plan: Plan, path: Path) -> None:
     fig = Figure(figsize=(6.4, 4.4), dpi=110)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
-    for m in plan.materials:  # each material's rungs, faint
-        xs = [plan.rung_info(r.rung)["cost_ns"] for r in m.results]
-        ax.plot(xs, [r.error for r in m.results], "-", color="0.85", lw=0.8, zorder=1)
+    for m in plan.materials:  # each material's rungs, faint, cheapest first
+        points = sorted((plan.rung_info(r.rung)["cost_ns"], r.error) for r in m.results)
+        ax.plot([x for x, _ in points], [y for _, y in points], "-", color="0.85", lw=0.8, zorder=1)
     styles = {"cheapest": ("s", "tab:blue"), "richest": ("^", "tab:red"), "plan": ("o", "tab:green")}
     labels = {"plan": "the plan", "richest": "richest everywhere", "cheapest": "cheapest everywhere"}
     for key, (marker, colour) in styles.items():
