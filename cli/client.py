@@ -295,8 +295,9 @@ def plan(args, api: Api) -> int:
 
     from neuenh.scene import load_scene
 
-    spec, _ = load_scene(args.scene)  # a bad scene is a usage error before the service is contacted
-    found, created = api.submit_plan(spec.model_dump(mode="json", exclude_none=True), args.idempotency_key)
+    spec, base = load_scene(args.scene)  # a bad scene is a usage error before the service is contacted
+    found, created = api.submit_plan(_service_paths(spec.model_dump(mode="json", exclude_none=True), base),
+                                     args.idempotency_key)
     _note(f"plan {found['id']} {'submitted' if created else 'already submitted with this key'} "
           f"({found['status'].lower()})")
     if not args.wait:
@@ -336,6 +337,24 @@ def plan(args, api: Api) -> int:
 
 
 # -- helpers ----------------------------------------------------------------------------------
+def _service_paths(scene: dict, base: Path) -> dict:
+    """A scene's relative paths that name files beside it here, made absolute: the service resolves
+    relative paths against its own working directory (a service on this machine then reads the same
+    files; for one elsewhere, write the paths it sees)."""
+    def fix(path: str) -> str:
+        here = base / path
+        return str(here.resolve()) if not Path(path).is_absolute() and here.exists() else path
+
+    for m in scene["materials"]:
+        for key in ("path", "capture"):
+            if key in m:
+                m[key] = fix(m[key])
+    scene["ladder"] = [fix(r) if isinstance(r, str) and ("/" in r or (base / r).is_dir()) else
+                       ({"rungs": fix(r["rungs"])} if isinstance(r, dict) and "/" in r["rungs"] else r)
+                       for r in scene["ladder"]]
+    return scene
+
+
 def duration(text: str) -> float:
     """Seconds from "90", "90s", "15m", "2h" or "1d"."""
     number, unit = (text[:-1], text[-1]) if text and text[-1] in DURATION_UNITS else (text, "s")

@@ -381,10 +381,9 @@ def test_plan_a_scene_on_the_service_wait_and_save_its_files(live_server, tmp_pa
     (tmp_path / "roots").mkdir()
     tables = write_tables(tmp_path / "roots")
     server = live_server(data_roots=[tables], api_token=TOKEN)
-    data = scene(tables)
-    data["materials"] = [{**m, "path": str(tables / m["path"])} for m in data["materials"]]
-    (tmp_path / "scene.yaml").write_text(yaml.safe_dump(data))
-    out = client("plan", tmp_path / "scene.yaml", "--wait", "-o", tmp_path / "files", url=server.url)
+    data = scene(tables)  # paths relative to the scene file: the client sends them as the service must read them
+    (tables / "scene.yaml").write_text(yaml.safe_dump(data))
+    out = client("plan", tables / "scene.yaml", "--wait", "-o", tmp_path / "files", url=server.url)
     assert out.returncode == 0, out.stderr
     assert re.search(r"gloss +ggx +[0-9.]+", out.stdout) and re.search(r"retro +NBRDF", out.stdout)
     assert "frame: plan" in out.stdout and "materials" in out.stderr
