@@ -73,7 +73,7 @@ bench: $(STAMP)
 # docs/RESULTS.md, docs/results.json and docs/img/results/: every model on the RGL materials
 # (../shared/data/rgl) with the shipped models/enhanced-ggx and models/baselines; about half an hour.
 report: $(STAMP)
-	$(VENV)/bin/neuenh report
+	$(VENV)/bin/neuenh report --efficiency
 
 clean:
 	rm -rf $(VENV) build *.egg-info
