@@ -27,7 +27,8 @@ COPY orchestrator ./orchestrator
 COPY workers ./workers
 COPY api ./api
 COPY cli ./cli
-RUN pip install . "ray==${RAY_VERSION}" "torch==${TORCH_VERSION}"
+# the export extra: GET /v1/jobs/{id}/export writes ONNX (onnx) beside GLSL and the Mitsuba plugin
+RUN pip install ".[export]" "ray==${RAY_VERSION}" "torch==${TORCH_VERSION}"
 
 # Not root: the api's job store lives on a volume mounted at /var/lib/neuenh.
 RUN useradd --create-home --uid 1000 neuenh \

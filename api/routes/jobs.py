@@ -97,7 +97,8 @@ def cancel_job(job: ChangeableJob, jobs: JobStoreDep) -> JobPublic:
 
 
 @router.get("/{job_id}/export", response_class=Response, responses={
-    **_ERRORS, **documented({422: "a material the model does not hold, or too many"}),
+    **_ERRORS, **documented({422: "a material the model does not hold, or too many",
+                             501: "this service lacks the format's runtime (the neuenh[export] extra)"}),
     200: {"content": {"application/zip": {}},
           "description": "the exported files (neuenh export --format FORMAT): GLSL, ONNX or the Mitsuba plugin's"}})
 def export_model(job: VisibleJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep,
@@ -107,7 +108,7 @@ def export_model(job: VisibleJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep
                  ) -> Response:
     """The last committed model's materials in a renderer's own format, as a zip archive (the files
     ``neuenh export MODEL --format FORMAT`` writes; docs/EXPORT.md)."""
-    from neuenh.export import export
+    from neuenh.export import MissingRuntime, export
 
     bundle = Bundle.from_bytes(artifacts.get(_last_round(job, jobs).artifact_key))
     names = list(bundle.materials.names) if bundle.materials is not None else []
@@ -124,7 +125,10 @@ def export_model(job: VisibleJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep
     buffer = io.BytesIO()
     with tempfile.TemporaryDirectory(prefix="neuenh-export-") as tmp:
         out = Path(tmp) / "export"
-        export(bundle.model, params, format, out)
+        try:
+            export(bundle.model, params, format, out)
+        except MissingRuntime as exc:
+            raise HTTPException(status.HTTP_501_NOT_IMPLEMENTED, str(exc)) from None
         with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
             for path in sorted(out.rglob("*")):
                 if path.is_file():

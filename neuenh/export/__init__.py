@@ -31,13 +31,22 @@ from typing import Any, Mapping
 FORMATS = ("glsl", "onnx", "mitsuba")
 
 
+class MissingRuntime(ValueError):
+    """A format whose writer needs a package of the ``neuenh[export]`` extra that is not installed."""
+
+
 def export(model, materials: Mapping[str, Mapping[str, Any]], fmt: str, out_dir: Path) -> list[Path]:
     """Write ``materials`` of ``model`` in format ``fmt`` into ``out_dir``; returns the files."""
     if fmt not in FORMATS:
         raise ValueError(f"unknown export format {fmt!r}; choose one of {', '.join(FORMATS)}")
     if not materials:
         raise ValueError("nothing to export: no materials")
-    return importlib.import_module(f"{__name__}.{fmt}").write(model, materials, Path(out_dir))
+    try:
+        writer = importlib.import_module(f"{__name__}.{fmt}")
+    except ImportError as exc:
+        raise MissingRuntime(f"the {fmt} export needs {exc.name or 'a package'}, which is not installed "
+                             "(pip install 'neuenh[export]')") from None
+    return writer.write(model, materials, Path(out_dir))
 
 
 def file_names(materials, suffix: str) -> dict[str, str]:
