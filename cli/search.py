@@ -6,7 +6,8 @@ The job is stored in ``DATA_DIR/jobs.sqlite`` (artifacts in ``DATA_DIR/artifacts
 derived from the spec's content, so running the same spec again resumes an interrupted job from
 its last committed round (or reports a finished one; ``--new`` starts afresh). At the end the
 final bundle and the search history are written to ``--out`` (default ``DATA_DIR/results/<job>``),
-and plain GGX is trained for the same total number of epochs so the gain is measured, not assumed.
+and the plain analytical model (the spec's, GGX by default) is trained for the same total number of
+epochs so the gain is measured, not assumed.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ def add_parser(commands) -> None:
                    help="join an existing Ray cluster instead of starting one ($RAY_ADDRESS)")
     p.add_argument("--new", action="store_true", help="start a new job even if this spec ran before")
     p.add_argument("--no-baseline", action="store_true",
-                   help="skip training plain GGX for the same epochs at the end")
+                   help="skip training the plain analytical model for the same epochs at the end")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(run=run)
 
@@ -101,7 +102,7 @@ def same_spec_job(jobs, spec):
 def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
     rounds = jobs.rounds(job.id)
     summary: dict = {"job": job.id, "status": job.status.value, "reason": job.reason, "error": job.error,
-                     "rounds": len(rounds)}
+                     "rounds": len(rounds), "model": spec.model}
     if not rounds:
         return summary
     out = args.out or args.data_dir / "results" / job.id
@@ -146,10 +147,11 @@ def format_summary(s: dict) -> str:
         lines += [
             f"  final state   {s['state']}  {s['formula']}  ({s['weights']} weights)",
             f"  path          {' -> '.join(s['path'])}",
-            f"  val log-L1    {s['val_loss']:.5f} (plain GGX after round 0: {s['round0_plain_val_loss']:.5f})",
+            f"  val log-L1    {s['val_loss']:.5f} (plain {s['model']} after round 0: {s['round0_plain_val_loss']:.5f})",
         ]
         if "plain_val_loss_same_epochs" in s:
-            lines.append(f"  plain GGX trained the same {s['plain_epochs']} epochs: {s['plain_val_loss_same_epochs']:.5f}"
+            lines.append(f"  plain {s['model']} trained the same {s['plain_epochs']} epochs: "
+                         f"{s['plain_val_loss_same_epochs']:.5f}"
                          f"  -> enhancement lowers the validation loss by {100 * s['improvement']:.1f}%")
         lines += [f"  bundle        {s['bundle']}", f"  history       {s['history']}"]
     return "\n".join(lines)
