@@ -13,7 +13,7 @@ import pytest
 
 from neuenh.study.comparison import ContenderResult
 from neuenh.study.plots import pareto_front
-from neuenh.study.registry import BASELINES, ContenderInfo
+from neuenh.study.registry import BASELINES, ContenderInfo, shipped_others
 from neuenh.study.summary import MaterialResult, StudySummary
 from neuenh.checkpoint import Bundle
 from neuenh.modules import ModuleConfig
@@ -61,7 +61,7 @@ def test_the_report_measures_every_model_and_writes_its_files(report):
     results = json.loads((out / "results.json").read_text())
     [material] = results["materials"]
     names = [r["contender"] for r in material["results"]]
-    assert names == ["enhanced", "ggx", "cook_torrance", "ward", *BASELINES, "nbrdf"]
+    assert names == ["enhanced", "ggx", "cook_torrance", "ward", *shipped_others(), *BASELINES, "nbrdf"]
     for r in material["results"]:
         assert np.isfinite([r["heldout_log_l1"], r["ssim"], r["delta_e_itp"], r["evals_per_s"]]).all()
         assert 0 < r["heldout_log_l1"] < 1 and -1 <= r["ssim"] <= 1 and r["rays"] > 0
