@@ -4,8 +4,6 @@ and run what was written in its real runtime; bad inputs are one-line errors (ex
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,13 +13,9 @@ import torch
 from neuenh.data.synthetic import synthetic_ggx
 from neuenh.data.table import write_table
 from neuenh.pretrained import bundle_path, load_model
+from cli_runs import neuenh, neuenh_here
 
 pytestmark = pytest.mark.skipif(bundle_path("enhanced-ggx") is None, reason="no shipped models/enhanced-ggx in this tree")
-
-
-def neuenh(*args, timeout=180):
-    return subprocess.run([sys.executable, "-m", "cli.main", *map(str, args)], capture_output=True,
-                          text=True, timeout=timeout)
 
 
 def one_line_error(out, *fragments):
@@ -76,21 +70,23 @@ def test_a_fitted_bundle_exports_its_own_materials(fitted, tmp_path):
 
 
 def test_bad_inputs_are_one_line_errors(fitted, tmp_path):
+    """In this process (``neuenh_here``): each is refused before any work; the entry point's own
+    handling of errors is what the fresh-process tests above and below run through."""
     report, bundle = fitted
     plain = tmp_path / "plain.json"
     plain.write_text(report.read_text().replace('"state": "', '"state": "x'))
-    one_line_error(neuenh("export", "enhanced-ggx", "--params", plain, "--format", "glsl", "-o", tmp_path),
+    one_line_error(neuenh_here("export", "enhanced-ggx", "--params", plain, "--format", "glsl", "-o", tmp_path),
                    "is a fit of ggx in state x", "export the model it was fitted with")
-    one_line_error(neuenh("export", bundle, "--format", "glsl", "--material", "gold", "-o", tmp_path),
+    one_line_error(neuenh_here("export", bundle, "--format", "glsl", "--material", "gold", "-o", tmp_path),
                    "no material 'gold'; there are: brushed steel")
-    one_line_error(neuenh("export", "ggx", "--format", "glsl", "-o", tmp_path), "ggx holds no materials")
+    one_line_error(neuenh_here("export", "ggx", "--format", "glsl", "-o", tmp_path), "ggx holds no materials")
     (tmp_path / "junk.json").write_text("{")
-    one_line_error(neuenh("export", "ggx", "--params", tmp_path / "junk.json", "--format", "glsl", "-o", tmp_path),
-                   "not a fit report")
-    out = neuenh("export", "ggx", "--format", "renderman", "-o", tmp_path)
+    one_line_error(neuenh_here("export", "ggx", "--params", tmp_path / "junk.json", "--format", "glsl",
+                               "-o", tmp_path), "not a fit report")
+    out = neuenh_here("export", "ggx", "--format", "renderman", "-o", tmp_path)
     assert out.returncode == 2 and "invalid choice: 'renderman'" in out.stderr
-    one_line_error(neuenh("export", "--format", "glsl", "-o", tmp_path), "give a MODEL or --plan")
-    one_line_error(neuenh("export", "--plan", tmp_path / "none.json", "--format", "glsl", "-o", tmp_path),
+    one_line_error(neuenh_here("export", "--format", "glsl", "-o", tmp_path), "give a MODEL or --plan")
+    one_line_error(neuenh_here("export", "--plan", tmp_path / "none.json", "--format", "glsl", "-o", tmp_path),
                    "none.json: no such file")
     assert list(tmp_path.glob("*.glsl")) == []  # nothing half-written
 
@@ -169,5 +165,5 @@ def test_a_plan_without_its_bundle_or_with_nbrdf_is_a_one_line_error(plan, tmp_p
     data["ladder"].append({"key": "nbrdf", "label": "NBRDF", "model": "nbrdf", "state": None, "shared_weights": 0})
     data["materials"][0]["chosen"] = "nbrdf"
     (copy / "plan.json").write_text(json.dumps(data))
-    one_line_error(neuenh("export", "--plan", copy / "plan.json", "--format", "glsl", "-o", tmp_path / "o"),
+    one_line_error(neuenh_here("export", "--plan", copy / "plan.json", "--format", "glsl", "-o", tmp_path / "o"),
                    "material 'gloss' was planned with the per-material NBRDF rung")

@@ -1,8 +1,6 @@
 """``neuenh fit`` as a user runs it: a subprocess, exit codes, JSON, one-line errors."""
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,12 +10,8 @@ import torch
 from neuenh.checkpoint import Bundle
 from neuenh.data.synthetic import synthetic_ggx
 from neuenh.data.table import write_table
+from cli_runs import neuenh, neuenh_here
 from ggx_states import PAPER_STATE
-
-
-def neuenh(*args, timeout=120):
-    return subprocess.run([sys.executable, "-m", "cli.main", *map(str, args)], capture_output=True,
-                          text=True, timeout=timeout)
 
 
 @pytest.fixture(scope="module")
@@ -76,14 +70,14 @@ def test_user_mistakes_exit_2_with_one_line(table, tmp_path, args, message):
     bad = tmp_path / "bad.npz"
     np.savez(bad, wi=[[0, 0, 1.0]], wo=[[0, 0, 1.0]], f_r=[[-1.0, 0, 0]])
     args = [str(table) if a == "TABLE" else str(bad) if a == "BAD" else a for a in args]
-    out = neuenh(*args)
+    out = neuenh_here(*args)
     assert out.returncode == 2
     assert message in out.stderr and "Traceback" not in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1
 
 
 def test_usage_error_from_argparse_exits_2():
-    out = neuenh("fit")
+    out = neuenh_here("fit")
     assert out.returncode == 2 and "MEASUREMENTS" in out.stderr
 
 

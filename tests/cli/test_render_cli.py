@@ -9,8 +9,6 @@ cases call ``cli.main.main`` in this process instead: the same code path, withou
 import json
 import os
 import math
-import subprocess
-import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -21,6 +19,7 @@ import torch
 from neuenh.data.exr import read_rgb_exr
 from neuenh.render import EnvironmentMap
 from neuenh.render.envmaps import KEY_LIGHT, RIM_LIGHT, studio_environment
+from cli_runs import neuenh
 
 RGL = Path(__file__).resolve().parents[3] / "shared" / "data" / "rgl" / "paper_white_rgb.bsdf"
 SIZE, SAMPLES = 48, 8
@@ -29,11 +28,6 @@ SMALL = ["--size", SIZE, "--samples", SAMPLES, "--threads", 1]
 GGX = {"normal": [0, 0], "t_theta": [0], "rho_d": [0.3, 0.2, 0.1], "rho_s": [0.4, 0.4, 0.4],
        "alpha_x": [0.2], "alpha_y": [0.3], "f0": [0.6]}
 MATTE = {**GGX, "rho_d": [0.8, 0.8, 0.8], "rho_s": [0, 0, 0]}
-
-
-def neuenh(*args, timeout=120):
-    return subprocess.run([sys.executable, "-m", "cli.main", *map(str, args)], capture_output=True,
-                          text=True, timeout=timeout)
 
 
 @pytest.fixture(scope="module")

@@ -4,8 +4,6 @@ errors are one line with exit code 2. Untrained baseline bundles stand in for th
 (the report's arithmetic does not depend on how good they are)."""
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,16 +15,12 @@ from neuenh.study.registry import BASELINES, ContenderInfo, shipped_others
 from neuenh.study.summary import MaterialResult, StudySummary
 from neuenh.checkpoint import Bundle
 from neuenh.modules import ModuleConfig
+from cli_runs import neuenh, neuenh_here
 
 RGL = Path(__file__).resolve().parents[3] / "shared" / "data" / "rgl"
 needs_rgl = pytest.mark.skipif(not (RGL / "paper_white_rgb.bsdf").exists(), reason="../shared/data/rgl is absent")
 SMALL = ["--fit-samples", 300, "--test-samples", 300, "--size", 12, "--samples", 2, "--jobs", 1, "--eval-pairs", 2000,
          "--fit-epochs", 40]
-
-
-def neuenh(*args, timeout=300):
-    return subprocess.run([sys.executable, "-m", "cli.main", "report", *map(str, args)], capture_output=True,
-                          text=True, timeout=timeout)
 
 
 @pytest.fixture(scope="module")
@@ -49,8 +43,8 @@ def bundles(tmp_path_factory):
 @pytest.fixture(scope="module")
 def report(bundles, tmp_path_factory):
     out = tmp_path_factory.mktemp("report")
-    done = neuenh("--rgl", RGL, "--model", bundles / "enhanced", "--baselines", bundles / "baselines",
-                  "--materials", "paper_white_rgb", "--out", out, *SMALL, "--efficiency", 100, 300)
+    done = neuenh("report", "--rgl", RGL, "--model", bundles / "enhanced", "--baselines", bundles / "baselines",
+                  "--materials", "paper_white_rgb", "--out", out, *SMALL, "--efficiency", 100, 300, timeout=300)
     return done, out
 
 
@@ -93,7 +87,7 @@ def test_the_report_measures_every_model_and_writes_its_files(report):
 ])
 def test_usage_errors_are_one_line(args, message, bundles, tmp_path):
     flags = {"--model": bundles / "enhanced", "--baselines": bundles / "baselines", **dict(zip(args[::2], args[1::2]))}
-    done = neuenh("--rgl", RGL, "--out", tmp_path, *[x for kv in flags.items() for x in kv], timeout=60)
+    done = neuenh_here("report", "--rgl", RGL, "--out", tmp_path, *[x for kv in flags.items() for x in kv])
     assert done.returncode == 2 and message in done.stderr and "Traceback" not in done.stderr
     assert not (tmp_path / "RESULTS.md").exists()
 

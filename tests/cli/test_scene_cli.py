@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from cli_runs import neuenh, neuenh_here
 from scene_files import scene, write_tables
 
 REPO = Path(__file__).resolve().parents[2]
@@ -22,17 +23,11 @@ def tables(tmp_path_factory) -> Path:
     return write_tables(tmp_path_factory.mktemp("scene"))
 
 
-def neuenh(*args, **kw):
-    """The command in a fresh process, as a user runs it."""
-    return subprocess.run([sys.executable, "-m", "cli.main", *args], capture_output=True, text=True, cwd=REPO,
-                          **kw)
-
-
 def test_the_command_writes_the_plan_and_resumes_after_a_kill(tables, tmp_path):
     path = tmp_path / "scene.yaml"
     data = scene(tables, materials=[{"path": str(tables / n)} for n in ("gloss.npz", "retro.npz", "sheen.npz")])
     path.write_text(yaml.safe_dump(data))
-    whole = neuenh("scene", "plan", str(path), "-o", str(tmp_path / "whole"), "--chunk", "1", "--json")
+    whole = neuenh("scene", "plan", str(path), "-o", str(tmp_path / "whole"), "--chunk", "1", "--json", cwd=REPO)
     assert whole.returncode == 0, whole.stderr
     reference = json.loads((tmp_path / "whole" / "plan.json").read_text())
     assert [m["name"] for m in reference["materials"]] == ["gloss", "retro", "sheen"]
@@ -53,7 +48,7 @@ def test_the_command_writes_the_plan_and_resumes_after_a_kill(tables, tmp_path):
     proc.wait()
     kept = len(list((out / "materials").glob("*.json")))
     assert 1 <= kept < 3
-    again = neuenh("scene", "plan", str(path), "-o", str(out), "--chunk", "1")
+    again = neuenh("scene", "plan", str(path), "-o", str(out), "--chunk", "1", cwd=REPO)
     assert again.returncode == 0 and f"resuming: {kept} material(s) already planned" in again.stderr
     resumed = json.loads((out / "plan.json").read_text())
     for a, b in zip(resumed["materials"], reference["materials"]):
@@ -66,6 +61,6 @@ def test_the_command_writes_the_plan_and_resumes_after_a_kill(tables, tmp_path):
 ])
 def test_the_command_answers_bad_input_in_one_line(args, message, tmp_path):
     (tmp_path / "list.yaml").write_text("- a\n- b\n")
-    result = neuenh(*[a.replace("{list}", str(tmp_path / "list.yaml")) for a in args])
+    result = neuenh_here(*[a.replace("{list}", str(tmp_path / "list.yaml")) for a in args])
     assert result.returncode == 2 and message in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
