@@ -7,7 +7,8 @@ handed to them as ``s.xp``. The same formula then runs
 * in torch (``TORCH``): training, fitting, evaluation and the specialized evaluator;
 * in numpy (``NUMPY``): a second backend that tests run every model on, which keeps the formulas
   honest (a formula that reaches for torch fails there);
-* in the exporters (``neuenh.export``): Dr.Jit arrays in the Mitsuba plugin, a GLSL code tracer.
+* in the exporters (``neuenh.export``, on ``EmittingOps``): Dr.Jit arrays in the Mitsuba plugin,
+  a GLSL code tracer, ONNX graph nodes.
 
 Values. A per-sample scalar is an ``(n, 1)`` array; an RGB value is ``(n, 3)`` and scalars
 broadcast against it. A Python ``float`` is a constant: arithmetic between constants is done by
@@ -76,6 +77,47 @@ class BatchVec3:
 
 def _is_const(x: Any) -> bool:
     return isinstance(x, (int, float))
+
+
+# The vocabulary's functions of one argument, as Python computes them on a constant.
+FOLDED_UNARY = {"sqrt": math.sqrt, "exp": math.exp, "log": math.log, "sin": math.sin, "cos": math.cos,
+                "tan": math.tan, "erf": math.erf, "abs": abs}
+
+
+class EmittingOps:
+    """Base of the backends that emit code or graph nodes (``neuenh.export``): each function of one
+    argument is computed by Python on a constant (folded) and otherwise emitted by ``unary(name, x)``,
+    the backend's own spelling of ``name`` (a key of ``FOLDED_UNARY``)."""
+
+    def unary(self, name: str, x):
+        raise NotImplementedError
+
+    def _fold_or_emit(self, name: str, x):
+        return FOLDED_UNARY[name](x) if _is_const(x) else self.unary(name, x)
+
+    def sqrt(self, x):
+        return self._fold_or_emit("sqrt", x)
+
+    def exp(self, x):
+        return self._fold_or_emit("exp", x)
+
+    def log(self, x):
+        return self._fold_or_emit("log", x)
+
+    def sin(self, x):
+        return self._fold_or_emit("sin", x)
+
+    def cos(self, x):
+        return self._fold_or_emit("cos", x)
+
+    def tan(self, x):
+        return self._fold_or_emit("tan", x)
+
+    def erf(self, x):
+        return self._fold_or_emit("erf", x)
+
+    def abs(self, x):
+        return self._fold_or_emit("abs", x)
 
 
 class _TorchOps:

@@ -29,7 +29,7 @@ from typing import Any, Mapping
 import torch
 
 from ..graph import Term
-from ..ops import _is_const
+from ..ops import EmittingOps, _is_const
 from ..shading import make_shading, shade
 from ..specialize import FoldedModule, SpecializedBRDF, _fold
 from . import atomic_write, file_names
@@ -130,7 +130,7 @@ def _text(v) -> str:
     return v.text if isinstance(v, Expr) else literal(v)
 
 
-class GlslOps:
+class GlslOps(EmittingOps):
     """The ``neuenh.ops`` vocabulary on ``Expr`` values (and Python floats, folded by Python)."""
 
     name = "glsl"
@@ -142,22 +142,10 @@ class GlslOps:
         kind = kind or ("vec3" if any(_type(a) == "vec3" for a in args) else "float")
         return self.code.let(kind, f"{fn}({', '.join(_text(a) for a in args)})")
 
-    def _unary(name: str, const_fn):  # noqa: N805  (a factory of methods)
-        def method(self, x):
-            return const_fn(x) if _is_const(x) else self._call(name, x)
-        return method
-
-    sqrt = _unary("sqrt", math.sqrt)
-    exp = _unary("exp", math.exp)
-    log = _unary("log", math.log)
-    sin = _unary("sin", math.sin)
-    cos = _unary("cos", math.cos)
-    tan = _unary("tan", math.tan)
-    abs = _unary("abs", abs)
-    del _unary
-
-    def erf(self, x):
-        raise NotImplementedError("erf has no GLSL built-in; no exported formula uses it yet")
+    def unary(self, name: str, x) -> Expr:
+        if name == "erf":
+            raise NotImplementedError("erf has no GLSL built-in; no exported formula uses it yet")
+        return self._call(name, x)  # GLSL's built-ins share the vocabulary's names
 
     def minimum(self, a, b):
         return min(a, b) if _is_const(a) and _is_const(b) else self._call("min", a, b)

@@ -45,7 +45,7 @@ from typing import Any, Mapping
 import torch
 
 from ..graph import Term
-from ..ops import _is_const
+from ..ops import EmittingOps, _is_const
 from ..shading import shade
 from . import atomic_write, file_names
 
@@ -86,7 +86,7 @@ def set_variant(variant: str = "llvm_ad_rgb"):
 
 
 # -- the ops vocabulary on Dr.Jit arrays --------------------------------------------------------------
-class DrJitOps:
+class DrJitOps(EmittingOps):
     """``neuenh.ops``' vocabulary on the active Mitsuba variant's Dr.Jit types: per-sample scalars are
     ``mi.Float``, RGB values ``mi.Color3f``, directions ``mi.Vector3f``; Python floats fold."""
 
@@ -98,20 +98,8 @@ class DrJitOps:
 
         self.dr, self.mi = dr, mi
 
-    def _unary(fn_name: str, const_fn):  # noqa: N805  (a factory of methods)
-        def method(self, x):
-            return const_fn(x) if _is_const(x) else getattr(self.dr, fn_name)(x)
-        return method
-
-    sqrt = _unary("sqrt", math.sqrt)
-    exp = _unary("exp", math.exp)
-    log = _unary("log", math.log)
-    sin = _unary("sin", math.sin)
-    cos = _unary("cos", math.cos)
-    tan = _unary("tan", math.tan)
-    erf = _unary("erf", math.erf)
-    abs = _unary("abs", abs)
-    del _unary
+    def unary(self, name: str, x):
+        return getattr(self.dr, name)(x)  # Dr.Jit's functions share the vocabulary's names
 
     def minimum(self, a, b):
         return min(a, b) if _is_const(a) and _is_const(b) else self.dr.minimum(a, b)

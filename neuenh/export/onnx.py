@@ -51,7 +51,7 @@ from onnx import TensorProto, helper, numpy_helper
 
 from .. import __version__
 from ..graph import BRDFModel, Term
-from ..ops import BatchVec3
+from ..ops import BatchVec3, EmittingOps, _is_const
 from ..shading import make_shading, shade
 from ..specialize import SpecializedBRDF
 
@@ -92,10 +92,6 @@ class _Builder:
                                            **attributes))
         self._memo.setdefault(key, name)
         return name
-
-
-def _is_const(x: Any) -> bool:
-    return isinstance(x, (int, float))
 
 
 class _Value:
@@ -208,7 +204,7 @@ def _ints(b: _Builder, values: Sequence[int]) -> str:
     return b.constant(np.asarray(values, dtype=np.int64))
 
 
-class _OnnxOps:
+class _OnnxOps(EmittingOps):
     """The ``neuenh.ops`` vocabulary on ``_Value``s (and Python floats, folded by Python), each
     function the ONNX node of what ``TORCH`` computes."""
 
@@ -218,18 +214,8 @@ class _OnnxOps:
         self.b = b
         self._n = b.op("Shape", rows_of.name, start=0, end=1)  # [n], for expanding constant rows
 
-    def _unary(op_type: str, const_fn):
-        return lambda self, x: const_fn(x) if _is_const(x) else x.unary(op_type)
-
-    sqrt = _unary("Sqrt", math.sqrt)
-    exp = _unary("Exp", math.exp)
-    log = _unary("Log", math.log)
-    sin = _unary("Sin", math.sin)
-    cos = _unary("Cos", math.cos)
-    tan = _unary("Tan", math.tan)
-    erf = _unary("Erf", math.erf)
-    abs = _unary("Abs", abs)
-    del _unary
+    def unary(self, name: str, x: "_Value") -> "_Value":
+        return x.unary(name.capitalize())  # the ONNX operators Sqrt, Exp, ..., Erf, Abs
 
     def minimum(self, a, b):
         if _is_const(a):
