@@ -59,11 +59,15 @@ test: $(STAMP) browser compiler gl mitsuba
 	$(PY) -m pytest -q --durations=25
 
 # Slow, measured side by side; each script rewrites its own section of docs/BENCHMARKS.md.
+# bench_fit runs the checkout before issue 13 beside this one, both fitting the model shipped then.
+ISSUE13_MODEL := e388c1a
 bench: $(STAMP)
 	$(PY) bench/bench_core.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_data.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_speed.py --compile --write docs/BENCHMARKS.md
-	$(PY) bench/bench_fit.py --before bench/fit_before_issue13.json --write docs/BENCHMARKS.md
+	mkdir -p build/issue13-model && for f in model.json weights.safetensors materials.safetensors; do \
+	  git show $(ISSUE13_MODEL):models/enhanced-ggx/$$f > build/issue13-model/$$f; done
+	$(PY) bench/bench_fit.py --model build/issue13-model --before-rev 351a26c --write docs/BENCHMARKS.md
 	$(PY) bench/bench_search.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_api.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_cluster.py --write docs/BENCHMARKS.md

@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 import torch  # noqa: E402
 
 from bench.harness import Background, machine, machine_line, wait_quiet  # noqa: E402
-from bench.report import write_section  # noqa: E402
+from bench.report import publish  # noqa: E402
 
 SECTION = "## Measured data (issue 3)"
 RGL_DIR = ROOT.parent / "shared" / "data" / "rgl"
@@ -218,10 +218,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  arrays {mem['array_bytes']:,} B, RSS after imports {_gib(mem['baseline_rss_bytes'])}, peak "
           f"{_gib(mem['peak_rss_bytes'])}, {mem['seconds']:.1f} s", flush=True)
     text = markdown_section(env, waited, probe.stop(), rgl, agreement, mem, command, args.quick)
-    print("\n" + text)
-    if args.write:
-        write_section(Path(args.write), SECTION, text)
-        print(f"written to {args.write}")
+    print()
+    publish(text, args.write, SECTION)
     return 0
 
 

@@ -1,14 +1,18 @@
 """Fit time and fit loss per RGL material (issue 13): the enhanced model at 10,000 and 300 samples,
-plain GGX at 10,000.
+plain GGX at 10,000, in this checkout and (``--before-rev``) in an older one, in the same run.
 
-    python bench/bench_fit.py [--rgl DIR] [--json OUT.json] [--before BEFORE.json] [--write docs/BENCHMARKS.md]
+    python bench/bench_fit.py [--model SPEC] [--before-rev REV] [--rgl DIR] [--json OUT.json]
+                              [--write docs/BENCHMARKS.md]
 
 Per material of ``../shared/data/rgl`` (skipped with a message when absent), the fit samples of the
 study (``neuenh.study.heldout.draw_fit_test``, seed 0) are fitted with the default ``FitConfig`` of
 the checkout it runs in, one torch thread; the wall time of ``fit_materials`` and its fit loss are
 recorded. It uses only the public fit API, so the same file runs unchanged in an older checkout:
-``--before`` reads that run's ``--json`` and puts both side by side (loss ratio, time ratio).
-``bench/fit_before_issue13.json`` is that run at commit 351a26c (before issue 13), on this machine.
+``--before-rev`` exports that revision of the repository (``git archive``) to a temporary folder,
+runs this file there first, then here, and puts both side by side (loss ratio, time ratio), so the
+machine's speed of the moment is the same for both. Both fit the same ``--model``: issue 13's
+comparison (``make bench``) is at 351a26c with the model shipped then (state 00001100100, 4,853
+weights; the Makefile takes its files from e388c1a), since issue 14 shipped a larger one.
 """
 
 from __future__ import annotations
@@ -16,7 +20,9 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -25,22 +31,23 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 import torch  # noqa: E402
 
 from bench.harness import machine, machine_line, wait_quiet  # noqa: E402
-from bench.report import write_section  # noqa: E402
+from bench.report import publish  # noqa: E402
 
 SECTION = "## Fitting speed (issue 13)"
 RGL = ROOT.parent / "shared" / "data" / "rgl"
 CASES = (("enhanced GGX", 10_000), ("enhanced GGX", 300), ("plain GGX", 10_000))
 
 
-def run(rgl: Path) -> dict:
-    """{case: {material: (fit loss, seconds)}} for every case of CASES."""
+def run(rgl: Path, spec: str) -> dict:
+    """{case: {material: (fit loss, seconds)}} for every case of CASES; ``spec`` names the enhanced
+    model (``neuenh.pretrained.load_model``)."""
     from neuenh.data import load_measured
     from neuenh.fit import FitConfig, fit_materials
     from neuenh.models import get_model
     from neuenh.pretrained import load_model
     from neuenh.study.heldout import draw_fit_test
 
-    enhanced, trained = load_model("enhanced-ggx")
+    enhanced, trained = load_model(spec)
     models = {"enhanced GGX": (enhanced, trained), "plain GGX": (get_model("ggx"), None)}
     out: dict = {f"{m}, {n}": {} for m, n in CASES}
     for path in sorted(rgl.glob("*.bsdf")):
@@ -55,11 +62,11 @@ def run(rgl: Path) -> dict:
     return out
 
 
-def markdown_section(env: dict, now: dict, before: dict | None, command: str) -> str:
-    lines = [SECTION, "", f"Command: `{command}`  ", machine_line(env), "",
+def markdown_section(env: dict, now: dict, before: dict | None, command: str, model: str) -> str:
+    lines = [SECTION, "", f"Command: `{command}`  ", machine_line(env) + "  ", f"Enhanced model: {model}", "",
              "Per case, the median over the 8 RGL materials of the wall time of `fit_materials` (default "
              "`FitConfig`, one thread) and the per-material fit loss. *Before*: the same file run in the "
-             "checkout before issue 13 (`--before`).", ""]
+             "checkout `--before-rev` names, run first in the same run.", ""]
     if before:
         lines += ["| case | median s before | median s now | × faster | loss now / before: median | worst | "
                   "materials within +1 % |", "|---|---:|---:|---:|---:|---:|---:|"]
@@ -86,31 +93,50 @@ def markdown_section(env: dict, now: dict, before: dict | None, command: str) ->
     return "\n".join(lines) + "\n"
 
 
+def run_before(rev: str, args: argparse.Namespace) -> dict:
+    """This file's ``run`` in the repository at ``rev`` (``git archive`` to a temporary folder)."""
+    with tempfile.TemporaryDirectory(prefix="bench-fit-") as tmp:
+        checkout = Path(tmp) / "checkout"
+        checkout.mkdir()
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev], check=True, capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(checkout)], input=archive, check=True)
+        (checkout / "bench" / "bench_fit.py").write_text(Path(__file__).read_text())
+        out = Path(tmp) / "before.json"
+        subprocess.run([sys.executable, str(checkout / "bench" / "bench_fit.py"), "--model", str(args.model),
+                        "--rgl", str(args.rgl.resolve()), "--json", str(out), "--max-wait", "0"], check=True)
+        return json.loads(out.read_text())
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--model", default="enhanced-ggx",
+                        help="the enhanced model: a shipped name or a bundle folder (default enhanced-ggx)")
+    parser.add_argument("--before-rev", metavar="REV", help="also run this git revision first, side by side")
     parser.add_argument("--rgl", type=Path, default=RGL, help=f"the RGL materials (default {RGL})")
     parser.add_argument("--json", type=Path, help="write the raw numbers here")
-    parser.add_argument("--before", type=Path, help="a --json of the same bench in an older checkout")
     parser.add_argument("--write", metavar="PATH", help="write/replace this section of PATH (docs/BENCHMARKS.md)")
     parser.add_argument("--max-wait", type=float, default=300.0)
     args = parser.parse_args(argv)
     if not args.rgl.is_dir():
         print(f"skipped: {args.rgl} is absent (the RGL materials of ../shared)")
         return 0
+    if Path(args.model).is_dir():
+        args.model = str(Path(args.model).resolve())  # the older checkout runs elsewhere
     torch.set_num_threads(1)
     wait_quiet(args.max_wait, 0.3)
     env = machine()
-    now = run(args.rgl)
+    before = run_before(args.before_rev, args) if args.before_rev else None
+    now = run(args.rgl, args.model)
     if args.json:
         args.json.write_text(json.dumps(now, indent=1))
-    before = json.loads(args.before.read_text()) if args.before else None
-    command = "python bench/bench_fit.py" + (f" --before {args.before}" if before else "") \
-        + (f" --write {args.write}" if args.write else "")
-    text = markdown_section(env, now, before, command)
-    print(text)
-    if args.write:
-        write_section(Path(args.write), SECTION, text)
-        print(f"written to {args.write}")
+    from neuenh.pretrained import load_model
+
+    enhanced, _ = load_model(args.model)
+    name = Path(args.model).name if Path(args.model).is_dir() else args.model
+    model = f"{name}, state {enhanced.state}, {sum(p.numel() for p in enhanced.parameters()):,} weights"
+    command = " ".join(["python bench/bench_fit.py", *(argv if argv is not None else sys.argv[1:])])
+    text = markdown_section(env, now, before, command, model)
+    publish(text, args.write, SECTION)
     return 0
 
 

@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 import torch  # noqa: E402
 
 from bench.harness import Timer, fmt_rate, machine, machine_line, wait_quiet  # noqa: E402
-from bench.report import write_section  # noqa: E402
+from bench.report import publish  # noqa: E402
 
 SECTION = "## Speed of the enhanced model (issue 13)"
 BATCH, SMALL = 100_000, 300
@@ -50,8 +50,9 @@ def cases() -> tuple[dict, dict, dict]:
     enhanced, materials = load_model("enhanced-ggx")
     values, latent = materials.gather(torch.zeros(1, dtype=torch.long))
     analytic = {k: v[0].detach() for k, v in values.items()}
+    plain = get_model("ggx")
     models = {"enhanced GGX": (enhanced, {**analytic, "latent": latent[0].detach()}),
-              "plain GGX": (get_model("ggx"), analytic)}
+              "plain GGX": (plain, {k: v for k, v in analytic.items() if k in plain.param_names})}
     batch, small, flops = {}, {}, {}
     pairs = {n: tuple(x.float() for x in sample_directions(n, seed=1, anisotropic=True)) for n in (BATCH, SMALL)}
     for name, (model, params) in models.items():
@@ -201,10 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     train_cases, compile_s = training_cases(args.compile)
     training = timer.measure(train_cases)
     text = document(env, timer, batch, small, flops, training, compile_s, command)
-    print(text)
-    if args.write:
-        write_section(Path(args.write), SECTION, text)
-        print(f"written to {args.write}")
+    publish(text, args.write, SECTION)
     return 0
 
 

@@ -26,10 +26,11 @@ def write_section(path: Path, title: str, text: str) -> None:
     tmp.replace(path)
 
 
-def publish(lines: list[str], write: str | None, title: str) -> None:
-    """Print a bench's section (``lines``, starting with its ``title`` heading) and, with
+def publish(section: str | list[str], write: str | None, title: str) -> None:
+    """Print a bench's section (its text or lines, starting with its ``title`` heading) and, with
     ``--write FILE``, replace that section of the file."""
-    text = "\n".join(lines)
+    text = section if isinstance(section, str) else "\n".join(section)
     print(text)
     if write:
         write_section(Path(write), title, text)
+        print(f"written to {write}")
