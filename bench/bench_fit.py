@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     model = f"{name}, state {enhanced.state}, {sum(p.numel() for p in enhanced.parameters()):,} weights"
     command = " ".join(["python bench/bench_fit.py", *(argv if argv is not None else sys.argv[1:])])
     text = markdown_section(env, now, before, command, model)
-    publish(text, args.write, SECTION)
+    publish(text.splitlines(), args.write, SECTION)  # lines: the form older checkouts' publish takes
     return 0
 
 

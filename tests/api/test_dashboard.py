@@ -351,7 +351,7 @@ def test_unknown_job_says_so(page, server, finished):
     page.goto(f"{server.url}/#job=nope")
     page.locator("#job-error").wait_for()
     assert "No such job" in page.locator("#job-error").inner_text()
-    assert page.locator("#jobs tbody tr").count() >= 1  # the list still works
+    page.locator("#jobs tbody tr").first.wait_for()  # the list still works (it loads on its own)
 
 
 def test_running_job_shows_progress_and_new_rounds_without_reload(page, server, demo_job, gate, client):
@@ -380,7 +380,7 @@ def test_running_job_shows_progress_and_new_rounds_without_reload(page, server, 
     job = wait_for(client, job_id)
     page.wait_for_function("s => document.getElementById('job-status').textContent === s", arg=job["status"])
     assert page.locator("#progress").is_hidden()
-    assert page.locator("#trail tbody tr").count() == job["last_round"] + 1
+    page.wait_for_function("n => document.querySelectorAll('#trail tbody tr').length === n", arg=job["last_round"] + 1)
     assert page.evaluate("window.__samePage") is True
 
 
