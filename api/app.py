@@ -123,6 +123,7 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
     v1 = APIRouter(prefix="/v1", dependencies=[Depends(deps.known_query_only)])
     for resource in (health, jobs, fit, plans, cluster):
         v1.include_router(resource.router)
+    v1.include_router(plans.uploads)
     app.include_router(v1)
     app.include_router(metrics.router)
     app.include_router(dashboard.router)
@@ -147,6 +148,6 @@ def _reload_tokens_on_sighup(tokens: TokenTable) -> None:
 
 def body_limit(settings: Settings, path: str) -> tuple[int, str]:
     """The largest body a request to ``path`` may send, and the setting that says so."""
-    if path.startswith("/v1/jobs/") and path.endswith("/fit"):
+    if (path.startswith("/v1/jobs/") and path.endswith("/fit")) or path == "/v1/plan-uploads":
         return settings.max_upload_bytes, "NEUENH_MAX_UPLOAD_BYTES"
     return settings.max_request_bytes, "NEUENH_MAX_REQUEST_BYTES"

@@ -23,6 +23,7 @@ cannot be reached or does not accept the token. Every error is one line, never a
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -144,7 +145,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("plan", plan, "plan a scene on the service: per material the cheapest model within tolerance")
     p.add_argument("scene", type=Path, metavar="SCENE.yaml",
-                   help="a scene (neuenh scene plan's format); its files are read by the service, under its data roots")
+                   help="a scene (neuenh scene plan's format); its files are read by the service, under its data "
+                        "roots, unless --upload sends them")
+    p.add_argument("--upload", action="store_true",
+                   help="send the scene's measured files (tables, RGL .bsdf, MERL .binary) with it, for a service "
+                        "that cannot read them where they are")
     p.add_argument("--wait", action="store_true", help="follow the plan until it ends; exit 1 if it failed")
     p.add_argument("-o", "--output", type=Path, metavar="DIR", help="with --wait: save the plan's files here")
     p.add_argument("--idempotency-key", metavar="KEY", help="submitting again with the same key returns the same plan")
@@ -296,8 +301,15 @@ def plan(args, api: Api) -> int:
     from neuenh.scene import load_scene
 
     spec, base = load_scene(args.scene)  # a bad scene is a usage error before the service is contacted
-    found, created = api.submit_plan(_service_paths(spec.model_dump(mode="json", exclude_none=True), base),
-                                     args.idempotency_key)
+    scene = _service_paths(spec.model_dump(mode="json", exclude_none=True), base)
+    if args.upload:
+        scene, paths = _uploaded(scene)
+        with contextlib.ExitStack() as stack:
+            files = [(p.name, stack.enter_context(open(p, "rb"))) for p in paths]
+            found, created = api.submit_plan_with_files(scene, files, args.idempotency_key,
+                                                        read_timeout=args.timeout or DOWNLOAD_TIMEOUT_S)
+    else:
+        found, created = api.submit_plan(scene, args.idempotency_key)
     _note(f"plan {found['id']} {'submitted' if created else 'already submitted with this key'} "
           f"({found['status'].lower()})")
     if not args.wait:
@@ -353,6 +365,26 @@ def _service_paths(scene: dict, base: Path) -> dict:
                        ({"rungs": fix(r["rungs"])} if isinstance(r, dict) and "/" in r["rungs"] else r)
                        for r in scene["ladder"]]
     return scene
+
+
+def _uploaded(scene: dict) -> tuple[dict, list[Path]]:
+    """The scene with each measured file named by its file name alone, and the files to send; a
+    capture (a folder of texels) is not sent: one line says so."""
+    paths: list[Path] = []
+    for i, m in enumerate(scene["materials"]):
+        if "capture" in m:
+            raise ValueError(f"materials.{i}: a capture ({m['capture']}) cannot be uploaded; put it under the "
+                             "service's data roots and plan without --upload")
+        path = Path(m["path"])
+        if not path.is_file():
+            raise ValueError(f"materials.{i}: {path}: no such file to upload")
+        clash = next((p for p in paths if p.name == path.name), None)
+        if clash is not None:
+            raise ValueError(f"materials.{i}: {path} and {clash} share the file name {path.name!r}; rename one "
+                             "to upload both")
+        paths.append(path)
+        m["path"], m["name"] = path.name, m.get("name") or path.stem
+    return scene, paths
 
 
 def duration(text: str) -> float:

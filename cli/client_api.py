@@ -15,6 +15,7 @@ The token travels only in the ``Authorization`` header and is never part of a me
 
 from __future__ import annotations
 
+import json
 import re
 from typing import Any
 
@@ -117,6 +118,15 @@ class Api:
     def submit_plan(self, scene: dict, idempotency_key: str | None = None) -> tuple[dict, bool]:
         """The plan, and whether the service created it."""
         return self._create("/plans", scene, idempotency_key)
+
+    def submit_plan_with_files(self, scene: dict, files: list, idempotency_key: str | None = None,
+                               read_timeout: float | None = None) -> tuple[dict, bool]:
+        """The plan of ``scene`` planned from the measured ``files`` sent with it (multipart
+        ``(name, handle)`` pairs), and whether the service created it."""
+        headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
+        r = self.request("POST", "/plan-uploads", data={"scene": json.dumps(scene)},
+                         files=[("files", f) for f in files], headers=headers, read_timeout=read_timeout)
+        return self._json(r), r.status_code == 202
 
     def plan(self, plan_id: str) -> dict:
         return self.call("GET", f"/plans/{plan_id}")

@@ -9,22 +9,21 @@ job's last committed bundle, so a running job can be tried before it ends. Fits 
 
 from __future__ import annotations
 
-import re
 import tempfile
-from pathlib import Path, PurePath
+from pathlib import Path
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, File, Form, HTTPException, Request, UploadFile, status
 
 from neuenh.checkpoint import Bundle
-from neuenh.data.errors import DataError
 from neuenh.data.samples import Samples
-from neuenh.data.table import TableTooLarge, read_table
+from neuenh.data.table import read_table
 from neuenh.fit import FitConfig, fit_materials
 
 from ..deps import ArtifactStoreDep, Authorized, ChangeableJob, FitLockDep, JobStoreDep, SettingsDep
 from ..errors import COMMON, documented
 from ..schemas import FitPublic
+from ..uploads import receive
 
 router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized], responses=COMMON)
 
@@ -59,31 +58,7 @@ def fit_job(
 
 
 def _read_uploads(files: list[UploadFile], max_samples: int) -> Samples:
-    names = [_material_name(f.filename, i) for i, f in enumerate(files)]
-    if len(set(names)) != len(names):
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            f"files: two uploads share a material name ({', '.join(names)}); rename one")
-    tables = []
     with tempfile.TemporaryDirectory(prefix="neuenh-fit-") as tmp:
-        for upload, name in zip(files, names):
-            path = Path(tmp) / name
-            with open(path, "wb") as out:
-                while chunk := upload.file.read(1 << 20):
-                    out.write(chunk)
-            try:
-                table = read_table(path, name=name, max_rows=max_samples)
-            except TableTooLarge as exc:  # refused from the row count alone, before reading values
-                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                    f"{upload.filename}: {exc.rows} measurements exceed this service's limit of "
-                                    f"{max_samples} per material (NEUENH_MAX_SAMPLES)") from None
-            except DataError as exc:  # its message names the temporary path: name the upload instead
-                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                    str(exc).replace(str(path), upload.filename or name)) from None
-            tables.append(table)
-    return Samples.concat(tables)
-
-
-def _material_name(filename: str | None, index: int) -> str:
-    """The upload's file name without folders and suffix, reduced to safe characters."""
-    stem = PurePath((filename or "").replace("\\", "/")).name.split(".")[0]
-    return re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_") or f"material_{index}"
+        tables = receive(files, Path(tmp), lambda path, name: read_table(path, name=name, max_rows=max_samples),
+                         max_samples)
+    return Samples.concat([t.value for t in tables])

@@ -3,8 +3,10 @@ the cheapest rung of a ladder within a tolerance — follow it, and download its
 
 The scene is the JSON form of ``scene.yaml``; its files (measured materials, captures, bundle folders
 of the ladder) are paths the service reads, relative to its working directory, and must lie under
-its data roots (``NEUENH_DATA_ROOTS``), as a job's data do. Plans run one at a time beside the jobs
-and survive restarts material by material.
+its data roots (``NEUENH_DATA_ROOTS``), as a job's data do. ``POST /v1/plan-uploads`` takes the
+scene with the measured files themselves instead (multipart): a material whose path is an uploaded
+file's name is that file, kept under the data directory by its content's digest. Plans run one at
+a time beside the jobs and survive restarts material by material.
 """
 
 from __future__ import annotations
@@ -12,21 +14,30 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-from fastapi import APIRouter, Body, Header, HTTPException, Response, status
+import yaml
 
-from neuenh.scene import SceneSpec
+from fastapi import APIRouter, Body, File, Form, Header, HTTPException, Response, UploadFile, status
+
+from neuenh.data.errors import DataError
+from neuenh.data.formats import detect_format
+from neuenh.data.measured import load_measured
+from neuenh.data.table import load_table
+from neuenh.scene import SceneError, SceneSpec, parse_scene
 from neuenh.scene.spec import CaptureEntry, FileEntry, RungsEntry
 from orchestrator.plans import CONTENT_TYPES, PLAN_FILES, plan_file_key
 from storage import ArtifactStore, PlanRecord, PlanStatus
 
 from ..auth import LOCAL
-from ..deps import (ArtifactStoreDep, Authorized, PlanQueueDep, PlanStoreDep, PrincipalDep, SettingsDep,
-                    SubmitterDep, VisiblePlan)
+from ..deps import (ArtifactStoreDep, Authorized, FitLockDep, PlanQueueDep, PlanStoreDep, PrincipalDep,
+                    SettingsDep, SubmitterDep, VisiblePlan)
 from ..errors import COMMON, documented
 from ..schemas import PlanList, PlanPublic
 from ..settings import Settings
+from ..uploads import Received, receive
 
 router = APIRouter(prefix="/plans", tags=["plans"], dependencies=[Authorized], responses=COMMON)
+# A scene with its files: a path of its own (under /plans it would also read as GET /plans/{plan_id}).
+uploads = APIRouter(prefix="/plan-uploads", tags=["plans"], dependencies=[Authorized], responses=COMMON)
 
 _ERRORS = documented({404: "no such plan"})
 
@@ -40,7 +51,88 @@ def submit_plan(spec: Annotated[SceneSpec, Body(description="a scene (the JSON f
                 principal: SubmitterDep,
                 idempotency_key: Annotated[str | None, Header(max_length=200)] = None) -> PlanPublic:
     """Validate and queue a plan (202)."""
-    outside = _outside_data_roots(spec, settings)
+    return _queue(spec, set(), response, plans, plan_queue, settings, principal, idempotency_key)
+
+
+UPLOADED = "uploads"  # under the data directory: the measured files of uploaded scenes, by digest
+
+
+@uploads.post("", status_code=status.HTTP_202_ACCEPTED, response_model=PlanPublic,
+             responses={200: {"model": PlanPublic, "description": "the plan already submitted under this Idempotency-Key"},
+                        **documented({400: "a body that is not multipart/form-data",
+                                      409: "Idempotency-Key reused for another scene",
+                                      413: "upload over NEUENH_MAX_UPLOAD_BYTES",
+                                      422: "an invalid scene, an unreadable or unnamed upload, or other files "
+                                           "outside the data roots"})})
+def submit_plan_with_files(
+    response: Response, plans: PlanStoreDep, plan_queue: PlanQueueDep, settings: SettingsDep,
+    principal: SubmitterDep, fit_lock: FitLockDep,
+    scene: Annotated[str, Form(description="the scene: scene.yaml's text (YAML or JSON); a material whose "
+                                           "path is an uploaded file's name is that file")],
+    files: Annotated[list[UploadFile], File(description="measured materials the scene names: tables (.npz, CSV), "
+                                                        "RGL .bsdf or MERL .binary files")],
+    idempotency_key: Annotated[str | None, Header(max_length=200)] = None,
+) -> PlanPublic:
+    """Validate the scene and its files, keep the files, and queue the plan (202)."""
+    try:
+        data = yaml.safe_load(scene)
+    except yaml.YAMLError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"scene: not valid YAML or JSON ({str(exc).splitlines()[0]})") from None
+    if not isinstance(data, dict):
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"scene: a scene is a mapping, got {type(data).__name__}")
+    with fit_lock:  # reading uploads costs memory like a fit: one at a time
+        received = receive(files, settings.data_dir / UPLOADED, lambda path, name: _check_measured(path, name,
+                                                                                                   settings.max_samples),
+                           settings.max_samples)
+    data, uploaded = _with_uploads(data, received)
+    try:
+        spec = parse_scene(data, "scene")
+    except SceneError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+    return _queue(spec, uploaded, response, plans, plan_queue, settings, principal, idempotency_key)
+
+
+def _check_measured(path: Path, name: str, max_rows: int) -> str:
+    """The kind of an uploaded measured file, after reading it whole (a table: refused from its row
+    count before any value is read)."""
+    kind = detect_format(path)
+    if kind == "table":
+        load_table(path, name, max_rows)
+    elif kind in ("rgl", "merl"):
+        load_measured(path, name)
+    else:
+        raise DataError(f"{path}: a {kind} file; uploads are measurement tables (.npz, CSV), RGL .bsdf or "
+                        "MERL .binary files")
+    return kind
+
+
+def _with_uploads(data: dict, received: list[Received]) -> tuple[dict, set[str]]:
+    """The scene with each material whose path names an upload pointing at the kept file (its name
+    kept too), and the paths so set; an upload no material names is a 422."""
+    by_name = {r.filename: r for r in received}
+    used, uploaded, materials = set(), set(), []
+    for entry in data.get("materials") or []:
+        path = entry.get("path") if isinstance(entry, dict) else None
+        upload = by_name.get(Path(path).name) if isinstance(path, str) and path else None
+        if upload is not None:
+            entry = {**entry, "path": str(upload.path), "sha256": upload.path.name,  # checked when read
+                     "name": entry.get("name") or Path(path).stem}
+            used.add(upload.filename)
+            uploaded.add(str(upload.path))
+        materials.append(entry)
+    unnamed = sorted(set(by_name) - used)
+    if unnamed:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"files: {', '.join(unnamed)} uploaded but named by no material's path")
+    return ({**data, "materials": materials} if "materials" in data else data), uploaded
+
+
+def _queue(spec: SceneSpec, uploaded: set[str], response: Response, plans, plan_queue, settings: Settings,
+           principal, idempotency_key: str | None) -> PlanPublic:
+    """Check the scene's other files against the data roots, then create (or find) and queue the plan."""
+    outside = _outside_data_roots(spec, settings, uploaded)
     if outside:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "; ".join(outside))
     plan, created = plans.create_plan(spec.model_dump(mode="json", exclude_none=True),
@@ -88,9 +180,10 @@ def _files(plan: PlanRecord, artifacts: ArtifactStore) -> list[str]:
     return [name for name in PLAN_FILES if artifacts.exists(plan_file_key(plan.id, name))]
 
 
-def _outside_data_roots(spec, settings: Settings) -> list[str]:
+def _outside_data_roots(spec, settings: Settings, uploaded: set[str] = frozenset()) -> list[str]:
     """Files and folders the scene would read outside the data roots (after resolving ``..`` and links).
-    Ladder entries that are not paths (model names) read nothing of the user's."""
+    Ladder entries that are not paths (model names) read nothing of the user's; ``uploaded`` files
+    were put where they are by the service."""
     roots = [root.resolve() for root in settings.data_roots]
     allowed = ", ".join(map(str, roots)) or "none configured"
     paths = [(f"materials.{i}", e.path if isinstance(e, FileEntry) else e.capture)
@@ -98,6 +191,8 @@ def _outside_data_roots(spec, settings: Settings) -> list[str]:
     paths += [(f"ladder.{i}", e.rungs if isinstance(e, RungsEntry) else e) for i, e in enumerate(spec.ladder)]
     problems = []
     for where, path in paths:
+        if path in uploaded:
+            continue
         if where.startswith("ladder") and "/" not in path and not Path(path).exists():
             continue  # a model's name
         try:

@@ -20,6 +20,7 @@ of the richest rung everywhere and of the cheapest rung everywhere.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -137,6 +138,17 @@ class Plan:
 
 
 # -- materials --------------------------------------------------------------------------------------
+def _check_digest(path: Path, sha256: str) -> None:
+    """``path``'s content has this SHA-256, or a ValueError says the file was damaged or replaced."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            digest.update(chunk)
+    if digest.hexdigest() != sha256:
+        raise ValueError(f"{path}: its content does not match its sha256 {sha256[:12]}... (damaged or replaced); "
+                         "not used")
+
+
 def load_materials(spec: SceneSpec, base: Path) -> list[SceneMaterial]:
     """The scene's materials, their weights shared out (a capture's among its texels); a missing or
     unreadable file, a duplicate name, or a render metric on a material that cannot be rendered is a
@@ -149,6 +161,8 @@ def load_materials(spec: SceneSpec, base: Path) -> list[SceneMaterial]:
     for i, entry in enumerate(spec.materials):
         try:
             if isinstance(entry, FileEntry):
+                if entry.sha256 is not None:
+                    _check_digest(base / entry.path, entry.sha256)
                 material = load_measured(base / entry.path, entry.name)
                 out.append(SceneMaterial(entry.name or material.name, material, entry.weight))
             elif isinstance(entry, CaptureEntry):

@@ -57,6 +57,9 @@ class FileEntry(_Strict):
     name: str | None = Field(None, min_length=1, description="its name in the plan; default the file's stem "
                                                              "(an NBRDF file's network name selects it)")
     weight: float = Field(1.0, ge=0.0, allow_inf_nan=False)
+    sha256: str | None = Field(None, pattern="^[0-9a-f]{64}$",
+                               description="the file's content digest: checked before the file is read (a "
+                                           "service sets it for the files sent with a scene)")
 
 
 class CaptureEntry(_Strict):

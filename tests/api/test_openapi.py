@@ -51,8 +51,10 @@ class Bearer:
 
 # Checks that cannot hold by design, per operation: a schema-valid job spec may still exceed the
 # service's limits or name a position the model lacks, a schema-valid upload may not be a table, and a
-# schema-valid scene may name files outside the data roots or give both tolerances.
-SEMANTIC_422 = {("POST", "/v1/jobs"), ("POST", "/v1/jobs/{job_id}/fit"), ("POST", "/v1/plans")}
+# schema-valid scene may name files outside the data roots or give both tolerances (or, sent as text
+# with its files, not be YAML at all).
+SEMANTIC_422 = {("POST", "/v1/jobs"), ("POST", "/v1/jobs/{job_id}/fit"), ("POST", "/v1/plans"),
+                ("POST", "/v1/plan-uploads")}
 
 
 @schema.parametrize()

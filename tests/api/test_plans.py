@@ -1,12 +1,15 @@
 """``/v1/plans`` on a live server: a scene planned as a persisted job kind — queued, run, its files
 served; the same plan resumed after a restart keeps the materials it had planned; scenes reading
-files outside the data roots or naming nothing real are refused in one line."""
+files outside the data roots or naming nothing real are refused in one line; a scene sent with its
+measured files (``/v1/plan-uploads``) is planned from them."""
 
 from __future__ import annotations
 
+import hashlib
 import time
 
 import pytest
+import yaml
 
 from scene_files import scene, write_tables
 from storage import SQLitePlanStore
@@ -91,3 +94,71 @@ def test_a_scene_that_fails_while_planning_says_why(live_server, tables):
         r = c.post("/plans", json=absolute(tables, ladder=["ggx", str(tables / "not-a-bundle")]))
         plan = wait_plan(c, r.json()["id"])
     assert plan["status"] == "FAILED" and "not-a-bundle" in plan["error"] and "\n" not in plan["error"]
+
+
+def upload(c, data: dict, files: dict[str, bytes], **headers):
+    return c.post("/plan-uploads", data={"scene": yaml.safe_dump(data)},
+                  files=[("files", (name, content)) for name, content in files.items()], headers=headers)
+
+
+def test_a_scene_sent_with_its_files_is_planned_from_them(live_server, tables, tmp_path):
+    """No data roots at all: the service reads only what was sent, kept by its digest."""
+    server = live_server()
+    sent = {name: (tables / name).read_bytes() for name in ("gloss.npz", "retro.npz")}
+    with server.client() as c:
+        r = upload(c, scene(tables), sent, **{"Idempotency-Key": "k1"})
+        assert r.status_code == 202, r.text
+        plan = wait_plan(c, r.json()["id"])
+        again = upload(c, scene(tables), sent, **{"Idempotency-Key": "k1"})
+    assert plan["status"] == "DONE", plan["error"]
+    assert {m["name"]: m["chosen"] for m in plan["plan"]["materials"]} == {"gloss": "ggx", "retro": "nbrdf"}
+    assert again.status_code == 200 and again.json()["id"] == plan["id"]
+    kept = tmp_path / "data" / "uploads"
+    assert sorted(p.name for p in kept.iterdir()) == sorted(hashlib.sha256(b).hexdigest() for b in sent.values())
+
+
+@pytest.mark.parametrize("case, message", [
+    ("unnamed", "sheen.npz uploaded but named by no material's path"),
+    ("not-measured", "junk.npz: unrecognised content"),
+    ("too-large", "gloss.npz: 1600 measurements exceed this service's limit of 1000 per material"),
+    ("missing", "materials.1: retro.npz is outside the data roots"),
+    ("not-yaml", "scene: not valid YAML or JSON"),
+])
+def test_bad_uploads_are_refused_and_nothing_is_kept(live_server, tables, tmp_path, case, message):
+    server = live_server(max_samples=1000 if case == "too-large" else 1_000_000)
+    data = scene(tables)
+    files = {"gloss.npz": (tables / "gloss.npz").read_bytes(), "retro.npz": (tables / "retro.npz").read_bytes()}
+    if case == "unnamed":
+        files["sheen.npz"] = (tables / "sheen.npz").read_bytes()
+    if case == "not-measured":
+        data["materials"][1]["path"] = "junk.npz"
+        files = {"junk.npz": b"not a table at all", "gloss.npz": files["gloss.npz"]}
+    if case == "missing":
+        del files["retro.npz"]
+    with server.client() as c:
+        if case == "not-yaml":
+            r = c.post("/plan-uploads", data={"scene": "{a: [1, 2"}, files=[("files", ("gloss.npz", b"x"))])
+        else:
+            r = upload(c, data, files)
+        assert r.status_code == 422 and message in r.json()["detail"], r.text
+        assert "/tmp" not in r.json()["detail"].replace(str(tables), "")  # names the upload, not the folder
+        assert c.get("/plans").json()["plans"] == []
+    kept = tmp_path / "data" / "uploads"
+    assert not kept.exists() or not [p for p in kept.iterdir() if p.name.startswith(".upload-")]
+
+
+def test_a_damaged_upload_fails_its_plan_instead_of_being_used(live_server, tables, tmp_path):
+    kept = tmp_path / "data" / "uploads"
+    kept.mkdir(parents=True)
+    content = (tables / "gloss.npz").read_bytes()
+    digest = hashlib.sha256(content).hexdigest()
+    (kept / digest).write_bytes(content[:-16] + bytes(16))  # the disk changed it after the upload
+    store = SQLitePlanStore(tmp_path / "data" / "jobs.sqlite")
+    plan, _ = store.create_plan(scene(tables, materials=[{"path": str(kept / digest), "sha256": digest,
+                                                          "name": "gloss"}]))  # as the upload route stores it
+    store.start(plan.id, 1)
+    store.close()
+    server = live_server()
+    with server.client() as c:
+        done = wait_plan(c, plan.id)
+    assert done["status"] == "FAILED" and "does not match its sha256" in done["error"], done

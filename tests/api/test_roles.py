@@ -62,6 +62,7 @@ MATRIX = [
     ("GET", "/plans/{own_plan}", {"ops": 200, "alice": 200, "wall": 200, "bob": 404}),
     ("GET", "/plans/{own_plan}/files/plan.md", {"bob": 404, "wall": 404, "alice": 404}),  # 404: not DONE
     ("POST", "/plans", {"wall": 403}),
+    ("POST", "/plan-uploads", {"wall": 403, "alice": 422}),  # 422: no files sent
 ]
 
 

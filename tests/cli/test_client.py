@@ -394,3 +394,23 @@ def test_plan_a_scene_on_the_service_wait_and_save_its_files(live_server, tmp_pa
     bad = dict(data, ladder=[])
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
     one_line_error(client("plan", tmp_path / "bad.yaml", url=server.url), "ladder: List should have at least 1 item")
+
+
+def test_plan_uploads_the_scenes_files_to_a_service_that_cannot_read_them(live_server, tmp_path):
+    from scene_files import scene, write_tables
+
+    (tmp_path / "mine").mkdir()
+    tables = write_tables(tmp_path / "mine")
+    server = live_server(data_roots=[tmp_path / "elsewhere"], api_token=TOKEN)  # the files are not under its roots
+    (tables / "scene.yaml").write_text(yaml.safe_dump(scene(tables)))
+    refused = client("plan", tables / "scene.yaml", url=server.url)
+    one_line_error(refused, "materials.0:", "is outside the data roots")
+    out = client("plan", tables / "scene.yaml", "--upload", "--wait", "--json", url=server.url)
+    assert out.returncode == 0, out.stderr
+    plan = json.loads(out.stdout)
+    assert {m["name"]: m["chosen"] for m in plan["plan"]["materials"]} == {"gloss": "ggx", "retro": "nbrdf"}
+    twice = dict(scene(tables), materials=[{"path": "gloss.npz"}, {"path": str(tmp_path / "other" / "gloss.npz")}])
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "gloss.npz").write_bytes((tables / "retro.npz").read_bytes())
+    (tables / "twice.yaml").write_text(yaml.safe_dump(twice))
+    one_line_error(client("plan", tables / "twice.yaml", "--upload", url=server.url), "share the file name 'gloss.npz'")

@@ -13,7 +13,7 @@ import pytest
 
 from neuenh.scene import SceneError, parse_scene, plan_scene
 from neuenh.scene.ladder import GraphRung
-from neuenh.scene.planner import RungResult, choose
+from neuenh.scene.planner import RungResult, choose, load_materials
 from neuenh.scene.spec import Tolerance
 from scene_files import scene, write_tables
 
@@ -94,12 +94,23 @@ def test_rungs_of_a_searched_model_join_the_ladder(tmp_path, tables):
     ({"tolerance": {"metric": "ssim", "relative": 0.1}}, "tolerance.metric ssim renders .* use metric log_l1"),
     ({"tolerance": {"relative": 0.1, "absolute": 1}}, "exactly one of 'relative'"),
     ({"materials": [{"path": "gloss.npz"}, {"path": "gloss.npz"}]}, "gloss more than once"),
+    ({"materials": [{"path": "gloss.npz", "sha256": "0" * 64}]},
+     r"materials.0: .*gloss.npz: its content does not match its sha256 000000000000\.\.\. \(damaged or replaced\)"),
+    ({"materials": [{"path": "gloss.npz", "sha256": "abc"}]}, "materials.0.*sha256: String should match pattern"),
 ], ids=["missing-file", "unknown-model", "empty-ladder", "negative-weight", "render-metric-on-a-table",
-        "two-tolerances", "same-name"])
+        "two-tolerances", "same-name", "damaged-file", "not-a-digest"])
 def test_bad_scenes_are_one_line_naming_the_problem(tables, changes, message):
     with pytest.raises(SceneError, match=message) as info:
         plan_scene(parse_scene(scene(tables, **changes)), tables)
     assert "\n" not in str(info.value)
+
+
+def test_a_file_whose_digest_matches_is_read(tables):
+    import hashlib
+
+    digest = hashlib.sha256((tables / "gloss.npz").read_bytes()).hexdigest()
+    materials = load_materials(parse_scene(scene(tables, materials=[{"path": "gloss.npz", "sha256": digest}])), tables)
+    assert [m.name for m in materials] == ["gloss"]
 
 
 def test_the_example_scene_is_valid_and_names_files_beside_it():

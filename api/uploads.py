@@ -1,0 +1,74 @@
+"""Measurement files uploaded with a request (``/v1/jobs/{id}/fit``, ``/v1/plan-uploads``).
+
+Each upload is streamed to a folder, read there by the route's reader (a table is refused from its
+row count alone, before any value is read: ``neuenh.data.table``), and kept under the name of its
+content's SHA-256, so the same file uploaded twice is one file and a plan that names it reads
+exactly what was checked. A file that cannot be read is a 422 naming the upload, never the folder.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path, PurePath
+from typing import Any, Callable
+
+from fastapi import HTTPException, UploadFile, status
+
+from neuenh.data.errors import DataError
+from neuenh.data.table import TableTooLarge
+
+CHUNK = 1 << 20
+
+
+@dataclass(frozen=True)
+class Received:
+    filename: str  # the upload's own file name, without folders
+    name: str  # the material's name: the file's stem in safe characters
+    path: Path  # where it is kept: FOLDER/<sha256>
+    value: Any  # what the reader made of it
+
+
+def receive(files: list[UploadFile], folder: Path, read: Callable[[Path, str], Any], max_rows: int) -> list[Received]:
+    """Every upload kept in ``folder`` and read by ``read(path, name)``; two uploads that would be
+    the same material, an unreadable file, or a table over ``max_rows`` rows (the service's
+    per-material limit) are a 422."""
+    names = [material_name(f.filename, i) for i, f in enumerate(files)]
+    if len(set(names)) != len(names):
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"files: two uploads share a material name ({', '.join(names)}); rename one")
+    folder.mkdir(parents=True, exist_ok=True)
+    return [_receive_one(upload, name, folder, read, max_rows) for upload, name in zip(files, names)]
+
+
+def _receive_one(upload: UploadFile, name: str, folder: Path, read, max_rows: int) -> Received:
+    shown = PurePath((upload.filename or name).replace("\\", "/")).name or name
+    digest = hashlib.sha256()
+    fd, tmp = tempfile.mkstemp(prefix=".upload-", dir=folder)
+    try:
+        with os.fdopen(fd, "wb") as out:
+            while chunk := upload.file.read(CHUNK):
+                digest.update(chunk)
+                out.write(chunk)
+        try:
+            value = read(Path(tmp), name)
+        except TableTooLarge as exc:  # refused from the row count alone, before reading values
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                f"{shown}: {exc.rows} measurements exceed this service's limit of "
+                                f"{max_rows} per material (NEUENH_MAX_SAMPLES)") from None
+        except DataError as exc:  # its message names the temporary path: name the upload instead
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc).replace(tmp, shown)) from None
+        kept = folder / digest.hexdigest()
+        os.replace(tmp, kept)  # whole or not at all; the same content lands on the same name
+        return Received(shown, name, kept, value)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def material_name(filename: str | None, index: int) -> str:
+    """The upload's file name without folders and suffix, reduced to safe characters."""
+    stem = PurePath((filename or "").replace("\\", "/")).name.split(".")[0]
+    return re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_") or f"material_{index}"
