@@ -59,7 +59,7 @@ def test_jobs_run_at_once_share_the_cluster_and_start_by_priority(tmp_path):
         assert served_path(history) == run_alone(tmp_path, spec), spec["name"]
 
 
-LONG = tiny_spec(max_rounds=4, epochs_per_round=10).model_dump(mode="json")
+LONG = tiny_spec(max_rounds=3, epochs_per_round=10).model_dump(mode="json")
 LONG["data"][0]["samples"] = 4000  # ~1.5 s a round: time to kill the service mid-round
 
 
