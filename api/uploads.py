@@ -30,18 +30,33 @@ class Received:
     name: str  # the material's name: the file's stem in safe characters
     path: Path  # where it is kept: FOLDER/<sha256>
     value: Any  # what the reader made of it
+    new: bool  # kept by this request (no earlier one had sent the same content)
+
+
+def discard(received: list[Received]) -> None:
+    """Remove what this request alone kept (a request refused after its files arrived)."""
+    for r in received:
+        if r.new:
+            r.path.unlink(missing_ok=True)
 
 
 def receive(files: list[UploadFile], folder: Path, read: Callable[[Path, str], Any], max_rows: int) -> list[Received]:
     """Every upload kept in ``folder`` and read by ``read(path, name)``; two uploads that would be
     the same material, an unreadable file, or a table over ``max_rows`` rows (the service's
-    per-material limit) are a 422."""
+    per-material limit) are a 422, and then nothing this request kept stays."""
     names = [material_name(f.filename, i) for i, f in enumerate(files)]
     if len(set(names)) != len(names):
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"files: two uploads share a material name ({', '.join(names)}); rename one")
     folder.mkdir(parents=True, exist_ok=True)
-    return [_receive_one(upload, name, folder, read, max_rows) for upload, name in zip(files, names)]
+    received: list[Received] = []
+    try:
+        for upload, name in zip(files, names):
+            received.append(_receive_one(upload, name, folder, read, max_rows))
+    except BaseException:
+        discard(received)
+        raise
+    return received
 
 
 def _receive_one(upload: UploadFile, name: str, folder: Path, read, max_rows: int) -> Received:
@@ -62,8 +77,9 @@ def _receive_one(upload: UploadFile, name: str, folder: Path, read, max_rows: in
         except DataError as exc:  # its message names the temporary path: name the upload instead
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc).replace(tmp, shown)) from None
         kept = folder / digest.hexdigest()
+        new = not kept.exists()
         os.replace(tmp, kept)  # whole or not at all; the same content lands on the same name
-        return Received(shown, name, kept, value)
+        return Received(shown, name, kept, value, new)
     finally:
         Path(tmp).unlink(missing_ok=True)
 

@@ -33,7 +33,7 @@ from ..deps import (ArtifactStoreDep, Authorized, FitLockDep, PlanQueueDep, Plan
 from ..errors import COMMON, documented
 from ..schemas import PlanList, PlanPublic
 from ..settings import Settings
-from ..uploads import Received, receive
+from ..uploads import Received, discard, receive
 
 router = APIRouter(prefix="/plans", tags=["plans"], dependencies=[Authorized], responses=COMMON)
 # A scene with its files: a path of its own (under /plans it would also read as GET /plans/{plan_id}).
@@ -82,16 +82,21 @@ def submit_plan_with_files(
     if not isinstance(data, dict):
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"scene: a scene is a mapping, got {type(data).__name__}")
-    with fit_lock:  # reading uploads costs memory like a fit: one at a time
-        received = receive(files, settings.data_dir / UPLOADED, lambda path, name: _check_measured(path, name,
-                                                                                                   settings.max_samples),
-                           settings.max_samples)
-    data, uploaded = _with_uploads(data, received)
-    try:
-        spec = parse_scene(data, "scene")
-    except SceneError as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
-    return _queue(spec, uploaded, response, plans, plan_queue, settings, principal, idempotency_key)
+    # One at a time: reading uploads costs memory like a fit, and a refused request removes the files
+    # it alone kept, which a concurrent request with the same content must not see vanish.
+    with fit_lock:
+        received = receive(files, settings.data_dir / UPLOADED,
+                           lambda path, name: _check_measured(path, name, settings.max_samples), settings.max_samples)
+        try:
+            data, uploaded = _with_uploads(data, received)
+            try:
+                spec = parse_scene(data, "scene")
+            except SceneError as exc:
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+            return _queue(spec, uploaded, response, plans, plan_queue, settings, principal, idempotency_key)
+        except BaseException:
+            discard(received)
+            raise
 
 
 def _check_measured(path: Path, name: str, max_rows: int) -> str:
