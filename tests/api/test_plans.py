@@ -110,10 +110,13 @@ def test_a_scene_sent_with_its_files_is_planned_from_them(live_server, tables, t
         assert r.status_code == 202, r.text
         plan = wait_plan(c, r.json()["id"])
         again = upload(c, scene(tables), sent, **{"Idempotency-Key": "k1"})
+        extra = {**sent, "sheen.npz": (tables / "sheen.npz").read_bytes()}
+        assert upload(c, scene(tables), extra).status_code == 422  # refused: sheen is named by no material
     assert plan["status"] == "DONE", plan["error"]
     assert {m["name"]: m["chosen"] for m in plan["plan"]["materials"]} == {"gloss": "ggx", "retro": "nbrdf"}
     assert again.status_code == 200 and again.json()["id"] == plan["id"]
     kept = tmp_path / "data" / "uploads"
+    # the refused request removed sheen's file, not the ones the plan reads
     assert sorted(p.name for p in kept.iterdir()) == sorted(hashlib.sha256(b).hexdigest() for b in sent.values())
 
 
