@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Annotated
 
 import yaml
-
 from fastapi import APIRouter, Body, File, Form, Header, HTTPException, Response, UploadFile, status
 
 from neuenh.data.errors import DataError
