@@ -95,11 +95,13 @@ class Api:
 
     def submit(self, spec: dict, idempotency_key: str | None = None) -> tuple[dict, bool]:
         """The job, and whether the service created it (False: the key's earlier job)."""
-        return self._create("/jobs", spec, idempotency_key)
+        return self._create("/jobs", idempotency_key, json=spec)
 
-    def _create(self, path: str, body: dict, idempotency_key: str | None) -> tuple[dict, bool]:
+    def _create(self, path: str, idempotency_key: str | None, **body) -> tuple[dict, bool]:
+        """POST ``body`` (``json=`` or ``data=``/``files=``): the created or found resource, and
+        whether the service created it (202) rather than found it under the key (200)."""
         headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
-        r = self.request("POST", path, json=body, headers=headers)
+        r = self.request("POST", path, headers=headers, **body)
         return self._json(r), r.status_code == 202
 
     def cancel(self, job_id: str) -> dict:
@@ -117,16 +119,14 @@ class Api:
 
     def submit_plan(self, scene: dict, idempotency_key: str | None = None) -> tuple[dict, bool]:
         """The plan, and whether the service created it."""
-        return self._create("/plans", scene, idempotency_key)
+        return self._create("/plans", idempotency_key, json=scene)
 
     def submit_plan_with_files(self, scene: dict, files: list, idempotency_key: str | None = None,
                                read_timeout: float | None = None) -> tuple[dict, bool]:
         """The plan of ``scene`` planned from the measured ``files`` sent with it (multipart
         ``(name, handle)`` pairs), and whether the service created it."""
-        headers = {"Idempotency-Key": idempotency_key} if idempotency_key else {}
-        r = self.request("POST", "/plan-uploads", data={"scene": json.dumps(scene)},
-                         files=[("files", f) for f in files], headers=headers, read_timeout=read_timeout)
-        return self._json(r), r.status_code == 202
+        return self._create("/plan-uploads", idempotency_key, data={"scene": json.dumps(scene)},
+                            files=[("files", f) for f in files], read_timeout=read_timeout)
 
     def plan(self, plan_id: str) -> dict:
         return self.call("GET", f"/plans/{plan_id}")
