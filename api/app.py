@@ -40,6 +40,7 @@ from .routes import cluster, dashboard, docs, fit, health, jobs, metrics, plans
 from .settings import Settings
 from .job_queue import JobQueue
 from .plan_queue import PlanQueue
+from .uploads import PLAN_UPLOADS, PlanUploads
 
 log = logging.getLogger("neuenh.api")
 
@@ -91,12 +92,17 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
         app.state.tokens = TokenTable(s)  # a bad tokens file fails the start (serve checks it first)
         _reload_tokens_on_sighup(app.state.tokens)
         app.state.job_queue = job_queue
-        plan_store = SQLitePlanStore(s.data_dir / "jobs.sqlite")
-        app.state.plans, app.state.plan_queue = plan_store, PlanQueue(plan_store, artifacts)
-        app.state.metrics = ServiceMetrics(store, job_queue, executor)
         # Fits share the CPUs with the candidates being trained: two at once would only slow each other.
         app.state.fit_lock = threading.Lock()
+        plan_store = SQLitePlanStore(s.data_dir / "jobs.sqlite")
+        app.state.plan_uploads = uploads = PlanUploads(s.data_dir / PLAN_UPLOADS, app.state.fit_lock)
+        app.state.plans = plan_store
+        app.state.plan_queue = PlanQueue(plan_store, artifacts, on_ended=lambda plan: uploads.release(plan, plan_store))
+        app.state.metrics = ServiceMetrics(store, job_queue, executor)
         job_queue.start()
+        swept = uploads.sweep(plan_store)
+        if swept:
+            log.info("removed %d uploaded file(s) no unfinished plan names", len(swept))
         app.state.plan_queue.start()
         log.info("neuenh service: data in %s, artifacts in %r, auth %s", s.data_dir, artifacts,
                  "on" if s.api_token else "off")

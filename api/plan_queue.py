@@ -10,9 +10,10 @@ import queue
 import threading
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from orchestrator.plans import PlanRunner
-from storage import ArtifactStore, PlanStore
+from storage import ArtifactStore, PlanRecord, PlanStore
 
 log = logging.getLogger("neuenh.api.plan_queue")
 
@@ -25,8 +26,10 @@ class PlanProgress:
 
 
 class PlanQueue:
-    def __init__(self, plans: PlanStore, artifacts: ArtifactStore, base: Path | None = None):
-        self.plans = plans
+    def __init__(self, plans: PlanStore, artifacts: ArtifactStore, base: Path | None = None,
+                 on_ended: Callable[[PlanRecord], None] = lambda plan: None):
+        """``on_ended``: called with each plan that ends here (DONE or FAILED)."""
+        self.plans, self.on_ended = plans, on_ended
         self._stopping = threading.Event()
         self._pending: queue.Queue[str | None] = queue.Queue()
         self._progress: dict[str, PlanProgress] = {}
@@ -66,6 +69,8 @@ class PlanQueue:
             try:
                 plan = self.runner.run(plan_id)
                 log.info("plan %s: %s", plan_id, plan.status.value)
+                if plan.terminal:
+                    self.on_ended(plan)
             except Exception:  # the runner records a plan's failure itself; keep the thread alive
                 log.exception("plan %s: the plan queue could not run it", plan_id)
             finally:

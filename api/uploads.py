@@ -4,6 +4,7 @@ Each upload is streamed to a folder, read there by the route's reader (a table i
 row count alone, before any value is read: ``neuenh.data.table``), and kept under the name of its
 content's SHA-256, so the same file uploaded twice is one file and a plan that names it reads
 exactly what was checked. A file that cannot be read is a 422 naming the upload, never the folder.
+A plan's files stay while a plan that names them has not ended (``PlanUploads``).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import hashlib
 import os
 import re
 import tempfile
+import threading
 from dataclasses import dataclass
 from pathlib import Path, PurePath
 from typing import Any, Callable
@@ -20,8 +22,10 @@ from fastapi import HTTPException, UploadFile, status
 
 from neuenh.data.errors import DataError
 from neuenh.data.table import TableTooLarge
+from storage import PlanRecord, PlanStore
 
 CHUNK = 1 << 20
+PLAN_UPLOADS = "uploads"  # under the data directory: the measured files sent with scenes, by digest
 
 
 @dataclass(frozen=True)
@@ -88,3 +92,39 @@ def material_name(filename: str | None, index: int) -> str:
     """The upload's file name without folders and suffix, reduced to safe characters."""
     stem = PurePath((filename or "").replace("\\", "/")).name.split(".")[0]
     return re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_") or f"material_{index}"
+
+
+class PlanUploads:
+    """The files sent with scenes (``folder``), removed once no plan that names them is left to run.
+    ``lock`` is the one uploads are received under, so a request that keeps a file and queues its
+    plan is never between the two while a file is removed."""
+
+    def __init__(self, folder: Path, lock: threading.Lock):
+        self.folder, self.lock = folder.resolve(), lock
+
+    def named_by(self, plan: PlanRecord) -> set[Path]:
+        """The kept files ``plan``'s scene reads."""
+        paths = {Path(m["path"]).resolve() for m in plan.scene.get("materials", [])
+                 if isinstance(m, dict) and isinstance(m.get("path"), str)}
+        return {p for p in paths if p.parent == self.folder}
+
+    def sweep(self, plans: PlanStore) -> list[Path]:
+        """At start: remove what no unfinished plan names (left by a stop between a plan's end and
+        its release, or by a request cut off mid-upload); the removed files."""
+        if not self.folder.is_dir():
+            return []
+        with self.lock:
+            still = set().union(*(self.named_by(p) for p in plans.unfinished_plans()))
+            gone = sorted(p for p in self.folder.iterdir() if p.is_file() and p not in still)
+            for path in gone:
+                path.unlink(missing_ok=True)
+        return gone
+
+    def release(self, ended: PlanRecord, plans: PlanStore) -> list[Path]:
+        """Remove the files of the ended plan that no unfinished plan names; the removed ones."""
+        with self.lock:
+            still = set().union(*(self.named_by(p) for p in plans.unfinished_plans()))
+            gone = sorted(self.named_by(ended) - still)
+            for path in gone:
+                path.unlink(missing_ok=True)
+        return gone

@@ -32,7 +32,7 @@ from ..deps import (ArtifactStoreDep, Authorized, FitLockDep, PlanQueueDep, Plan
 from ..errors import COMMON, documented
 from ..schemas import PlanList, PlanPublic
 from ..settings import Settings
-from ..uploads import Received, discard, receive
+from ..uploads import PLAN_UPLOADS, Received, discard, receive
 
 router = APIRouter(prefix="/plans", tags=["plans"], dependencies=[Authorized], responses=COMMON)
 # A scene with its files: a path of its own (under /plans it would also read as GET /plans/{plan_id}).
@@ -51,9 +51,6 @@ def submit_plan(spec: Annotated[SceneSpec, Body(description="a scene (the JSON f
                 idempotency_key: Annotated[str | None, Header(max_length=200)] = None) -> PlanPublic:
     """Validate and queue a plan (202)."""
     return _queue(spec, set(), response, plans, plan_queue, settings, principal, idempotency_key)
-
-
-UPLOADED = "uploads"  # under the data directory: the measured files of uploaded scenes, by digest
 
 
 @uploads.post("", status_code=status.HTTP_202_ACCEPTED, response_model=PlanPublic,
@@ -84,7 +81,7 @@ def submit_plan_with_files(
     # One at a time: reading uploads costs memory like a fit, and a refused request removes the files
     # it alone kept, which a concurrent request with the same content must not see vanish.
     with fit_lock:
-        received = receive(files, settings.data_dir / UPLOADED,
+        received = receive(files, (settings.data_dir / PLAN_UPLOADS).resolve(),
                            lambda path, name: _check_measured(path, name, settings.max_samples), settings.max_samples)
         try:
             data, uploaded = _with_uploads(data, received)
@@ -92,7 +89,10 @@ def submit_plan_with_files(
                 spec = parse_scene(data, "scene")
             except SceneError as exc:
                 raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
-            return _queue(spec, uploaded, response, plans, plan_queue, settings, principal, idempotency_key)
+            queued = _queue(spec, uploaded, response, plans, plan_queue, settings, principal, idempotency_key)
+            if response.status_code == status.HTTP_200_OK:  # found under its key: that plan has its files
+                discard(received)
+            return queued
         except BaseException:
             discard(received)
             raise
