@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable, Literal, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Literal, Mapping, Sequence
 
 import torch
 from torch import nn
@@ -426,24 +426,34 @@ class BRDFModel(nn.Module):
 
         return self._combine(digits, term, shading.above)
 
-    def _combine(self, digits: Sequence[int], term: Callable[[Term, int], torch.Tensor],
-                 above: torch.Tensor) -> torch.Tensor:
-        """The graph's value from its terms' values (``term(expr, digit)``, ``expr`` the chosen
-        formula's Term): operators combine their operands, or their module does; exactly 0 below
-        either horizon (``above`` false)."""
+    def combine(self, digits: Sequence[int], term: Callable[[Term, int], Any],
+                module: Callable[[Operator, Any, Any], Any]) -> Any:
+        """The graph's value in state ``digits`` on any backend, bottom-up: ``term(expr, digit)`` for
+        each chosen term (``expr`` the chosen formula's Term; its digit may select a module),
+        ``module(op, left, right)`` for an operator whose digit selects a module, else its ``+`` or
+        ``*`` of the operands. No horizon mask: the caller applies it."""
 
-        def run(expr: Expr) -> torch.Tensor:
+        def run(expr: Expr):
             digit = digits[self.graph.index[expr.name]]
             if isinstance(expr, Term):
                 return term(expr, digit)
             left, right = run(expr.left), run(expr.right)
             if self.is_neural(digit):
-                return self.neural[expr.name](
-                    torch.cat([left.expand(-1, expr.left.width), right.expand(-1, expr.right.width)], dim=-1)
-                )
+                return module(expr, left, right)
             return left + right if expr.op == "+" else left * right
 
-        out = run(self.expression(digits)).expand(-1, 3)
+        return run(self.expression(digits))
+
+    def _combine(self, digits: Sequence[int], term: Callable[[Term, int], torch.Tensor],
+                 above: torch.Tensor) -> torch.Tensor:
+        """``combine`` in torch: an operator's module reads its operands side by side; exactly 0 below
+        either horizon (``above`` false)."""
+
+        def module(op: Operator, left: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
+            return self.neural[op.name](torch.cat([left.expand(-1, op.left.width), right.expand(-1, op.right.width)],
+                                                  dim=-1))
+
+        out = self.combine(digits, term, module).expand(-1, 3)
         return torch.where(above, out, torch.zeros_like(out))
 
     def forward_indexed(

@@ -18,6 +18,8 @@ from typing import Iterable, Literal, Mapping
 
 import torch
 
+from .ops import TORCH
+
 # Raw values are clipped here when inverting the mapping at a range boundary (sigmoid(17) = 1 - 4e-8).
 _RAW_LIMIT = 17.0
 
@@ -48,18 +50,16 @@ class ParamSpec:
         (an alternative term's parameters start where it equals, or nears, the original term)."""
         return 0.5 * (self.low + self.high) if self.start is None else self.start
 
-    def _axis(self, value: torch.Tensor) -> torch.Tensor:
-        return torch.log(value) if self.scale == "log" else value
-
     def _axis_bounds(self) -> tuple[float, float]:
         if self.scale == "log":
             return math.log(self.low), math.log(self.high)
         return self.low, self.high
 
-    def to_unit(self, value: torch.Tensor) -> torch.Tensor:
-        """Physical value -> position in the range, 0 at ``low`` and 1 at ``high``."""
+    def to_unit(self, value, xp=TORCH):
+        """Physical value -> position in the range, 0 at ``low`` and 1 at ``high``, on any backend of
+        ``neuenh.ops`` (the exporters emit it for a model whose parameters arrive at run time)."""
         lo, hi = self._axis_bounds()
-        return (self._axis(value) - lo) / (hi - lo)
+        return ((xp.log(value) if self.scale == "log" else value) - lo) / (hi - lo)
 
     def from_unit(self, unit: torch.Tensor) -> torch.Tensor:
         lo, hi = self._axis_bounds()

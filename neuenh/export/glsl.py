@@ -353,29 +353,22 @@ def model_source(model) -> str:
     unit = []
     for spec in model.module_specs:
         offset = next(o for pn, o, _ in layout if pn == spec.name)
-        lo, hi = (math.log(spec.low), math.log(spec.high)) if spec.scale == "log" else (spec.low, spec.high)
-        for i in range(spec.width):
-            value = f"log(p[{offset + i}])" if spec.scale == "log" else f"p[{offset + i}]"
-            unit.append(code.let("float", f"({value} - {literal(lo)}) * {literal(1.0 / (hi - lo))}"))
+        unit += [spec.to_unit(Expr(code, "float", f"p[{offset + i}]"), xp) for i in range(spec.width)]
     latent = [Expr(code, "float", f"p[{o + i}]") for pn, o, w in layout if pn == "latent" for i in range(w)]
     modules = {position: _fold(position, module, None, True) for position, module in model.neural.items()}
     functions = [_module_function(prefix, m) for m in modules.values()]
-    k = model.module_config.digits
 
-    def run(expr):
-        digit = model.digits[model.graph.index[expr.name]]
-        if isinstance(expr, Term):
-            if 1 <= digit < k:
-                inputs = unit + latent + ([s.wi, s.wo] if expr.reads_directions else [])
-                widths = [1] * (len(unit) + len(latent)) + ([3, 3] if expr.reads_directions else [])
-                return _call_module(code, prefix, modules[expr.name], inputs, widths)
+    def term(expr, digit):
+        if not model.is_neural(digit):
             return expr.formula(s)
-        left, right = run(expr.left), run(expr.right)
-        if 1 <= digit < k:
-            return _call_module(code, prefix, modules[expr.name], [left, right], (expr.left.width, expr.right.width))
-        return left + right if expr.op == "+" else left * right
+        inputs = unit + latent + ([s.wi, s.wo] if expr.reads_directions else [])
+        widths = [1] * (len(unit) + len(latent)) + ([3, 3] if expr.reads_directions else [])
+        return _call_module(code, prefix, modules[expr.name], inputs, widths)
 
-    value = xp.where(s.above, run(model.expression()), (0.0, 0.0, 0.0))
+    def module(op, left, right):
+        return _call_module(code, prefix, modules[op.name], [left, right], (op.left.width, op.right.width))
+
+    value = xp.where(s.above, model.combine(model.digits, term, module), (0.0, 0.0, 0.0))
     if _type(value) != "vec3":
         value = code.let("vec3", f"vec3({_text(value)})")
     blocks = -(-n // 4)

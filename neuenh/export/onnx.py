@@ -367,7 +367,7 @@ def generic_graph(model: BRDFModel) -> bytes:
     # BRDFModel._neural_term_outputs: one input per group (modules that read directions or not)
     neural: dict[str, _Value] = {}
     if reads_latent:
-        base = [xp.concat([_unit(values[spec.name], spec) for spec in model.module_specs])]
+        base = [xp.concat([spec.to_unit(values[spec.name], xp) for spec in model.module_specs])]
         if model.latent_dim:
             base.append(latent)
         groups: dict[bool, list[str]] = {}
@@ -380,30 +380,19 @@ def generic_graph(model: BRDFModel) -> bytes:
                 module = model.neural[position]
                 neural[position] = xp.mlp([(l.weight, l.bias) for l in module.layers], module.negative_slope, x)
 
-    def run(expr) -> _Value:  # BRDFModel._combine
-        digit = model.digits[model.graph.index[expr.name]]
-        if isinstance(expr, Term):
-            return neural[expr.name] if model.is_neural(digit) else expr.formula(shading)
-        left, right = run(expr.left), run(expr.right)
-        if model.is_neural(digit):
-            module = model.neural[expr.name]
-            operands = xp.concat([xp.rows(left, expr.left.width), xp.rows(right, expr.right.width)])
-            return xp.mlp([(l.weight, l.bias) for l in module.layers], module.negative_slope, operands)
-        return left + right if expr.op == "+" else left * right
+    def module(op, left: _Value, right: _Value) -> _Value:
+        layers = model.neural[op.name]
+        operands = xp.concat([xp.rows(left, op.left.width), xp.rows(right, op.right.width)])
+        return xp.mlp([(l.weight, l.bias) for l in layers.layers], layers.negative_slope, operands)
 
-    output = xp.finish(run(model.expression()), shading.above)
+    value = model.combine(model.digits, lambda expr, digit: neural[expr.name] if model.is_neural(digit)
+                          else expr.formula(shading), module)
+    output = xp.finish(value, shading.above)
     shapes = ", ".join(f"{k} ({', '.join(map(str, v[0]))})" for k, v in inputs.items())
     doc = (f"f_r(wi, wo, parameters) of {model.name} in state {model.state} ({model.describe()}) for any "
            f"materials: f_r without the cosine factor, 0 below either horizon, >= 0. Inputs: {shapes}; "
            f"parameters are physical values inside their ranges (not checked).")
     return _serialize(b, output, inputs, doc, _provenance(model.name, model.state, model.describe()))
-
-
-def _unit(value: _Value, spec) -> _Value:
-    """``ParamSpec.to_unit``: the position of the physical value in its range."""
-    lo, hi = (math.log(spec.low), math.log(spec.high)) if spec.scale == "log" else (spec.low, spec.high)
-    axis = value.unary("Log") if spec.scale == "log" else value
-    return (axis - lo) / (hi - lo)
 
 
 def _provenance(model_name: str, state: str, formula: str) -> dict[str, str]:
