@@ -36,8 +36,8 @@ class StudySettings:
     fit_starts: str = "analytical"
     eval_pairs: int = 200_000
     seed: int = 0
-    efficiency: tuple[int, ...] = ()
-    others: tuple[str, ...] = ()  # the shipped OTHER_ENHANCED models measured beside their originals  # fit-set sizes of the data-efficiency curves (none: skipped)
+    efficiency: tuple[int, ...] = ()  # fit-set sizes of the data-efficiency curves (none: skipped)
+    others: tuple[str, ...] = ()  # the shipped OTHER_ENHANCED models measured beside their originals
 
     def check(self) -> None:
         for name in ("fit_samples", "test_samples", "size", "samples", "jobs", "eval_pairs"):
