@@ -1,4 +1,4 @@
-"""``python -m api``: the service with settings from the environment (``neuenh serve`` adds flags)."""
+"""``python -m neuenh_service.api``: the service with settings from the environment (``neuenh serve`` adds flags)."""
 
 from .server import serve
 from .settings import Settings

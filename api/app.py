@@ -29,8 +29,8 @@ from typing import Callable
 from fastapi import APIRouter, Depends, FastAPI
 
 import neuenh
-from orchestrator.executor import Executor
-from storage import ArtifactStore, LocalArtifactStore, OwnerLock, SQLiteJobStore, SQLitePlanStore
+from neuenh_service.orchestrator.executor import Executor
+from neuenh_service.storage import ArtifactStore, LocalArtifactStore, OwnerLock, SQLiteJobStore, SQLitePlanStore
 
 from . import deps, errors
 from .auth import TokenTable
@@ -48,7 +48,7 @@ ExecutorFactory = Callable[[Settings], Executor]
 
 
 def ray_executor(settings: Settings) -> Executor:
-    from workers.ray_executor import RayExecutor  # Ray only when the service really starts
+    from neuenh_service.workers.ray_executor import RayExecutor  # Ray only when the service really starts
 
     return RayExecutor(address=settings.ray_address, num_cpus=settings.ray_num_cpus)
 
@@ -58,7 +58,7 @@ def artifact_store(settings: Settings) -> ArtifactStore:
     an unreachable endpoint), else the directory ``data_dir/artifacts``."""
     if not settings.s3_bucket:
         return LocalArtifactStore(settings.data_dir / "artifacts")
-    from storage.s3 import S3ArtifactStore  # boto3 only for a bucket
+    from neuenh_service.storage.s3 import S3ArtifactStore  # boto3 only for a bucket
 
     secret = settings.s3_secret_access_key
     return S3ArtifactStore(settings.s3_bucket, prefix=settings.s3_prefix,

@@ -10,7 +10,7 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request, status
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from storage import ArtifactStore, JobRecord, JobStore, NotFoundError, PlanRecord, PlanStore
+from neuenh_service.storage import ArtifactStore, JobRecord, JobStore, NotFoundError, PlanRecord, PlanStore
 
 from .auth import Principal, Role
 from .settings import Settings

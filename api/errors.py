@@ -17,8 +17,8 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match
 
-from orchestrator.spec import SpecError
-from storage import (ConflictError, CorruptArtifactError, InvalidKeyError, InvalidRecordError, NotFoundError,
+from neuenh_service.orchestrator.spec import SpecError
+from neuenh_service.storage import (ConflictError, CorruptArtifactError, InvalidKeyError, InvalidRecordError, NotFoundError,
                      StorageError)
 
 from .schemas import ErrorPublic

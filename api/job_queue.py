@@ -20,10 +20,10 @@ import threading
 import time
 from typing import Callable
 
-from orchestrator.executor import Executor
-from orchestrator.runner import Orchestrator, Progress
-from orchestrator.shares import FairShare
-from storage import ArtifactStore, JobRecord, JobStore
+from neuenh_service.orchestrator.executor import Executor
+from neuenh_service.orchestrator.runner import Orchestrator, Progress
+from neuenh_service.orchestrator.shares import FairShare
+from neuenh_service.storage import ArtifactStore, JobRecord, JobStore
 
 log = logging.getLogger("neuenh.api.job_queue")
 

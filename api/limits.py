@@ -8,8 +8,8 @@ from pathlib import Path
 
 from fastapi import HTTPException, status
 
-from orchestrator.executor import ClusterInfo, Resources
-from orchestrator.spec import JobSpec
+from neuenh_service.orchestrator.executor import ClusterInfo, Resources
+from neuenh_service.orchestrator.spec import JobSpec
 
 from .settings import Settings
 

@@ -24,7 +24,7 @@ from prometheus_client import CollectorRegistry, Counter, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily, Metric
 from prometheus_client.registry import Collector
 
-from storage import JobStatus, JobStore
+from neuenh_service.storage import JobStatus, JobStore
 
 # Seconds: candidates train from seconds (tests) to hours (the paper's scale).
 BUCKETS = (1, 5, 15, 60, 300, 900, 3600, 4 * 3600)

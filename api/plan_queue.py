@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from orchestrator.plans import PlanRunner
-from storage import ArtifactStore, PlanRecord, PlanStore
+from neuenh_service.orchestrator.plans import PlanRunner
+from neuenh_service.storage import ArtifactStore, PlanRecord, PlanStore
 
 log = logging.getLogger("neuenh.api.plan_queue")
 

@@ -13,9 +13,9 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from neuenh.search import describe_change
-from orchestrator.progress import Progress
-from orchestrator.spec import JobSpec
-from storage import (CandidateRecord, JobRecord, JobStatus, PlanRecord, PlanStatus, RoundKind, RoundRecord,
+from neuenh_service.orchestrator.progress import Progress
+from neuenh_service.orchestrator.spec import JobSpec
+from neuenh_service.storage import (CandidateRecord, JobRecord, JobStatus, PlanRecord, PlanStatus, RoundKind, RoundRecord,
                      WarmupRecord, start_val_loss)
 
 

@@ -10,7 +10,7 @@ import logging
 import socket
 from typing import Callable
 
-from storage import SQLiteJobStore
+from neuenh_service.storage import SQLiteJobStore
 
 from .settings import Settings, check_listen_address
 

@@ -1,6 +1,6 @@
 """Service settings, read from the environment (prefix ``NEUENH_``) or passed in by tests.
 
-    NEUENH_DATA_DIR=./neuenh-data NEUENH_API_TOKEN=... NEUENH_RAY_ADDRESS=ray://head:10001 python -m api
+    NEUENH_DATA_DIR=./neuenh-data NEUENH_API_TOKEN=... NEUENH_RAY_ADDRESS=ray://head:10001 python -m neuenh_service.api
 
 With ``NEUENH_S3_BUCKET`` set, artifacts (checkpoints, cached datasets) live in that bucket of an
 S3-compatible store instead of ``data_dir/artifacts``; the job store stays in ``data_dir``.

@@ -22,7 +22,7 @@ from fastapi import HTTPException, UploadFile, status
 
 from neuenh.data.errors import DataError
 from neuenh.data.table import TableTooLarge
-from storage import PlanRecord, PlanStore
+from neuenh_service.storage import PlanRecord, PlanStore
 
 CHUNK = 1 << 20
 PLAN_UPLOADS = "uploads"  # under the data directory: the measured files sent with scenes, by digest

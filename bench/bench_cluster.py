@@ -34,10 +34,10 @@ from ray.cluster_utils import Cluster
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from bench.report import publish  # noqa: E402
-from orchestrator.runner import Orchestrator  # noqa: E402
-from orchestrator.spec import load_spec, parse_spec  # noqa: E402
-from storage import LocalArtifactStore, SQLiteJobStore  # noqa: E402
-from workers.ray_executor import RayExecutor  # noqa: E402
+from neuenh_service.orchestrator.runner import Orchestrator  # noqa: E402
+from neuenh_service.orchestrator.spec import load_spec, parse_spec  # noqa: E402
+from neuenh_service.storage import LocalArtifactStore, SQLiteJobStore  # noqa: E402
+from neuenh_service.workers.ray_executor import RayExecutor  # noqa: E402
 
 SECTION = "## Multi-node Ray cluster (issue 7)"
 GGX_CANDIDATES = {1: 12, 2: 67, 3: 232}  # 1 + 11, + C(11, 2), + C(11, 3)

@@ -30,11 +30,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from bench.report import publish  # noqa: E402
 from neuenh.data.sources import materialise  # noqa: E402
-from orchestrator.runner import Orchestrator, train_plain_baseline  # noqa: E402
-from orchestrator.spec import load_spec  # noqa: E402
-from storage import LocalArtifactStore, SQLiteJobStore  # noqa: E402
-from workers.inline import InlineExecutor  # noqa: E402
-from workers.ray_executor import RayExecutor  # noqa: E402
+from neuenh_service.orchestrator.runner import Orchestrator, train_plain_baseline  # noqa: E402
+from neuenh_service.orchestrator.spec import load_spec  # noqa: E402
+from neuenh_service.storage import LocalArtifactStore, SQLiteJobStore  # noqa: E402
+from neuenh_service.workers.inline import InlineExecutor  # noqa: E402
+from neuenh_service.workers.ray_executor import RayExecutor  # noqa: E402
 
 SECTION = "## Search rounds and scaling (issue 4)"
 

@@ -416,7 +416,7 @@ def budget(text: str) -> dict[str, float]:
 def _spec(args) -> dict:
     """The spec to send: the file's (or the quickstart's) with the flags applied, validated here so
     a bad one is a usage error before the service is contacted."""
-    from orchestrator.spec import load_spec, parse_spec
+    from neuenh_service.orchestrator.spec import load_spec, parse_spec
 
     data = load_spec(args.spec).model_dump(mode="json") if args.spec else json.loads(json.dumps(QUICKSTART))
     for flag, path in OVERRIDES.items():

@@ -247,7 +247,7 @@ def load_sample_spec(path: Path):
     if not isinstance(raw, dict):
         raise DataCommandError(f"{path}: a dataset spec is a mapping with a 'data:' list, got {type(raw).__name__}")
     if _JOB_KEYS & set(raw):
-        from orchestrator.spec import parse_spec
+        from neuenh_service.orchestrator.spec import parse_spec
 
         try:
             spec = parse_spec(raw)

@@ -10,7 +10,7 @@ import argparse
 import os
 import sys
 
-from storage import StorageError
+from neuenh_service.storage import StorageError
 
 from . import data, export, fit, render, report, scene, search, serve
 

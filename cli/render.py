@@ -327,4 +327,4 @@ def _summary(report: dict) -> str:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit("run as `neuenh render` (python -m cli.main render)")
+    sys.exit("run as `neuenh render` (python -m neuenh_service.cli.main render)")

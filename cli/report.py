@@ -95,7 +95,7 @@ def run(args) -> int:
     if args.train_baselines:
         from neuenh.checkpoint import Bundle
         from neuenh.pretrained import bundle_path, load_model
-        from orchestrator.baselines import train_missing_baselines
+        from neuenh_service.orchestrator.baselines import train_missing_baselines
 
         load_model(args.model, "--model")  # fails early on a wrong name
         path = bundle_path(args.model)

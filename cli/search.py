@@ -21,10 +21,10 @@ import time
 from pathlib import Path
 
 from neuenh.checkpoint import Bundle
-from orchestrator.dataset import prepare_dataset
-from orchestrator.runner import Orchestrator, Progress, train_plain_baseline
-from orchestrator.spec import load_spec, parse_spec
-from storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore, trained_epochs
+from neuenh_service.orchestrator.dataset import prepare_dataset
+from neuenh_service.orchestrator.runner import Orchestrator, Progress, train_plain_baseline
+from neuenh_service.orchestrator.spec import load_spec, parse_spec
+from neuenh_service.storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore, trained_epochs
 
 SUCCESS = {JobStatus.CONVERGED, JobStatus.STOPPED}
 
@@ -64,7 +64,7 @@ def _search(spec, args) -> int:
     if args.new:
         key += f"-{time.time_ns()}"
     earlier = None if args.new else same_spec_job(jobs, spec)
-    from workers.ray_executor import RayExecutor  # Ray only when a job really runs
+    from neuenh_service.workers.ray_executor import RayExecutor  # Ray only when a job really runs
 
     display = ProgressDisplay(sys.stderr)
     executor = RayExecutor(address=args.ray_address, num_cpus=args.cpus)
@@ -85,7 +85,7 @@ def _search(spec, args) -> int:
 
 def same_spec_job(jobs, spec):
     """The newest job of the store (not cancelled) whose stored spec is ``spec`` as this neuenh reads it."""
-    from orchestrator.spec import SpecError
+    from neuenh_service.orchestrator.spec import SpecError
 
     wanted = spec.model_dump(mode="json")
     for job in jobs.list_jobs(limit=500).jobs:
@@ -110,7 +110,7 @@ def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
     bundle = Bundle.from_bytes(artifacts.get(rounds[-1].artifact_key))
     bundle.provenance.update({"job": job.id, "spec": spec.model_dump(mode="json")})
     bundle.save(out / "model")
-    from api.schemas import HistoryPublic  # the file holds what GET /v1/jobs/{id}/history serves
+    from neuenh_service.api.schemas import HistoryPublic  # the file holds what GET /v1/jobs/{id}/history serves
 
     history = {"spec": spec.model_dump(mode="json"),
                **HistoryPublic.from_records(job, rounds).model_dump(mode="json")}

@@ -32,8 +32,8 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> int:
-    from api.server import serve
-    from api.settings import Settings
+    from neuenh_service.api.server import serve
+    from neuenh_service.api.settings import Settings
 
     flags = ("host", "port", "data_dir", "ray_address", "ray_num_cpus", "data_roots")
     settings = Settings(**{k: getattr(args, k) for k in flags if getattr(args, k) is not None})

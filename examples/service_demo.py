@@ -95,10 +95,10 @@ def summarise(history: dict, results: Path, spec_path: Path, data_dir: Path) -> 
     """The final state, and its gain over plain GGX trained for the same number of epochs on the
     same data (trained here, after the service stopped, so the comparison is fair)."""
     from neuenh.checkpoint import Bundle
-    from orchestrator.dataset import prepare_dataset
-    from orchestrator.runner import train_plain_baseline
-    from orchestrator.spec import load_spec
-    from storage import LocalArtifactStore, SQLiteJobStore, trained_epochs
+    from neuenh_service.orchestrator.dataset import prepare_dataset
+    from neuenh_service.orchestrator.runner import train_plain_baseline
+    from neuenh_service.orchestrator.spec import load_spec
+    from neuenh_service.storage import LocalArtifactStore, SQLiteJobStore, trained_epochs
 
     rounds = history["rounds"]
     if not rounds:

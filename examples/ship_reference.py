@@ -24,9 +24,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from neuenh.checkpoint import Bundle, Rung  # noqa: E402
-from orchestrator.baselines import search_budget  # noqa: E402
-from orchestrator.spec import load_spec, neural_weights, parse_spec  # noqa: E402
-from storage import JobStatus, LocalArtifactStore, RoundKind, SQLiteJobStore  # noqa: E402
+from neuenh_service.orchestrator.baselines import search_budget  # noqa: E402
+from neuenh_service.orchestrator.spec import load_spec, neural_weights, parse_spec  # noqa: E402
+from neuenh_service.storage import JobStatus, LocalArtifactStore, RoundKind, SQLiteJobStore  # noqa: E402
 
 
 

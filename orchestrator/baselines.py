@@ -21,7 +21,7 @@ from neuenh.modules import ModuleConfig
 from neuenh.train import CandidateResult, TrainConfig, train_candidate
 from neuenh.data.samples import TrainingData
 from neuenh.study.registry import BASELINES
-from storage import LocalArtifactStore, RoundKind, RoundRecord, trained_epochs
+from neuenh_service.storage import LocalArtifactStore, RoundKind, RoundRecord, trained_epochs
 
 from .spec import JobSpec
 

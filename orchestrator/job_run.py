@@ -18,7 +18,7 @@ from typing import Callable
 from neuenh.checkpoint import Bundle
 from neuenh.scene.ladder import measure_cost
 from neuenh.search import Outcome, candidate_seed, hamming_ball, initial_state, keep_better_half, select, weight_cost
-from storage import (ArtifactStore, CandidateRecord, FinishedCandidate, HalvingRecord, JobStatus, JobStore, RoundKind,
+from neuenh_service.storage import (ArtifactStore, CandidateRecord, FinishedCandidate, HalvingRecord, JobStatus, JobStore, RoundKind,
                      RoundRecord, WarmupRecord)
 
 from .dataset import prepare_dataset

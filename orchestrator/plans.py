@@ -26,7 +26,7 @@ from typing import Callable
 from neuenh.scene import MaterialPlan, SceneError, parse_scene, plan_scene
 from neuenh.scene.outputs import write_plan
 from neuenh.scene.planner import load_materials
-from storage import ArtifactStore, PlanRecord, PlanStore
+from neuenh_service.storage import ArtifactStore, PlanRecord, PlanStore
 
 log = logging.getLogger("neuenh.orchestrator.plans")
 

@@ -29,7 +29,7 @@ from typing import Callable
 
 from neuenh.data.samples import TrainingData
 from neuenh.train import CandidateResult, train_candidate
-from storage import ArtifactStore, JobStatus, JobStore
+from neuenh_service.storage import ArtifactStore, JobStatus, JobStore
 
 from .executor import Executor
 from .job_run import BudgetSpent, Cancelled, Interrupted, JobRun

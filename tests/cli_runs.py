@@ -14,14 +14,14 @@ import sys
 
 
 def neuenh(*args, timeout: float = 180, **kw) -> subprocess.CompletedProcess:
-    """``python -m cli.main ARGS`` in a fresh process; ``kw`` go to ``subprocess.run`` (cwd, env)."""
-    return subprocess.run([sys.executable, "-m", "cli.main", *map(str, args)], capture_output=True, text=True,
+    """``python -m neuenh_service.cli.main ARGS`` in a fresh process; ``kw`` go to ``subprocess.run`` (cwd, env)."""
+    return subprocess.run([sys.executable, "-m", "neuenh_service.cli.main", *map(str, args)], capture_output=True, text=True,
                           timeout=timeout, **kw)
 
 
 def neuenh_here(*args) -> subprocess.CompletedProcess:
     """``cli.main.main(ARGS)`` in this process, its output captured as ``neuenh`` captures it."""
-    from cli.main import main
+    from neuenh_service.cli.main import main
 
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):

@@ -5,10 +5,10 @@ from pathlib import Path
 
 import torch
 
-from orchestrator.runner import Orchestrator
-from orchestrator.spec import parse_spec
-from storage import LocalArtifactStore, SQLiteJobStore
-from workers.inline import InlineExecutor
+from neuenh_service.orchestrator.runner import Orchestrator
+from neuenh_service.orchestrator.spec import parse_spec
+from neuenh_service.storage import LocalArtifactStore, SQLiteJobStore
+from neuenh_service.workers.inline import InlineExecutor
 
 
 def tiny_spec(**search):

@@ -13,10 +13,10 @@ import httpx
 import pytest
 import uvicorn
 
-from api.app import create_app
-from api.server import uvicorn_config
-from api.settings import Settings
-from workers.inline import InlineExecutor
+from neuenh_service.api.app import create_app
+from neuenh_service.api.server import uvicorn_config
+from neuenh_service.api.settings import Settings
+from neuenh_service.workers.inline import InlineExecutor
 
 TERMINAL = {"CONVERGED", "STOPPED", "CANCELLED", "FAILED"}
 

@@ -10,7 +10,7 @@ import time
 from neuenh.checkpoint import Bundle
 from neuenh.train import TrainConfig, train_candidate
 from neuenh.data.samples import TrainingData
-from orchestrator.executor import CandidateReport, CandidateTask
+from neuenh_service.orchestrator.executor import CandidateReport, CandidateTask
 
 
 def run_candidate(

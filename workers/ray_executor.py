@@ -29,7 +29,7 @@ from ray.exceptions import RayError
 from neuenh.train import TrainConfig
 
 from neuenh.data.samples import TrainingData
-from orchestrator.executor import (CandidateReport, CandidateTask, ClusterInfo, Executor, InFlight, NodeInfo, Resources,
+from neuenh_service.orchestrator.executor import (CandidateReport, CandidateTask, ClusterInfo, Executor, InFlight, NodeInfo, Resources,
                                    unlimited)
 
 from .candidate import run_candidate

@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Header, HTTPException, Query, Response, status
 
 from neuenh.checkpoint import Bundle
-from storage import JobStatus, RoundRecord
+from neuenh_service.storage import JobStatus, RoundRecord
 
 from ..auth import LOCAL
 from ..deps import (ArtifactStoreDep, Authorized, ChangeableJob, JobQueueDep, JobStoreDep, PrincipalDep,

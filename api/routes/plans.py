@@ -23,8 +23,8 @@ from neuenh.data.measured import load_measured
 from neuenh.data.table import load_table
 from neuenh.scene import SceneError, SceneSpec, parse_scene
 from neuenh.scene.spec import CaptureEntry, FileEntry, RungsEntry
-from orchestrator.plans import CONTENT_TYPES, PLAN_FILES, plan_file_key
-from storage import ArtifactStore, PlanRecord, PlanStatus
+from neuenh_service.orchestrator.plans import CONTENT_TYPES, PLAN_FILES, plan_file_key
+from neuenh_service.storage import ArtifactStore, PlanRecord, PlanStatus
 
 from ..auth import LOCAL
 from ..deps import (ArtifactStoreDep, Authorized, FitLockDep, PlanQueueDep, PlanStoreDep, PrincipalDep,

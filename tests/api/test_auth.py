@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from api.settings import Settings
+from neuenh_service.api.settings import Settings
 
 TOKEN = "s3cret-token"
 

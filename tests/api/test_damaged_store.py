@@ -6,8 +6,8 @@ from __future__ import annotations
 import sqlite3
 import time
 
-from cli.main import main
-from storage import SQLiteJobStore
+from neuenh_service.cli.main import main
+from neuenh_service.storage import SQLiteJobStore
 from jobspecs import tiny_spec
 
 from live_api import running_server

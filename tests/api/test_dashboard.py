@@ -25,7 +25,7 @@ from PIL import Image
 
 from jobspecs import tiny_spec
 from live_api import running_server, wait_for
-from orchestrator.spec import parse_spec
+from neuenh_service.orchestrator.spec import parse_spec
 
 CHROMIUM = Path("/usr/bin/chromium")
 if not CHROMIUM.exists():
@@ -158,7 +158,7 @@ class Gate:
 
 @pytest.fixture(scope="module")
 def gate():
-    from workers import inline
+    from neuenh_service.workers import inline
 
     g, train = Gate(), inline.run_candidate
 

@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from storage import JobStatus
-from storage.sqlite import SQLiteJobStore
+from neuenh_service.storage import JobStatus
+from neuenh_service.storage.sqlite import SQLiteJobStore
 from jobspecs import tiny_spec
 
 from live_api import running_server
@@ -72,8 +72,8 @@ def test_a_spec_whose_estimated_memory_exceeds_the_limit_is_refused():
     (issue 17, case 3): its estimate is checked at submission."""
     from fastapi import HTTPException
 
-    from api.limits import BYTES_PER_MATERIAL, BYTES_PER_SAMPLE, check_limits, estimated_bytes
-    from api.settings import Settings
+    from neuenh_service.api.limits import BYTES_PER_MATERIAL, BYTES_PER_SAMPLE, check_limits, estimated_bytes
+    from neuenh_service.api.settings import Settings
 
     spec = tiny_spec()
     spec.data[0] = spec.data[0].model_copy(update={"materials": 1_000, "samples": 5_000})
@@ -136,7 +136,7 @@ def test_a_token_less_service_answers_loopback_host_names_only(server, host, cod
     """A DNS-rebinding page reaches a token-less loopback service under its own name: refused
     (issue 17, case 14). The service listens on loopback without a token (case 13 checks that by
     the resolved addresses: ``localhost.example`` is not loopback)."""
-    from api.settings import is_loopback
+    from neuenh_service.api.settings import is_loopback
 
     with server.client() as c:
         r = c.get("/jobs", headers={"Host": host})

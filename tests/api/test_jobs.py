@@ -11,7 +11,7 @@ import httpx
 import pytest
 
 from neuenh.checkpoint import Bundle
-from storage import JobStatus
+from neuenh_service.storage import JobStatus
 from jobspecs import tiny_spec
 
 from live_api import running_server, wait_for
@@ -233,9 +233,9 @@ def test_store_records_match(server, finished):
     ids=["relative-outside", "absolute", "dotdot-escape"],
 )
 def test_file_sources_are_confined_to_the_data_roots(tmp_path, path):
-    from api.limits import outside_data_roots
-    from api.settings import Settings
-    from orchestrator.spec import parse_spec
+    from neuenh_service.api.limits import outside_data_roots
+    from neuenh_service.api.settings import Settings
+    from neuenh_service.orchestrator.spec import parse_spec
 
     root = tmp_path / "root"
     root.mkdir()
@@ -250,7 +250,7 @@ def test_file_sources_are_confined_to_the_data_roots(tmp_path, path):
 @pytest.mark.parametrize("host,token,ok", [("127.0.0.1", None, True), ("0.0.0.0", None, False),
                                             ("0.0.0.0", "s3cret", True), ("::1", None, True)])
 def test_no_token_no_network_listening(host, token, ok):
-    from api.settings import Settings, check_listen_address
+    from neuenh_service.api.settings import Settings, check_listen_address
 
     settings = Settings(host=host, api_token=token)
     if ok:

@@ -1,6 +1,6 @@
 """How the API names a job's digits: positions, each position's choices, and the changes of a trail."""
 
-from api.schemas import Naming
+from neuenh_service.api.schemas import Naming
 
 BASE = {"data": [{"source": "synthetic_zoo", "materials": 2, "samples": 10}]}
 

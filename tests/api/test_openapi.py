@@ -8,8 +8,8 @@ import pytest
 import schemathesis
 from hypothesis import HealthCheck, settings
 
-from api.app import create_app
-from api.settings import Settings
+from neuenh_service.api.app import create_app
+from neuenh_service.api.settings import Settings
 from jobspecs import tiny_spec
 from live_api import running_server, wait_for
 

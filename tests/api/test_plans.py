@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from scene_files import scene, write_tables
-from storage import SQLitePlanStore
+from neuenh_service.storage import SQLitePlanStore
 
 
 def wait_plan(c, plan_id: str, timeout: float = 180) -> dict:

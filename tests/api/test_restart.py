@@ -6,7 +6,7 @@ from __future__ import annotations
 from jobspecs import tiny_spec
 from live_api import wait_for
 
-from storage import SQLiteJobStore
+from neuenh_service.storage import SQLiteJobStore
 
 
 def test_stop_mid_job_then_resume(live_server, tmp_path):

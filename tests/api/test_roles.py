@@ -127,7 +127,7 @@ def test_sighup_rereads_the_tokens_file(tmp_path):
     ('[{"name": "a", "role": "read", "sha256": "abc"}]', ["sha256 must be"]),
 ])
 def test_a_bad_tokens_file_is_one_line_at_start(tmp_path, capsys, monkeypatch, content, words):
-    from cli.main import main
+    from neuenh_service.cli.main import main
 
     (tmp_path / "tokens.json").write_text(content)
     monkeypatch.setenv("NEUENH_TOKENS_FILE", str(tmp_path / "tokens.json"))

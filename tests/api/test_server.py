@@ -6,7 +6,7 @@ import socket
 
 import pytest
 
-from api.server import _listen
+from neuenh_service.api.server import _listen
 
 
 def test_listening_socket_is_tcp_so_answers_are_not_delayed():

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from storage import SQLiteJobStore
+from neuenh_service.storage import SQLiteJobStore
 
 from jobspecs import run_alone, served_path, tiny_spec
 from live_api import TERMINAL, wait_for

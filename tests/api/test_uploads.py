@@ -10,10 +10,10 @@ import threading
 import pytest
 from fastapi import HTTPException, UploadFile
 
-from api.uploads import PlanUploads, discard, receive
+from neuenh_service.api.uploads import PlanUploads, discard, receive
 from neuenh.data.table import read_table
 from scene_files import write_tables
-from storage import SQLitePlanStore
+from neuenh_service.storage import SQLitePlanStore
 
 
 @pytest.fixture(scope="module")

@@ -38,13 +38,13 @@ def environ(url, token) -> dict:
 
 def client(*args, url=None, token=TOKEN, cwd=None):
     """Run ``neuenh-client ARGS`` to the end."""
-    return subprocess.run([sys.executable, "-m", "cli.client", *map(str, args)], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "neuenh_service.cli.client", *map(str, args)], capture_output=True,
                           text=True, env=environ(url, token), cwd=cwd, timeout=120)
 
 
 def popen(*args, url, token=TOKEN):
     """Start ``neuenh-client ARGS`` (stdout and stderr piped)."""
-    return subprocess.Popen([sys.executable, "-m", "cli.client", *map(str, args)], stdout=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "neuenh_service.cli.client", *map(str, args)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=environ(url, token))
 
 
@@ -246,7 +246,7 @@ def test_history_table_and_json_agree_with_the_service(server, api, submitted):
 
 def test_history_into_a_closed_pipe_ends_quietly(server, submitted):
     job_id = submitted[1]["id"]
-    piped = subprocess.run(f"{sys.executable} -m cli.client history {job_id} | head -1", shell=True,
+    piped = subprocess.run(f"{sys.executable} -m neuenh_service.cli.client history {job_id} | head -1", shell=True,
                            capture_output=True, text=True, env=environ(server.url, TOKEN))
     assert piped.stdout.startswith("round") and piped.stdout.count("\n") == 1 and piped.stderr == ""
     p = popen("history", job_id, "--json", url=server.url)

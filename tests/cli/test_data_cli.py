@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from cli.main import main
+from neuenh_service.cli.main import main
 from captures import capture_directions, render_capture
 from neuenh.data.param_images import write_parameter_exr
 from neuenh.data.table import write_table
@@ -145,7 +145,7 @@ def test_mistakes_are_one_line_and_exit_2(capsys, files, tmp_path, args, message
 def test_the_command_line_exits_2_without_a_traceback(files, tmp_path):
     bad = tmp_path / "broken.exr"
     bad.write_bytes(b"v/1\x01" + b"\0" * 64)  # the EXR magic, then nothing usable
-    out = subprocess.run([sys.executable, "-m", "cli.main", "data", "inspect", str(bad)], capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "neuenh_service.cli.main", "data", "inspect", str(bad)], capture_output=True,
                          text=True, timeout=120)
     assert out.returncode == 2 and out.stdout == ""
     assert out.stderr.startswith("neuenh data: error: ") and "broken.exr: not a readable OpenEXR image" in out.stderr

@@ -105,7 +105,7 @@ def test_test_adds_heldout_log_l1_to_json_and_table(held_out, heldout_run):
     assert material["name"] == "steel" and material["heldout_samples"] == 1000
     assert material["heldout_table"] == str(held_out)
     assert 0 < material["heldout_log_l1"] < 0.1 and abs(material["heldout_log_l1"] - material["loss"]) < 0.02
-    from cli.fit import _table  # the text report (without --json) of the same run
+    from neuenh_service.cli.fit import _table  # the text report (without --json) of the same run
 
     assert f"steel: log-L1 {material['loss']:.5f}  held-out {material['heldout_log_l1']:.5f}" in _table(heldout_run[0])
 
@@ -148,7 +148,7 @@ def test_predictions_are_the_fitted_model_at_the_heldout_directions(held_out, he
 def test_heldout_mistakes_exit_2_with_one_line(table, held_out, tmp_path, capsys, args, message):
     """In-process through ``cli.main.main`` (the exit code and message the subprocess would give;
     these checks run before any fitting)."""
-    from cli.main import main
+    from neuenh_service.cli.main import main
 
     subs = {"OUT": tmp_path / "p.npz", "HELD": held_out, "TABLE": table, "NODIR": tmp_path / "no" / "p.npz"}
     code = main(["fit", "--model", "ggx", str(table), "--epochs", "1", *[str(subs.get(a, a)) for a in args]])

@@ -133,7 +133,7 @@ def test_a_bad_light_is_a_one_line_error(runs):
 
 
 def in_process(capsys, *args):
-    from cli.main import main
+    from neuenh_service.cli.main import main
 
     code = main(["render", *map(str, args)])
     captured = capsys.readouterr()
@@ -173,7 +173,7 @@ def test_user_mistakes_are_one_line_errors(tmp_path, capsys, args, fragments):
 def test_an_exr_environment_and_a_bundle_material(tmp_path, capsys):
     """In this process: the studio written to EXR lights exactly as the built-in one; a bundle's
     fitted material is chosen by name."""
-    from cli.main import main
+    from neuenh_service.cli.main import main
     from neuenh.checkpoint import Bundle
     from neuenh.render import write_exr
 
@@ -192,7 +192,7 @@ def test_an_exr_environment_and_a_bundle_material(tmp_path, capsys):
 
 
 def test_params_files_pick_a_material_by_name_or_index(tmp_path):
-    from cli.render import _read_params
+    from neuenh_service.cli.render import _read_params
 
     params = tmp_path / "fit.json"
     params.write_text(json.dumps({"materials": [{"name": "matte", "params": MATTE},
@@ -231,7 +231,7 @@ def test_the_studio_environment():
 def test_sampling_is_chosen_and_recorded(tmp_path, capsys):
     """``--sampling light`` is the map alone: an image that differs from the MIS default (another
     estimator) and agrees with the renderer called directly with ``sampling="light"``."""
-    from cli.main import main
+    from neuenh_service.cli.main import main
     from neuenh.models import get_model
     from neuenh.render import EnvironmentMap, model_brdf, render, sphere_scene
 
@@ -241,7 +241,7 @@ def test_sampling_is_chosen_and_recorded(tmp_path, capsys):
         assert json.loads(capsys.readouterr().out)["lighting"]["sampling"] == sampling
     mis, light = (read_rgb_exr(tmp_path / s / "model.exr") for s in ("mis", "light"))
     assert np.isfinite(mis).all() and not np.array_equal(mis, light)
-    from cli.render import _initial_params
+    from neuenh_service.cli.render import _initial_params
 
     model = get_model("ggx")
     direct = render(model_brdf(model, _initial_params(model)), sphere_scene(24),

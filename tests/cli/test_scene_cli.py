@@ -38,7 +38,7 @@ def test_the_command_writes_the_plan_and_resumes_after_a_kill(tables, tmp_path):
     assert not (tmp_path / "whole" / "contact_sheet.png").exists()  # tables cannot be rendered
 
     out = tmp_path / "killed"
-    proc = subprocess.Popen([sys.executable, "-m", "cli.main", "scene", "plan", str(path), "-o", str(out),
+    proc = subprocess.Popen([sys.executable, "-m", "neuenh_service.cli.main", "scene", "plan", str(path), "-o", str(out),
                              "--chunk", "1"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120
     while not list((out / "materials").glob("*.json")):

@@ -12,7 +12,7 @@ import time
 import pytest
 import yaml
 
-from storage import SQLiteJobStore
+from neuenh_service.storage import SQLiteJobStore
 
 SPEC = {
     "search": {"epochs_per_round": 3, "max_rounds": 3},
@@ -22,7 +22,7 @@ SPEC = {
 
 
 def search(spec, data_dir, *extra, wait=True):
-    cmd = [sys.executable, "-m", "cli.main", "search", str(spec), "--data-dir", str(data_dir), "--cpus", "2",
+    cmd = [sys.executable, "-m", "neuenh_service.cli.main", "search", str(spec), "--data-dir", str(data_dir), "--cpus", "2",
            "--no-baseline", "--json", *extra]
     if not wait:
         return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
@@ -88,9 +88,9 @@ def test_sigkill_mid_round_then_resume(spec_file, uninterrupted, tmp_path):
 def test_a_job_stored_by_an_earlier_neuenh_is_found_by_its_spec(tmp_path):
     """A spec stored without fields an upgrade added (their defaults), under another key, is the
     same spec: neuenh search resumes that job instead of starting afresh; a cancelled one is not."""
-    from cli.search import same_spec_job
-    from orchestrator.spec import parse_spec
-    from storage import JobStatus, SQLiteJobStore
+    from neuenh_service.cli.search import same_spec_job
+    from neuenh_service.orchestrator.spec import parse_spec
+    from neuenh_service.storage import JobStatus, SQLiteJobStore
 
     spec = parse_spec({"search": {"epochs_per_round": 2}, "data": [{"source": "synthetic_zoo", "materials": 2}]})
     with SQLiteJobStore(tmp_path / "jobs.sqlite") as jobs:

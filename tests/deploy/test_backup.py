@@ -6,7 +6,7 @@ import subprocess
 import sys
 
 from serve_process import REPO
-from storage import CandidateRecord, JobStatus, RoundRecord, SQLiteJobStore
+from neuenh_service.storage import CandidateRecord, JobStatus, RoundRecord, SQLiteJobStore
 
 
 def commit_rounds(store, job_id: str, n: int) -> list[RoundRecord]:

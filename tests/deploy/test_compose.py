@@ -25,7 +25,7 @@ from compose_local import InterpolationError, LocalCompose, interpolate
 from jobspecs import run_alone, served_path
 from s3_server import MOTO_SERVER
 from serve_process import REPO, clean_env
-from storage import SQLiteJobStore
+from neuenh_service.storage import SQLiteJobStore
 
 COMPOSE = REPO / "docker-compose.yml"
 NEUENH_CLIENT = str(Path(MOTO_SERVER).parent / "neuenh-client")

@@ -9,10 +9,10 @@ import subprocess
 
 from jobspecs import tiny_spec
 from live_api import running_server, wait_for
-from orchestrator.dataset import dataset_key
+from neuenh_service.orchestrator.dataset import dataset_key
 from s3_server import CREDENTIALS
 from serve_process import NEUENH, REPO, clean_env
-from storage import SQLiteJobStore
+from neuenh_service.storage import SQLiteJobStore
 
 S3_SETTINGS = {"s3_access_key_id": CREDENTIALS["aws_access_key_id"],
                "s3_secret_access_key": CREDENTIALS["aws_secret_access_key"]}

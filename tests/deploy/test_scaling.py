@@ -14,8 +14,8 @@ from neuenh.checkpoint import Bundle
 from neuenh.data.sources import SyntheticZoo, materialise
 from neuenh.search import hamming_ball
 from neuenh.train import TrainConfig
-from orchestrator.executor import CandidateTask, Resources
-from workers.ray_executor import RayExecutor
+from neuenh_service.orchestrator.executor import CandidateTask, Resources
+from neuenh_service.workers.ray_executor import RayExecutor
 
 
 def requested_bundles() -> list[dict]:

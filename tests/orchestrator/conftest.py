@@ -1,8 +1,8 @@
 import pytest
 
-from orchestrator.runner import Orchestrator
-from storage import LocalArtifactStore, SQLiteJobStore
-from workers.inline import InlineExecutor
+from neuenh_service.orchestrator.runner import Orchestrator
+from neuenh_service.storage import LocalArtifactStore, SQLiteJobStore
+from neuenh_service.workers.inline import InlineExecutor
 
 
 @pytest.fixture()

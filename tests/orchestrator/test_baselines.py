@@ -7,9 +7,9 @@ import pytest
 from neuenh.checkpoint import Bundle
 from neuenh.modules import ModuleConfig
 from neuenh.train import train_candidate
-from orchestrator.baselines import search_budget, train_like_search
-from orchestrator.dataset import prepare_dataset
-from storage import trained_epochs
+from neuenh_service.orchestrator.baselines import search_budget, train_like_search
+from neuenh_service.orchestrator.dataset import prepare_dataset
+from neuenh_service.storage import trained_epochs
 
 from jobspecs import tiny_spec
 

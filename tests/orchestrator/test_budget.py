@@ -6,9 +6,9 @@ import time
 
 import pytest
 
-from orchestrator.runner import Orchestrator
-from storage import JobStatus
-from workers.inline import InlineExecutor
+from neuenh_service.orchestrator.runner import Orchestrator
+from neuenh_service.storage import JobStatus
+from neuenh_service.workers.inline import InlineExecutor
 
 from jobspecs import tiny_spec
 

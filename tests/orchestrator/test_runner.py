@@ -5,12 +5,12 @@ import pytest
 from safetensors.torch import load
 
 from neuenh.checkpoint import Bundle, blob_metadata
-from orchestrator.runner import Orchestrator
-from storage import JobStatus
-from workers.inline import InlineExecutor
+from neuenh_service.orchestrator.runner import Orchestrator
+from neuenh_service.storage import JobStatus
+from neuenh_service.workers.inline import InlineExecutor
 
 from jobspecs import tiny_spec
-from orchestrator.spec import parse_spec
+from neuenh_service.orchestrator.spec import parse_spec
 
 
 def _path(jobs, job_id):
@@ -220,8 +220,8 @@ def test_warm_up_trains_the_starting_state_before_round_0(orchestrator, stores):
     ``train_candidate`` directly, outside the orchestrator and executor."""
     from neuenh.train import train_candidate
     from neuenh.search import candidate_seed
-    from orchestrator.dataset import prepare_dataset
-    from storage import trained_epochs
+    from neuenh_service.orchestrator.dataset import prepare_dataset
+    from neuenh_service.storage import trained_epochs
 
     jobs, artifacts = stores
     spec = tiny_spec(warmup_epochs=2, max_rounds=1)
@@ -263,8 +263,8 @@ def test_polish_trains_the_final_state_once_more_as_a_last_round(orchestrator, s
     called directly; the job keeps the search's outcome (here STOPPED at max_rounds)."""
     from neuenh.search import candidate_seed
     from neuenh.train import train_candidate
-    from orchestrator.dataset import prepare_dataset
-    from storage import RoundKind, trained_epochs
+    from neuenh_service.orchestrator.dataset import prepare_dataset
+    from neuenh_service.storage import RoundKind, trained_epochs
 
     jobs, artifacts = stores
     spec = tiny_spec(max_rounds=1, polish_epochs=2)
@@ -303,7 +303,7 @@ def test_a_crash_while_polishing_resumes_to_the_same_result(stores):
 
 
 def test_a_crash_between_the_polish_commit_and_the_status_trains_nothing_more(stores, tmp_path):
-    from storage import SQLiteJobStore
+    from neuenh_service.storage import SQLiteJobStore
 
     class StatusCrash(SQLiteJobStore):
         def set_status(self, job_id, status, **kwargs):
@@ -375,7 +375,7 @@ def test_a_cancel_racing_a_commit_ends_cancelled_without_an_error_logged(tmp_pat
     the job ends CANCELLED as asked, and no ERROR traceback is logged (issue 17, case 15)."""
     import logging
 
-    from storage import LocalArtifactStore, SQLiteJobStore
+    from neuenh_service.storage import LocalArtifactStore, SQLiteJobStore
 
     class CancelledJustBeforeCommit(SQLiteJobStore):
         def commit_round(self, job_id, record):
@@ -465,8 +465,8 @@ def test_a_time_cost_is_measured_once_per_state_and_kept_for_a_resume(orchestrat
     assert by_state["01000000000"] < 1.5 * plain  # a module of S is folded away
     assert by_state[r.winner_state] < 1.5 * plain  # 10 per 100 ns outweighs any loss gain
     # a run of the same job after a restart reads the costs back instead of measuring (no bundle needed)
-    from orchestrator.executor import CandidateReport, CandidateTask
-    from orchestrator.job_run import JobRun
+    from neuenh_service.orchestrator.executor import CandidateReport, CandidateTask
+    from neuenh_service.orchestrator.job_run import JobRun
 
     again = JobRun(job.id, spec, jobs, stores[1], InlineExecutor(), lambda p: None, lambda: False)
     report = CandidateReport(CandidateTask("00100000000", 0, 1), 0.1, 0.1, 1, 0.0, "inline", bundle=None)

@@ -3,8 +3,8 @@ have in flight as others start and end."""
 
 import pytest
 
-from orchestrator.executor import Resources
-from orchestrator.shares import FairShare, water_fill
+from neuenh_service.orchestrator.executor import Resources
+from neuenh_service.orchestrator.shares import FairShare, water_fill
 
 ONE_CPU, TWO_CPUS, ONE_GPU = Resources(1.0), Resources(2.0), Resources(1.0, 1.0)
 

@@ -1,6 +1,6 @@
 import pytest
 
-from orchestrator.spec import SpecError, load_spec, parse_spec
+from neuenh_service.orchestrator.spec import SpecError, load_spec, parse_spec
 
 BASE = {"data": [{"source": "synthetic_zoo", "materials": 2, "samples": 10}]}
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from s3_server import CREDENTIALS, MotoServer, s3_server  # noqa: F401  (fixture)
-from storage import ArtifactStore, JobStore, LocalArtifactStore, SQLiteJobStore, SQLitePlanStore
+from neuenh_service.storage import ArtifactStore, JobStore, LocalArtifactStore, SQLiteJobStore, SQLitePlanStore
 
 
 @dataclass
@@ -51,7 +51,7 @@ def _local(request, tmp_path: Path) -> Harness:
 def _s3(request, tmp_path: Path) -> Harness:
     """A fresh bucket on the session's S3 server, under a prefix (as a deployment sharing a
     bucket would use it)."""
-    from storage.s3 import S3ArtifactStore
+    from neuenh_service.storage.s3 import S3ArtifactStore
 
     server: MotoServer = request.getfixturevalue("s3_server")
     bucket = server.create_bucket(f"test-{uuid.uuid4().hex[:20]}")

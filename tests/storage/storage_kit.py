@@ -11,7 +11,7 @@ import textwrap
 import time
 from pathlib import Path
 
-from storage import CandidateRecord, JobStatus, JobStore, RoundRecord
+from neuenh_service.storage import CandidateRecord, JobStatus, JobStore, RoundRecord
 
 N_POSITIONS = 5
 INITIAL = "0" * N_POSITIONS
@@ -62,7 +62,7 @@ VERSIONS = (b"A" * (8 << 20), b"B" * (8 << 20))  # what the writer alternates un
 WRITTEN_KEY = "k/checkpoint"
 WRITER = textwrap.dedent(f"""
     import sys
-    from storage import *
+    from neuenh_service.storage import *
     store = eval(sys.argv[1])
     old, new = {VERSIONS[0][:1]!r} * (8 << 20), {VERSIONS[1][:1]!r} * (8 << 20)
     store.put({WRITTEN_KEY!r}, old)

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from storage import (CorruptArtifactError, InvalidKeyError, NotFoundError, checkpoint_key,
+from neuenh_service.storage import (CorruptArtifactError, InvalidKeyError, NotFoundError, checkpoint_key,
                      content_digest, content_key, validate_key)
 
 GOOD_KEYS = ["a", "jobs/3f2a/rounds/0003/checkpoint.safetensors", "data/x_y-z.1.npz", "-a/b_", "a.b/c..d"]

@@ -11,7 +11,7 @@ import time
 import pytest
 from storage_kit import INITIAL, N_POSITIONS, commit_rounds, flip, hamming_round, running_job
 
-from storage import (EVENT_ROUND, EVENT_STATUS, TRANSITIONS, UNFINISHED, CandidateRecord,
+from neuenh_service.storage import (EVENT_ROUND, EVENT_STATUS, TRANSITIONS, UNFINISHED, CandidateRecord,
                      ConflictError, FinishedCandidate, IllegalTransitionError, InvalidRecordError, JobStatus,
                      HalvingRecord, NotFoundError, RoundKind, RoundRecord, StorageError, WarmupRecord)
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from storage import ConflictError, LocalArtifactStore
-from storage.local import TEMP_PREFIX
+from neuenh_service.storage import ConflictError, LocalArtifactStore
+from neuenh_service.storage.local import TEMP_PREFIX
 from storage_kit import VERSIONS, WRITTEN_KEY, kill_a_writer_mid_write
 
 

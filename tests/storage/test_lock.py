@@ -11,7 +11,7 @@ import textwrap
 
 import pytest
 
-from storage import OwnerLock, StorageError, StoreLockedError
+from neuenh_service.storage import OwnerLock, StorageError, StoreLockedError
 
 
 def test_second_owner_is_refused_with_the_first_ones_name(tmp_path):
@@ -37,7 +37,7 @@ def test_release_frees_the_store(tmp_path):
 def test_a_dead_owner_leaves_no_stale_lock(tmp_path, death):
     holder = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
         import sys, time
-        from storage import OwnerLock
+        from neuenh_service.storage import OwnerLock
         OwnerLock({str(tmp_path / 'owner.lock')!r}, owner="crasher").acquire()
         print("held", flush=True)
         time.sleep(60)

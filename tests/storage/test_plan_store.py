@@ -4,7 +4,7 @@ import threading
 
 import pytest
 
-from storage import ConflictError, IllegalTransitionError, InvalidRecordError, NotFoundError, PlanStatus
+from neuenh_service.storage import ConflictError, IllegalTransitionError, InvalidRecordError, NotFoundError, PlanStatus
 
 SCENE = {"materials": [{"path": "a.npz"}], "ladder": ["ggx"]}
 

@@ -13,7 +13,7 @@ import pytest
 
 from s3_server import CREDENTIALS
 from storage_kit import VERSIONS, WRITTEN_KEY, kill_a_writer_mid_write
-from storage import S3ArtifactStore, StorageError, checkpoint_key
+from neuenh_service.storage import S3ArtifactStore, StorageError, checkpoint_key
 
 
 def open_store(url: str, bucket: str, **kw) -> S3ArtifactStore:

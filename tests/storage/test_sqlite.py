@@ -14,12 +14,11 @@ from pathlib import Path
 import pytest
 from storage_kit import N_POSITIONS, running_job
 
-import storage
-from storage import JobStatus, SchemaVersionError, SQLiteJobStore, StorageError
-from storage.jobs import HalvingRecord, RoundKind, WarmupRecord, trained_epochs
-from storage.migrations import MIGRATIONS, SCHEMA_VERSION, Migration, migrate, schema_version
+from neuenh_service.storage import JobStatus, SchemaVersionError, SQLiteJobStore, StorageError
+from neuenh_service.storage.jobs import HalvingRecord, RoundKind, WarmupRecord, trained_epochs
+from neuenh_service.storage.migrations import MIGRATIONS, SCHEMA_VERSION, Migration, migrate, schema_version
 
-REPO = Path(storage.__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 # Released migrations must never change (databases in the field were built with them). When you
 # add migration n, add its digest here; a changed digest means: write a new migration instead.
@@ -178,7 +177,7 @@ def test_refuses_a_database_from_a_newer_version(tmp_path):
 
 WRITER = textwrap.dedent("""
     import sys, time
-    from storage import SQLiteJobStore
+    from neuenh_service.storage import SQLiteJobStore
     from storage_kit import INITIAL, N_POSITIONS, hamming_round
     store = SQLiteJobStore(sys.argv[1])
     job_id, n = sys.argv[2], int(sys.argv[3])

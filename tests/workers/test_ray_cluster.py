@@ -9,8 +9,8 @@ from ray.cluster_utils import Cluster
 from neuenh.checkpoint import Bundle
 from neuenh.data.sources import SyntheticZoo, materialise
 from neuenh.train import TrainConfig
-from orchestrator.executor import CandidateTask
-from workers.ray_executor import RayExecutor
+from neuenh_service.orchestrator.executor import CandidateTask
+from neuenh_service.workers.ray_executor import RayExecutor
 
 STATES = [f"{'0' * i}1{'0' * (10 - i)}" for i in range(11)] + ["0" * 11]
 CONFIG = TrainConfig(epochs=2, batch_size=1000, lr=5e-3)

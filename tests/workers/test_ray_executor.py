@@ -11,12 +11,12 @@ import torch
 from neuenh.checkpoint import Bundle
 from neuenh.data.sources import SyntheticZoo, materialise
 from neuenh.train import TrainConfig
-from orchestrator.executor import CandidateTask
-from orchestrator.runner import Orchestrator
+from neuenh_service.orchestrator.executor import CandidateTask
+from neuenh_service.orchestrator.runner import Orchestrator
 from jobspecs import tiny_spec
-from storage import JobStatus, LocalArtifactStore, SQLiteJobStore
-from workers.inline import InlineExecutor
-from workers.ray_executor import RayExecutor
+from neuenh_service.storage import JobStatus, LocalArtifactStore, SQLiteJobStore
+from neuenh_service.workers.inline import InlineExecutor
+from neuenh_service.workers.ray_executor import RayExecutor
 from ggx_states import PAPER_STATE
 
 CONFIG = TrainConfig(epochs=1, batch_size=1000, lr=5e-3)
