@@ -46,7 +46,9 @@ def test_the_tolerance_is_respected_and_the_weights_make_the_totals(known_plan):
     assert totals["plan"]["error"] == pytest.approx((3 * gloss.result("ggx").error + retro.result("nbrdf").error) / 4)
     assert totals["plan"]["cost_ns"] == pytest.approx((3 * costs["ggx"] + costs["nbrdf"]) / 4)
     assert totals["richest"]["rungs"] == {"nbrdf": 2} and totals["cheapest"]["rungs"] == {"ggx": 2}
-    assert totals["plan"]["cost_ns"] < totals["richest"]["cost_ns"]
+    # Costs are measured timings, so which rung is cheaper is the machine's answer, not the test's:
+    # the plan mixes 3 parts GGX with 1 part NBRDF, so it is cheaper than all-NBRDF exactly when GGX is.
+    assert (totals["plan"]["cost_ns"] < totals["richest"]["cost_ns"]) == (costs["ggx"] < costs["nbrdf"])
     assert totals["plan"]["error"] < totals["cheapest"]["error"]
     assert totals["plan"]["param_bytes"] == 4 * (12 + 675)
 
