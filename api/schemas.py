@@ -281,8 +281,13 @@ class FittedMaterial(BaseModel):
     name: str
     loss: float = Field(description="mean log-L1 of the fitted model on the uploaded measurements")
     samples: int
-    params: dict[str, list[float]] = Field(description="fitted parameters by name (the latent code too "
-                                                       "when the model uses it)")
+    params: dict[str, list[float]] = Field(description="fitted analytical parameters by name (physical values)")
+    latent: list[float] | None = Field(description="the fitted latent code, or null when the model reads none")
+    corrections: dict[str, list] = Field(description="per-material deltas of module weights by weight key "
+                                                     "(nested lists of the weight's shape); empty: none")
+    capacity: str = Field(description="the fit capacity that produced the parameters (analytical, latent, ...)")
+    correction_params: int | None = Field(description="free parameters behind the corrections (null: their size)")
+    params_per_material: int = Field(description="free parameters of this material at its capacity")
 
 
 class FitPublic(BaseModel):

@@ -44,6 +44,7 @@ from neuenh.data.samples import sample_materials  # noqa: E402
 from neuenh.data.directions import sample_directions, to_rusinkiewicz  # noqa: E402
 from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo  # noqa: E402
 from neuenh.fit import FitConfig, FitResult, fit_materials  # noqa: E402
+from neuenh.materials import MaterialParams  # noqa: E402
 from neuenh.models import get_model  # noqa: E402
 from neuenh.train import TrainConfig, train_candidate  # noqa: E402
 from neuenh.data.samples import TrainingData  # noqa: E402
@@ -92,7 +93,7 @@ def brdf_cases(model, n: int, seed: int = 0) -> dict[str, Callable[[], object]]:
     wi, wo, values, latent = model_inputs(model, n, seed)
     uses_latent = model.uses_latent
     latent_in = latent if uses_latent else None
-    params = {**values, **({"latent": latent} if uses_latent else {})}
+    params = MaterialParams(values, latent if uses_latent else None)
     leaves = {k: v.clone().requires_grad_(True) for k, v in values.items()}
     latent_leaf = latent.clone().requires_grad_(True) if uses_latent else None
     grads = [*leaves.values(), *([latent_leaf] if uses_latent else []), *model.parameters()]

@@ -88,7 +88,7 @@ def glsl_cases(models: dict) -> dict:
         buffer.bind_to_storage_buffer(binding)
     cases = {}
     for label, (model, params) in models.items():
-        source = material_source(model.specialize({k: v.to(torch.float64) for k, v in params.items()}), "m")
+        source = material_source(model.specialize(params.to(torch.float64)), "m")
         program = ctx.compute_shader(HARNESS.format(source=source, call="neuenh_brdf"))
         program["n"] = PAIRS
 

@@ -48,11 +48,9 @@ def cases() -> tuple[dict, dict, dict]:
     from neuenh.study.nbrdf_fit import NBRDFNetwork
 
     enhanced, materials = load_model("enhanced-ggx")
-    values, latent = materials.gather(torch.zeros(1, dtype=torch.long))
-    analytic = {k: v[0].detach() for k, v in values.items()}
+    record = materials.as_params(0)
     plain = get_model("ggx")
-    models = {"enhanced GGX": (enhanced, {**analytic, "latent": latent[0].detach()}),
-              "plain GGX": (plain, {k: v for k, v in analytic.items() if k in plain.param_names})}
+    models = {"enhanced GGX": (enhanced, record), "plain GGX": (plain, plain.used_params(record))}
     batch, small, flops = {}, {}, {}
     pairs = {n: tuple(x.float() for x in sample_directions(n, seed=1, anisotropic=True)) for n in (BATCH, SMALL)}
     for name, (model, params) in models.items():

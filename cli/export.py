@@ -17,9 +17,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import torch
-
 from neuenh.export import FORMATS, export
+from neuenh.materials import MaterialParams
 from neuenh.pretrained import load_model
 
 
@@ -64,19 +63,18 @@ def run(args) -> int:
     return 0
 
 
-def bundle_materials(table, model_arg: str) -> dict[str, dict[str, torch.Tensor]]:
+def bundle_materials(table, model_arg: str) -> dict[str, MaterialParams]:
     if table is None or not len(table):
         raise ValueError(f"{model_arg} holds no materials; fit some first (neuenh fit --model {model_arg} ... -o DIR) "
                          "and export that folder, or pass --params FIT.json")
     return {name: table.as_params(i) for i, name in enumerate(table.names)}
 
 
-def fit_report_materials(path: Path, model) -> dict[str, dict[str, torch.Tensor]]:
+def fit_report_materials(path: Path, model) -> dict[str, MaterialParams]:
     """The materials of a fit report, checked to be a fit of ``model`` (its name and state)."""
     try:
         report = json.loads(path.read_text())
-        fitted = {m["name"]: {k: torch.tensor(v, dtype=torch.float32) for k, v in m["params"].items()}
-                  for m in report["materials"]}
+        entries = {m["name"]: m for m in report["materials"]}
         of = (report["model"], report["state"])
     except FileNotFoundError:
         raise ValueError(f"{path}: no such file") from None
@@ -85,6 +83,12 @@ def fit_report_materials(path: Path, model) -> dict[str, dict[str, torch.Tensor]
     if of != (model.name, model.state):
         raise ValueError(f"{path} is a fit of {of[0]} in state {of[1]}, but the model is {model.name} in state "
                          f"{model.state}; export the model it was fitted with")
-    if model.uses_latent and any("latent" not in p for p in fitted.values()):
+    fitted = {}
+    for name, entry in entries.items():
+        try:
+            fitted[name] = MaterialParams.from_json(entry)
+        except ValueError as exc:
+            raise ValueError(f"{path}: material {name!r}: {exc}") from None
+    if model.uses_latent and any(p.latent is None for p in fitted.values()):
         raise ValueError(f"{path}: a material has no latent code, which this model needs")
     return fitted

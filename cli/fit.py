@@ -125,9 +125,10 @@ def _table(report: dict) -> str:
              f"{report['epochs']} {'L-BFGS iterations' if lbfgs else 'epochs'} in {report['wall_s']:.1f} s"]
     for m in report["materials"]:
         p = m["params"]
-        scalars = "  ".join(f"{k}={_fmt(v)}" for k, v in p.items() if k != "latent")
+        scalars = "  ".join(f"{k}={_fmt(v)}" for k, v in p.items())
         heldout = f"  held-out {m['heldout_log_l1']:.5f}" if "heldout_log_l1" in m else ""
-        lines.append(f"  {m['name']}: log-L1 {m['loss']:.5f}{heldout}  {scalars}")
+        lines.append(f"  {m['name']}: log-L1 {m['loss']:.5f}{heldout}  {m['params_per_material']} parameters "
+                     f"({m['capacity']})  {scalars}")
     if "predictions" in report:
         lines.append(f"predictions written to {report['predictions']}")
     if "bundle" in report:

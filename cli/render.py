@@ -45,7 +45,7 @@ from pathlib import Path
 import torch
 
 from neuenh.checkpoint import Bundle
-from neuenh.materials import LATENT_INIT
+from neuenh.materials import LATENT_INIT, MaterialParams
 
 from neuenh.pretrained import bundle_path, load_model
 
@@ -138,13 +138,12 @@ def _regular_file(path: Path, what: str) -> None:
         raise ValueError(f"{what}: not a regular file")
 
 
-def _read_params(path: Path, material: str | None) -> tuple[str, dict]:
-    """One material's parameters from ``neuenh fit --json`` output."""
+def _read_params(path: Path, material: str | None) -> tuple[str, MaterialParams]:
+    """One material's record from ``neuenh fit --json`` output."""
     _regular_file(path, str(path))
     try:
         doc = json.loads(path.read_text())
-        materials = doc["materials"]
-        entries = [(str(m["name"]), dict(m["params"])) for m in materials]
+        entries = [(str(m["name"]), m) for m in doc["materials"]]
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
     except (KeyError, TypeError, AttributeError):
@@ -153,12 +152,11 @@ def _read_params(path: Path, material: str | None) -> tuple[str, dict]:
     if not entries:
         raise ValueError(f"{path}: holds no materials")
     index = _pick([name for name, _ in entries], material, str(path))
-    name, params = entries[index]
+    name, entry = entries[index]
     try:
-        tensors = {k: torch.as_tensor(v, dtype=torch.float32).reshape(-1) for k, v in params.items()}
-    except (TypeError, ValueError, RuntimeError):
-        raise ValueError(f"{path}: parameters of {name!r} must be numbers or lists of numbers") from None
-    return name, tensors
+        return name, MaterialParams.from_json(entry)
+    except ValueError as exc:
+        raise ValueError(f"{path}: material {name!r}: {exc}") from None
 
 
 def _pick(names: list[str], material: str | None, where: str) -> int:
@@ -174,11 +172,9 @@ def _pick(names: list[str], material: str | None, where: str) -> int:
     raise ValueError(f"no material {material!r} in {where}; it has {names}")
 
 
-def _initial_params(model) -> dict:
-    params = {s.name: torch.full((s.width,), s.init, dtype=torch.float32) for s in model.specs}
-    if model.latent_dim:
-        params["latent"] = torch.full((model.latent_dim,), LATENT_INIT, dtype=torch.float32)
-    return params
+def _initial_params(model) -> MaterialParams:
+    latent = torch.full((model.latent_dim,), LATENT_INIT, dtype=torch.float32) if model.uses_latent else None
+    return MaterialParams(model.specs.init_values(), latent)
 
 
 def _model_source(spec: str, params_file: Path | None, material: str | None, flag: str):
@@ -201,16 +197,14 @@ def _model_source(spec: str, params_file: Path | None, material: str | None, fla
             raise ValueError(f"{flag} {material!r} needs parameters to choose from: a --params file "
                              "or a bundle with fitted materials")
         name, params, origin = "initial", _initial_params(model), "initial values (mean of the ranges)"
-    if model.latent_dim and "latent" not in params and model.uses_latent:
+    if model.latent_dim and params.latent is None and model.uses_latent:
         raise ValueError(f"{origin}: material {name!r} has no latent code, which model {model.name} needs")
     brdf = model_brdf(model, params)
     # evaluate once so that wrong names, widths or ranges fail before any rendering
     probe = torch.tensor([[0.0, 0.0, 1.0]])
     brdf(probe, probe)
-    shown = {k: [round(float(x), 6) for x in v.reshape(-1).tolist()] for k, v in params.items()
-             if k != "latent" or model.uses_latent}
     return {"model": model.name, "state": model.state, "spec": spec, "material": name,
-            "params_from": origin, "params": shown}, brdf
+            "params_from": origin, **model.used_params(params).to_json(digits=6)}, brdf
 
 
 def _truth_source(args):

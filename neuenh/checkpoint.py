@@ -6,8 +6,9 @@ A bundle directory holds
   offered (and every position's choices by name), latent size, parameter specs, training config,
   provenance and metrics;
 * ``weights.safetensors``: the neural modules' weights (keys ``<position>.layers.<i>.weight``);
-* ``materials.safetensors``: per-material parameters (raw analytical values and latent), the
-  material names in its metadata. Optional: a shipped model may carry none.
+* ``materials.safetensors``: per-material parameters (raw analytical values, latent and any
+  per-material corrections of module weights: ``MaterialTable.tensors``), the material names (and
+  each material's fit capacity, when recorded) in its metadata. Optional: a shipped model may carry none.
 * ``rungs.safetensors``: optional, the *rungs* of the search that made the model — every committed
   round's winner (the latest round of each state), cheaper models on the way to this one — their
   module weights (keys ``<k>.<position>.layers.<i>.weight``) and their training materials' mean
@@ -136,7 +137,7 @@ class Bundle:
         directory.mkdir(parents=True, exist_ok=True)
         digests = {WEIGHTS: _atomic(directory / WEIGHTS, lambda p: save_file(_weights(self.model), p))}
         if self.materials is not None:
-            meta = {"names": json.dumps(list(self.materials.names))}
+            meta = self.materials.metadata()
             digests[MATERIALS] = _atomic(directory / MATERIALS,
                                          lambda p: save_file(self.materials.tensors(), p, metadata=meta))
         elif (directory / MATERIALS).exists():
@@ -169,8 +170,7 @@ class Bundle:
         weights = _read_safetensors(directory / WEIGHTS)
         materials = None
         if (directory / MATERIALS).exists():
-            tensors, names = _read_materials(directory / MATERIALS)
-            materials = (tensors, names)
+            materials = _read_materials(directory / MATERIALS)
         rungs = _read_safetensors(directory / RUNGS) if meta.get("rungs") else {}
         return cls._assemble(meta, weights, materials, str(directory), rungs)
 
@@ -180,7 +180,7 @@ class Bundle:
         meta = {"model.json": json.dumps(self.describe())}
         if self.materials is not None:
             tensors.update({f"material.{k}": v for k, v in self.materials.tensors().items()})
-            meta["names"] = json.dumps(list(self.materials.names))
+            meta.update(self.materials.metadata())
         tensors.update({f"rung.{k}": v for k, v in _rung_tensors(self.rungs).items()})
         return save(tensors, metadata=meta)
 
@@ -192,7 +192,7 @@ class Bundle:
         materials = None
         if "names" in meta:
             mt = {k[len("material."):]: v for k, v in tensors.items() if k.startswith("material.")}
-            materials = (mt, json.loads(meta["names"]))
+            materials = (mt, meta)
         rungs = {k[len("rung."):]: v for k, v in tensors.items() if k.startswith("rung.")}
         return cls._assemble(json.loads(meta["model.json"]), weights, materials, "<bytes>", rungs)
 
@@ -238,10 +238,12 @@ class Bundle:
             rungs.append(Rung(int(entry["round"]), float(entry["val_loss"]), rung_model, latent))
         table = None
         if materials is not None:
-            tensors, names = materials
+            tensors, material_meta = materials
             try:
-                table = MaterialTable.from_tensors(model.specs, names, tensors)
-            except ValueError as exc:
+                table = MaterialTable.from_tensors(model.specs, json.loads(material_meta["names"]), tensors, material_meta)
+                for i in range(len(table)):
+                    model.corrected_weights(table.as_params(i).corrections)  # keys and shapes of this model's
+            except (ValueError, KeyError, TypeError) as exc:
                 raise BundleError(f"{where}: {exc}") from None
         return cls(model, table, meta.get("training", {}), meta.get("provenance", {}), meta.get("metrics", {}), rungs)
 
@@ -288,7 +290,8 @@ def _read_safetensors(path: Path) -> dict[str, torch.Tensor]:
         raise BundleError(f"{path}: not a readable safetensors file ({exc})") from None
 
 
-def _read_materials(path: Path) -> tuple[dict[str, torch.Tensor], list[str]]:
+def _read_materials(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, str]]:
+    """The tensors and string metadata of a materials file (``MaterialTable.tensors``, ``.metadata``)."""
     from safetensors import safe_open
 
     tensors = _read_safetensors(path)
@@ -296,7 +299,7 @@ def _read_materials(path: Path) -> tuple[dict[str, torch.Tensor], list[str]]:
         meta = f.metadata() or {}
     if "names" not in meta:
         raise BundleError(f"{path}: material names missing from the metadata")
-    return tensors, json.loads(meta["names"])
+    return tensors, meta
 
 
 def _sha256(path: Path) -> str:

@@ -92,16 +92,15 @@ class FitResult:
 
     def report(self, model: BRDFModel, method: str, samples: Samples) -> dict:
         """The fit as plain data (``neuenh fit --json`` and ``POST /v1/jobs/{id}/fit``): per material
-        its loss, sample count and fitted parameters (the latent code only if the model uses it)."""
+        its loss, sample count and fitted record as the state reads it (``BRDFModel.used_params``,
+        ``MaterialParams.to_json``: parameters, latent code, corrections, capacity, count)."""
         counts = torch.bincount(samples.material, minlength=len(self.materials)).tolist()
-        used = set(model.used_specs().names)  # not the parameters of alternatives the state does not read
         return {
             "model": model.name, "state": model.state, "method": method, "epochs": self.epochs,
             "wall_s": round(self.wall_s, 3),
             "materials": [
                 {"name": name, "loss": self.losses[i], "samples": counts[i],
-                 "params": {k: [round(x, 6) for x in v.tolist()] for k, v in self.materials.as_params(i).items()
-                            if k in used or (k == "latent" and model.uses_latent)}}
+                 **model.used_params(self.materials.as_params(i)).to_json(digits=6)}
                 for i, name in enumerate(self.materials.names)],
         }
 

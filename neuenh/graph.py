@@ -18,7 +18,8 @@ digit picks one of the position's *choices*, in this order —
 So a model without alternatives and one module size has the paper's binary states, unchanged.
 ``BRDFModel`` is the torch module of one state: the analytical graph with the chosen alternatives
 substituted (``Graph.substitute``, a graph rewrite) plus the neural modules its neural digits call
-for. Per-material parameters live outside it (``materials.MaterialTable``).
+for. Per-material parameters live outside it: one material is a ``materials.MaterialParams``
+(values, latent code, corrections), many a ``materials.MaterialTable``.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from typing import TYPE_CHECKING, Any, Callable, Literal, Mapping, Sequence
 import torch
 from torch import nn
 
+from .materials import MaterialParams
 from .modules import ModuleConfig, NeuralModule, module_seed
 from .params import ParamSpec, ParamSpecs
 from .shading import Shading, make_shading
@@ -39,8 +41,6 @@ if TYPE_CHECKING:
 
 # Digits of a state string: 0-9 then a-z, so m-ary states up to m = 36 stay one character each.
 _DIGITS = "0123456789abcdefghijklmnopqrstuvwxyz"
-
-LATENT = "latent"  # the key of the neural (latent) parameters in a params mapping
 
 
 @dataclass(frozen=True, eq=False)
@@ -369,28 +369,59 @@ class BRDFModel(nn.Module):
         self,
         wi: torch.Tensor,
         wo: torch.Tensor,
-        params: Mapping[str, torch.Tensor],
+        params: MaterialParams | Mapping[str, torch.Tensor],
         state: str | None = None,
     ) -> torch.Tensor:
         """f_r (n, 3), without the cosine factor, clipped at zero.
 
-        ``wi, wo``: (n, 3) unit vectors in the local frame (z = geometric normal). ``params``:
-        physical values by name, each broadcastable to (n, width); the parameters of alternatives
-        the state does not choose may be left out. An enhanced model whose modules replace terms
-        also needs ``latent`` (broadcastable to (n, latent_dim)). ``state``: evaluate in another
-        state; every neural digit must name a module this model holds (e.g. the all-zero state of
-        an enhanced model is the analytical formula).
+        ``wi, wo``: (n, 3) unit vectors in the local frame (z = geometric normal). ``params``: a
+        ``MaterialParams`` (its values broadcastable to (n, width), the parameters of alternatives
+        the state does not choose may be left out; an enhanced model whose modules replace terms
+        needs its ``latent``; its ``corrections`` are added to the module weights they name), or a
+        plain mapping of the analytical values for a model that reads no latent code. ``state``:
+        evaluate in another state; every neural digit must name a module this model holds (e.g.
+        the all-zero state of an enhanced model is the analytical formula).
         """
+        return self.unclipped(wi, wo, params, state).clamp_min(0.0)
+
+    def unclipped(self, wi: torch.Tensor, wo: torch.Tensor, params: MaterialParams | Mapping[str, torch.Tensor],
+                  state: str | None = None) -> torch.Tensor:
+        """``evaluate`` without the clip at zero: what the training loss sees (a module may predict
+        a negative value)."""
         wi, wo = _check_directions(wi, wo)
         n = wi.shape[0]
         digits = self.digits if state is None else self._held_digits(state)
-        values = self.specs.validate(self.complete_params(params, digits), n, extra=(LATENT,))
+        params = MaterialParams.of(params)
+        values = self.specs.validate(self.complete_params(params.values, digits), n)
         latent = None
         if self.latent_dim and _reads_latent(self, digits):
-            latent = self._check_latent(values.get(LATENT), n)
-        values.pop(LATENT, None)
+            latent = self._check_latent(params.latent, n)
         values = {k: v.to(wi.dtype) for k, v in values.items()}
-        return self.forward(wi, wo, values, latent, digits).clamp_min(0.0)
+        if not params.corrections:
+            return self.forward(wi, wo, values, latent, digits)
+        weights = {f"neural.{k}": w for k, w in self.corrected_weights(params.corrections).items()}
+        return torch.func.functional_call(self, weights, (wi, wo, values, latent, digits))
+
+    def corrected_weights(self, corrections: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """``shared + delta`` (in the shared weight's dtype) for each module weight a material's
+        ``corrections`` name (keys of ``self.neural.state_dict()``); a ValueError names an unknown
+        key or a wrong shape."""
+        shared = dict(self.neural.named_parameters())
+        out = {}
+        for key, delta in corrections.items():
+            if key not in shared:
+                raise ValueError(f"correction {key!r} names no module weight of this model (state {self.state}); "
+                                 f"it has {sorted(shared)[:8]}{' ...' if len(shared) > 8 else ''}")
+            if tuple(delta.shape) != tuple(shared[key].shape):
+                raise ValueError(f"correction {key!r} must have shape {tuple(shared[key].shape)}, got {tuple(delta.shape)}")
+            out[key] = shared[key] + delta.to(shared[key].dtype)
+        return out
+
+    def used_params(self, params: MaterialParams | Mapping[str, torch.Tensor]) -> MaterialParams:
+        """What this state reads of a material: its used analytical values (not those of
+        alternatives it does not choose), the latent code only when a module reads it, the
+        corrections. Its ``n_params`` is the material's count at this state."""
+        return MaterialParams.of(params).restricted(set(self.used_specs().names), self.uses_latent)
 
     def complete_params(self, params: Mapping[str, torch.Tensor], digits: Sequence[int] | None = None
                         ) -> dict[str, torch.Tensor]:
@@ -524,9 +555,10 @@ class BRDFModel(nn.Module):
             out.update((name, self.neural[name](x)) for name in names)
         return out
 
-    def specialize(self, params: Mapping[str, torch.Tensor]) -> "SpecializedBRDF":
-        """One material's ``(wi, wo) -> f_r`` with its parameters (the dict ``evaluate`` takes,
-        without the batch dimension) folded in: see ``neuenh.specialize``."""
+    def specialize(self, params: MaterialParams | Mapping[str, torch.Tensor]) -> "SpecializedBRDF":
+        """One material's ``(wi, wo) -> f_r`` with its parameters (what ``evaluate`` takes, without
+        the batch dimension; corrections folded into the module weights) folded in: see
+        ``neuenh.specialize``."""
         from .specialize import SpecializedBRDF
 
         return SpecializedBRDF(self, params)
@@ -544,21 +576,21 @@ class BRDFModel(nn.Module):
     def _check_latent(self, latent: torch.Tensor | None, n: int) -> torch.Tensor:
         if latent is None:
             raise ValueError(
-                f"this enhanced model ({self.describe()}) needs params['latent'] of width "
-                f"{self.latent_dim}"
+                f"this enhanced model ({self.describe()}) needs a latent code of width {self.latent_dim}: "
+                f"pass MaterialParams(values, latent=...)"
             )
         latent = torch.as_tensor(latent)
         if latent.ndim == 0 or latent.shape[-1] != self.latent_dim:
             raise ValueError(
-                f"params['latent'] must have width {self.latent_dim}, got shape {tuple(latent.shape)}"
+                f"the latent code must have width {self.latent_dim}, got shape {tuple(latent.shape)}"
             )
         if not torch.isfinite(latent).all():
-            raise ValueError("params['latent'] has non-finite values")
+            raise ValueError("the latent code has non-finite values")
         try:
             return torch.broadcast_to(latent, (n, self.latent_dim))
         except RuntimeError:
             raise ValueError(
-                f"params['latent'] of shape {tuple(latent.shape)} does not broadcast to "
+                f"the latent code of shape {tuple(latent.shape)} does not broadcast to "
                 f"({n}, {self.latent_dim})"
             ) from None
 

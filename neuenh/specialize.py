@@ -28,10 +28,9 @@ from typing import Any, Mapping
 import torch
 
 from .graph import Operator, Term  # graph imports this module only inside BRDFModel.specialize
+from .materials import MaterialParams
 from .ops import TORCH, BatchVec3
 from .shading import Shading, shade, shading_frame
-
-LATENT = "latent"
 
 # Rows per pass: the intermediates of a chunk stay in cache (measured in bench/bench_speed.py:
 # unchunked batches of 1e5 pay for page faults and memory traffic on every (n, 32) intermediate).
@@ -101,19 +100,23 @@ class SpecializedBRDF:
     Computed in the inputs' dtype: float64 inputs get float64 throughout (the fold is done in
     float64 and kept as ``folded``), anything else float32 (the model's own precision)."""
 
-    def __init__(self, model, params: Mapping[str, Any]):
+    def __init__(self, model, params: MaterialParams | Mapping[str, Any]):
         self.model_name = model.name
         self.state = model.state
         self.formula = model.describe()
         self.expression = model.expression()  # the tree evaluated: the chosen alternatives substituted
-        values = model.specs.validate(model.complete_params(params), 1, extra=(LATENT,))
-        latent = values.pop(LATENT, None)
+        record = MaterialParams.of(params)
+        values = model.specs.validate(model.complete_params(record.values), 1)
+        latent = None
         if model.latent_dim and model.uses_latent:
-            latent = model._check_latent(latent, 1)
+            latent = model._check_latent(record.latent, 1)
+        # the material's module weights: the shared ones plus its corrections (as evaluate adds them)
+        weights = {k: w.detach() for k, w in model.neural.named_parameters()}
+        weights.update({k: w.detach() for k, w in model.corrected_weights(record.corrections).items()})
         values = {k: v.detach().double() for k, v in values.items()}
         # Per-material inputs of term modules, as every module reads them (float64 for the fold).
         per_material = [model.module_specs.unit_vector(values)]
-        if model.latent_dim and model.uses_latent:
+        if latent is not None:
             per_material.append(latent.detach().double())
         material_input = torch.cat(per_material, dim=-1)[0]
         params = {k: _constant(v[0]) for k, v in values.items()}
@@ -125,7 +128,7 @@ class SpecializedBRDF:
             expr = chosen.get(expr.name, expr)
             if isinstance(expr, Term):
                 if model.is_neural(digit):
-                    module = _fold(expr.name, model.neural[expr.name], material_input, expr.reads_directions)
+                    module = _fold(expr.name, model.neural[expr.name], weights, material_input, expr.reads_directions)
                     if expr.reads_directions:
                         modules[expr.name] = module
                     else:  # a module of the parameters alone: its output is a constant
@@ -134,7 +137,7 @@ class SpecializedBRDF:
                     constants[expr.name] = _rows(expr.formula(param_shading), expr.width)
             else:
                 if model.is_neural(digit):
-                    modules[expr.name] = _fold(expr.name, model.neural[expr.name], None, True)
+                    modules[expr.name] = _fold(expr.name, model.neural[expr.name], weights, None, True)
                 elif expr.left.name in constants and expr.right.name in constants:
                     left, right = constants[expr.left.name], constants[expr.right.name]
                     constants[expr.name] = left + right if expr.op == "+" else left * right
@@ -259,10 +262,13 @@ def _rows(value, width: int) -> torch.Tensor:
     return torch.full((1, width), float(value), dtype=torch.float64)
 
 
-def _fold(position: str, module, material_input: torch.Tensor | None, reads_per_sample: bool) -> FoldedModule:
-    """``module`` with ``material_input`` (the leading inputs of its first layer) folded into the
+def _fold(position: str, module, weights: Mapping[str, torch.Tensor], material_input: torch.Tensor | None,
+          reads_per_sample: bool) -> FoldedModule:
+    """``module`` (its weights ``weights[f"{position}.layers.{i}.weight"]``, ``...bias``: the
+    material's) with ``material_input`` (the leading inputs of its first layer) folded into the
     first-layer bias; its first layer then reads the remaining inputs (none if not per-sample)."""
-    layers = [(layer.weight.detach().double(), layer.bias.detach().double()) for layer in module.layers]
+    layers = [(weights[f"{position}.layers.{i}.weight"].double(), weights[f"{position}.layers.{i}.bias"].double())
+              for i in range(len(module.layers))]
     weight, bias = layers[0]
     if material_input is not None:
         k = material_input.shape[0]

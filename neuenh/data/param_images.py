@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from .exr import RGB, ExrError, read_exr_channels, write_exr_channels
+from ..materials import LATENT_NAME
 
 HEADER_KEY = "neuenh"
 
@@ -37,9 +38,9 @@ def as_parameter_map(value, name: str) -> np.ndarray:
 def parameter_channels(name: str, width: int) -> list[str]:
     """The EXR channel names of a parameter: ``name`` (width 1), ``name.R/G/B`` (an analytical
     RGB parameter, width 3) or ``name.0`` ... (any other vector, and ``latent`` always)."""
-    if width == 1 and name != "latent":
+    if width == 1 and name != LATENT_NAME:
         return [name]
-    if width == 3 and name != "latent":
+    if width == 3 and name != LATENT_NAME:
         return [f"{name}.{c}" for c in RGB]
     return [f"{name}.{k}" for k in range(width)]
 
@@ -125,7 +126,7 @@ def parameter_images(values, coords: Sequence[Sequence[int]], shape: tuple[int, 
         table = values
         values = {k: v.detach() for k, v in table.values().items()}
         if table.latent_dim:
-            values["latent"] = table.latent.detach()
+            values[LATENT_NAME] = table.latent.detach()
     coords = np.asarray(coords, dtype=np.int64).reshape(-1, 2)
     h, w = shape
     if len(coords) and (coords.min() < 0 or (coords[:, 0] >= h).any() or (coords[:, 1] >= w).any()):

@@ -2,11 +2,11 @@
 
 Each format is a module with one entry point,
 
-    write(model: BRDFModel, materials: Mapping[str, Mapping[str, Any]], out_dir: Path) -> list[Path]
+    write(model: BRDFModel, materials: Mapping[str, MaterialParams], out_dir: Path) -> list[Path]
 
-that writes the files for ``materials`` (name -> the parameter dict ``BRDFModel.specialize``
-takes: the analytical parameters and ``latent``, without a batch dimension) into ``out_dir`` and
-returns their paths. What is exported is the specialized evaluator (``neuenh.specialize``): the
+that writes the files for ``materials`` (name -> the material's ``neuenh.materials.MaterialParams``:
+its analytical values, latent code and corrections, as ``BRDFModel.specialize`` takes them) into
+``out_dir`` and returns their paths. What is exported is the specialized evaluator (``neuenh.specialize``): the
 material's parameters and the modules' weights folded in, f_r without the cosine factor, zero below
 either horizon. Every format is checked by running the artifact in its real runtime (tests):
 
@@ -26,7 +26,10 @@ import os
 import re
 import tempfile
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Mapping
+
+if TYPE_CHECKING:
+    from ..materials import MaterialParams
 
 FORMATS = ("glsl", "onnx", "mitsuba")
 
@@ -35,7 +38,7 @@ class MissingRuntime(ValueError):
     """A format whose writer needs a package of the ``neuenh[export]`` extra that is not installed."""
 
 
-def export(model, materials: Mapping[str, Mapping[str, Any]], fmt: str, out_dir: Path) -> list[Path]:
+def export(model, materials: Mapping[str, MaterialParams], fmt: str, out_dir: Path) -> list[Path]:
     """Write ``materials`` of ``model`` in format ``fmt`` into ``out_dir``; returns the files."""
     if fmt not in FORMATS:
         raise ValueError(f"unknown export format {fmt!r}; choose one of {', '.join(FORMATS)}")

@@ -31,6 +31,7 @@ import torch
 from ..graph import Term
 from ..ops import EmittingOps, _is_const
 from ..shading import make_shading, shade
+from ..materials import LATENT_NAME, MaterialParams
 from ..specialize import FoldedModule, SpecializedBRDF, _fold
 from . import atomic_write, file_names
 
@@ -323,7 +324,7 @@ def parameter_layout(model) -> list[tuple[str, int, int]]:
         layout.append((spec.name, offset, spec.width))
         offset += spec.width
     if model.uses_latent and model.latent_dim:
-        layout.append(("latent", offset, model.latent_dim))
+        layout.append((LATENT_NAME, offset, model.latent_dim))
     return layout
 
 
@@ -343,7 +344,7 @@ def model_source(model) -> str:
     n = layout[-1][1] + layout[-1][2]
     values = {}
     for pname, offset, width in layout:
-        if pname == "latent":
+        if pname == LATENT_NAME:
             continue
         cells = [Expr(code, "float", f"p[{offset + i}]") for i in range(width)]
         values[pname] = cells[0] if width == 1 else (
@@ -354,8 +355,9 @@ def model_source(model) -> str:
     for spec in model.module_specs:
         offset = next(o for pn, o, _ in layout if pn == spec.name)
         unit += [spec.to_unit(Expr(code, "float", f"p[{offset + i}]"), xp) for i in range(spec.width)]
-    latent = [Expr(code, "float", f"p[{o + i}]") for pn, o, w in layout if pn == "latent" for i in range(w)]
-    modules = {position: _fold(position, module, None, True) for position, module in model.neural.items()}
+    latent = [Expr(code, "float", f"p[{o + i}]") for pn, o, w in layout if pn == LATENT_NAME for i in range(w)]
+    shared = {k: w.detach() for k, w in model.neural.named_parameters()}
+    modules = {position: _fold(position, module, shared, None, True) for position, module in model.neural.items()}
     functions = [_module_function(prefix, m) for m in modules.values()]
 
     def term(expr, digit):
@@ -389,20 +391,28 @@ def model_source(model) -> str:
     return "\n".join(header + [""] + [f for fn in functions for f in (fn, "")] + body + [""] + uniform) + "\n"
 
 
-def pack_parameters(model, params: Mapping[str, Any]) -> list[float]:
-    """One material's parameters (the dict ``specialize`` takes) as the generic function's ``p``."""
-    params = model.complete_params(params)
+def pack_parameters(model, params: MaterialParams | Mapping[str, Any]) -> list[float]:
+    """One material's parameters (what ``specialize`` takes) as the generic function's ``p``. The
+    generic function holds the shared module weights: a material with corrections is refused (its
+    own file, ``material_source``, carries them)."""
+    record = MaterialParams.of(params)
+    if record.corrections:
+        raise ValueError(f"this material corrects {len(record.corrections)} module weight tensor(s), which the generic "
+                         "function cannot take; export the material's own file (material_source)")
+    values = {**model.complete_params(record.values), LATENT_NAME: record.latent}
     out = []
     for pname, _, width in parameter_layout(model):
-        values = [float(v) for v in torch.as_tensor(params[pname]).reshape(-1).tolist()]
-        if len(values) != width:
-            raise ValueError(f"parameter {pname!r} has width {width}, got {len(values)} values")
-        out += values
+        if values.get(pname) is None:
+            raise ValueError(f"parameter {pname!r} is missing")
+        numbers = [float(v) for v in torch.as_tensor(values[pname]).reshape(-1).tolist()]
+        if len(numbers) != width:
+            raise ValueError(f"parameter {pname!r} has width {width}, got {len(numbers)} values")
+        out += numbers
     return out
 
 
 # -- files ---------------------------------------------------------------------------------------------
-def write(model, materials: Mapping[str, Mapping[str, Any]], out_dir: Path) -> list[Path]:
+def write(model, materials: Mapping[str, MaterialParams], out_dir: Path) -> list[Path]:
     """``NAME.glsl`` per material (``NAME``: ``neuenh.export.identifier``) and ``MODEL-generic.glsl``
     (``model_source``), written atomically."""
     names = file_names(materials, ".glsl")

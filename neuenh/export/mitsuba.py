@@ -40,11 +40,12 @@ import math
 import os
 import re
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Mapping
 
 import torch
 
 from ..graph import Term
+from ..materials import MaterialParams
 from ..ops import EmittingOps, _is_const
 from ..shading import shade
 from . import atomic_write, file_names
@@ -223,8 +224,11 @@ def load_material(path: str | Path):
         raise ValueError(f"{path}: not a neuenh Mitsuba material ({exc})") from None
     if data.get("format") != FORMAT:
         raise ValueError(f"{path}: not a neuenh Mitsuba material (format {data.get('format')!r})")
+    try:
+        params = MaterialParams.from_json(data)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
     bundle = Bundle.load(path.parent / data["bundle"])
-    params = {k: torch.tensor(v, dtype=torch.float64) for k, v in data["params"].items()}
     return bundle.model, params
 
 
@@ -242,7 +246,7 @@ def _plugin_class():
             model, params = load_material(self.filename)
             special = model.specialize(params)
             self.material = DrJitMaterial(special)
-            values = {k: v.reshape(-1).tolist() for k, v in params.items()}
+            values = {k: v.reshape(-1).tolist() for k, v in params.values.items()}
             ax = values.get("alpha_x", [0.5])[0]
             ay = values.get("alpha_y", [ax])[0]
             self.lobe = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, max(ax, 1e-4), max(ay, 1e-4), True)
@@ -327,7 +331,7 @@ def register() -> None:
 
 
 # -- files ------------------------------------------------------------------------------------------------
-def write(model, materials: Mapping[str, Mapping[str, Any]], out_dir: Path) -> list[Path]:
+def write(model, materials: Mapping[str, MaterialParams], out_dir: Path) -> list[Path]:
     """The model's bundle, ``NAME.json`` and ``NAME.xml`` per material, and the environment map."""
     from ..checkpoint import Bundle
     from ..data.exr import write_rgb_exr
@@ -337,11 +341,10 @@ def write(model, materials: Mapping[str, Mapping[str, Any]], out_dir: Path) -> l
     out_dir.mkdir(parents=True, exist_ok=True)
     written = [Bundle(model).save(out_dir / BUNDLE_DIR), write_rgb_exr(out_dir / ENVMAP, studio_environment())]
     for name, material in names.items():
-        params = {k: [float(x) for x in torch.as_tensor(v).reshape(-1).tolist()]
-                  for k, v in model.complete_params(materials[material]).items()}
-        model.specialize(materials[material])  # a bad material fails here, before its files exist
-        data = {"format": FORMAT, "version": 1, "material": material, "model": model.name, "state": model.state,
-                "bundle": BUNDLE_DIR, "params": params}
+        record = MaterialParams.of(materials[material])
+        model.specialize(record)  # a bad material fails here, before its files exist
+        data = {"format": FORMAT, "version": 2, "material": material, "model": model.name, "state": model.state,
+                "bundle": BUNDLE_DIR, **record.to_json()}
         written.append(atomic_write(out_dir / f"{name}.json", json.dumps(data, indent=1) + "\n"))
         written.append(atomic_write(out_dir / f"{name}.xml", scene_xml(f"{name}.json")))
     return written

@@ -51,6 +51,7 @@ from onnx import TensorProto, helper, numpy_helper
 
 from .. import __version__
 from ..graph import BRDFModel, Term
+from ..materials import LATENT_NAME, MaterialParams
 from ..ops import BatchVec3, EmittingOps, _is_const
 from ..shading import make_shading, shade
 from ..specialize import SpecializedBRDF
@@ -61,7 +62,6 @@ OPSET = 18
 BATCH = "n"  # the dynamic batch dimension of wi, wo and f_r
 PARAM_ROWS = "n_or_1"  # a generic graph's parameter rows: one per sample, or one for all
 GENERIC_SUFFIX = "-generic"
-LATENT = "latent"
 
 
 # -- the graph under construction ---------------------------------------------------------------
@@ -360,8 +360,8 @@ def generic_graph(model: BRDFModel) -> bytes:
     latent = None
     reads_latent = model.uses_latent
     if reads_latent and model.latent_dim:
-        latent = xp.rows(_Value(b, LATENT, model.latent_dim, False), model.latent_dim)
-        inputs[LATENT] = ([PARAM_ROWS, model.latent_dim], "the material's latent code (neural parameters)")
+        latent = xp.rows(_Value(b, LATENT_NAME, model.latent_dim, False), model.latent_dim)
+        inputs[LATENT_NAME] = ([PARAM_ROWS, model.latent_dim], "the material's latent code (neural parameters)")
     shading = make_shading(BatchVec3(wi), BatchVec3(wo), values, xp)
 
     # BRDFModel._neural_term_outputs: one input per group (modules that read directions or not)
@@ -435,7 +435,7 @@ def file_stem(name: str) -> str:
     return stem
 
 
-def write(model: BRDFModel, materials: Mapping[str, Mapping[str, Any]], out_dir: Path) -> list[Path]:
+def write(model: BRDFModel, materials: Mapping[str, MaterialParams], out_dir: Path) -> list[Path]:
     """``NAME.onnx`` (``material_graph``) per material and ``MODEL-generic.onnx`` (``generic_graph``)
     once, into ``out_dir``; returns their paths, materials first in the given order.
 

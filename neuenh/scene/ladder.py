@@ -27,7 +27,7 @@ from ..data.directions import sample_directions
 from ..data.samples import Samples
 from ..fit import FitConfig, fit_materials
 from ..graph import BRDFModel
-from ..materials import MaterialTable
+from ..materials import MaterialParams, MaterialTable
 from ..train import log_l1
 
 __all__ = ["FittedRung", "GraphRung", "NBRDFRung", "Rung", "build_ladder", "measure_cost"]
@@ -42,7 +42,7 @@ class FittedRung:
 
     brdf: Directions  # f_r (n, 3): clipped at 0, zero below either horizon (render, export)
     predict: Directions  # raw f_r (n, 3): what the loss sees
-    params: dict[str, list[float]]  # what the plan stores (a graph rung: the specialize dict)
+    params: dict[str, Any]  # what the plan stores (a graph rung: MaterialParams.to_json())
     n_params: int
     fit_loss: float
 
@@ -88,28 +88,20 @@ class GraphRung(Rung):
     def fit(self, samples: Samples, config: FitConfig, seed: int) -> list[FittedRung]:
         model = self.model
         result = fit_materials(model, samples, config, seed=seed, trained=self.trained)
-        used = set(model.used_specs().names)
         out = []
         for i in range(len(samples.names)):
-            params = {k: v for k, v in result.materials.as_params(i).items()
-                      if k in used or (k == "latent" and model.uses_latent)}
-            values = {k: v.reshape(1, -1) for k, v in params.items() if k != "latent"}
-            latent = params.get("latent")
+            params = model.used_params(result.materials.as_params(i))
 
             @torch.no_grad()
-            def predict(wi, wo, values=values, latent=latent):
-                n = len(wi)
-                full = {**{k: v.expand(n, -1) for k, v in values.items()},
-                        **{s.name: torch.full((n, s.width), s.init) for s in model.specs if s.name not in values}}
-                return model(wi, wo, full, None if latent is None else latent.reshape(1, -1).expand(n, -1))
+            def predict(wi, wo, params=params):
+                return model.unclipped(wi, wo, params)
 
-            out.append(FittedRung(model.specialize(params), predict,
-                                  {k: [float(x) for x in v.reshape(-1)] for k, v in params.items()},
-                                  model.n_material_params(), result.losses[i]))
+            out.append(FittedRung(model.specialize(params), predict, params.to_json(), params.n_params,
+                                  result.losses[i]))
         return out
 
     def brdf_of(self, params):
-        return self.model.specialize({k: torch.tensor(v, dtype=torch.float32) for k, v in params.items()})
+        return self.model.specialize(MaterialParams.from_json(params))
 
 
 class NBRDFRung(Rung):

@@ -63,13 +63,12 @@ def _bundles(plan: Plan, folder: Path) -> list[Path]:
 
 
 def plan_models(plan_json: Path) -> list[tuple[str, object, dict[str, dict]]]:
-    """The models a written plan uses, each with its materials' parameters: ``[(rung key, BRDFModel,
-    {material: params})]`` in ladder order, read from ``plan.json`` and the bundles beside it (what the
+    """The models a written plan uses, each with its materials' records: ``[(rung key, BRDFModel,
+    {material: MaterialParams})]`` in ladder order, read from ``plan.json`` and the bundles beside it (what the
     exporters take, ``neuenh export --plan``). A material planned with the NBRDF rung, or a rung
     whose bundle is missing, is a ValueError naming it."""
-    import torch
-
     from ..checkpoint import Bundle, BundleError
+    from ..materials import MaterialParams
     from ..models import get_model
 
     try:
@@ -99,7 +98,10 @@ def plan_models(plan_json: Path) -> list[tuple[str, object, dict[str, dict]]]:
             else:
                 model = get_model(rung["model"], state=rung["state"], alternatives=rung.get("alternatives", False))
             out[key] = (model, {})
-        out[key][1][name] = {k: torch.tensor(v, dtype=torch.float32) for k, v in params.items()}
+        try:
+            out[key][1][name] = MaterialParams.from_json(params)
+        except ValueError as exc:
+            raise ValueError(f"{plan_json}: material {name!r}: {exc}") from None
     return [(key, model, materials) for key, (model, materials) in out.items()]
 
 

@@ -72,22 +72,15 @@ class GraphContender(Contender):
     def fit(self, samples: Samples, seed: int = 0) -> FittedMaterial:
         _one_material(samples)
         result = fit_materials(self.model, samples, self.config, seed=seed, trained=self.trained)
-        values, latent = result.materials.gather(torch.zeros(1, dtype=torch.long))
-        values = {k: v.detach() for k, v in values.items()}
-        latent = latent.detach()
-        params = {**values, "latent": latent} if self.model.latent_dim else values
+        params = self.model.used_params(result.materials.as_params(0))
         model = self.model
 
         @torch.no_grad()
         def predict(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
-            n = len(wi)
-            return model(wi, wo, {k: v.expand(n, -1) for k, v in values.items()},
-                         latent.expand(n, -1) if model.latent_dim else None)
+            return model.unclipped(wi, wo, params)
 
         brdf = model.specialize(params)  # equals model.evaluate(wi, wo, params), faster
-
-        per_material = model.n_material_params()
-        return FittedMaterial(self.name, predict, brdf, result.losses[0], result.wall_s, per_material,
+        return FittedMaterial(self.name, predict, brdf, result.losses[0], result.wall_s, params.n_params,
                               model.n_weights())
 
 

@@ -67,7 +67,8 @@ def test_fit_recovers_the_parameters_of_known_measurements(client, plain_job, tm
     assert material["name"] == "brushed" and material["samples"] == 3000
     assert material["loss"] < 5e-3
     p = material["params"]
-    assert "latent" not in p  # plain GGX reads no latent code
+    assert material["latent"] is None and material["capacity"] == "analytical"  # plain GGX reads no latent code
+    assert material["params_per_material"] == 12 and material["corrections"] == {}
     np.testing.assert_allclose(p["rho_d"], TRUTH["rho_d"], atol=0.02)
     np.testing.assert_allclose([p["alpha_x"][0], p["alpha_y"][0]], [0.15, 0.15], rtol=0.15)
 

@@ -12,6 +12,7 @@ import torch
 
 from neuenh.data.synthetic import synthetic_ggx
 from neuenh.data.table import write_table
+from neuenh.materials import MaterialParams
 from neuenh.pretrained import bundle_path, load_model
 from cli_runs import neuenh, neuenh_here
 
@@ -47,7 +48,7 @@ def test_a_fit_report_exports_to_glsl_that_runs_on_llvmpipe(fitted, tmp_path):
     assert generic.name == "ggx-generic.glsl"
 
     model, _ = load_model("enhanced-ggx")
-    params = {k: torch.tensor(v) for k, v in json.loads(report.read_text())["materials"][0]["params"].items()}
+    params = MaterialParams.from_json(json.loads(report.read_text())["materials"][0])
     rng = np.random.default_rng(0)
     wi, wo = (np.abs(rng.normal(size=(4096, 3))) for _ in range(2))
     wi, wo = ((w / np.linalg.norm(w, axis=1, keepdims=True)).astype(np.float32) for w in (wi, wo))
@@ -135,7 +136,7 @@ def test_a_plan_exports_each_material_with_its_rung_and_only_its_modules(plan, t
     retro = tmp_path / safe_name(retro_rung) / "retro.onnx"
     session = ort.InferenceSession(retro.read_bytes(), providers=["CPUExecutionProvider"])
     model = Bundle_rung(path, retro_rung)
-    params = {k: torch.tensor(v) for k, v in data["materials"][1]["params"].items()}
+    params = MaterialParams.from_json(data["materials"][1]["params"])
     rng = np.random.default_rng(0)
     wi, wo = ((w / np.linalg.norm(w, axis=1, keepdims=True)).astype(np.float32)
               for w in (np.abs(rng.normal(size=(512, 3))) for _ in range(2)))

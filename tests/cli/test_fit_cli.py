@@ -28,6 +28,7 @@ def test_fit_prints_json_and_writes_a_bundle(table, tmp_path):
     (material,) = report["materials"]
     assert material["name"] == "steel" and material["loss"] < 0.05
     assert set(material["params"]) == {"normal", "t_theta", "rho_d", "rho_s", "alpha_x", "alpha_y", "f0"}
+    assert (material["latent"], material["capacity"], material["params_per_material"]) == (None, "analytical", 12)
     bundle = Bundle.load(tmp_path / "b")
     assert bundle.materials.names == ("steel",) and bundle.model.name == "ggx"
 
@@ -39,7 +40,9 @@ def test_fit_with_a_bundle_directory(table, tmp_path):
     out = neuenh("fit", "--model", tmp_path / "enh", table, "--epochs", "3", "--json")
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
-    assert report["state"] == PAPER_STATE and len(report["materials"][0]["params"]["latent"]) == 27
+    (material,) = report["materials"]
+    assert report["state"] == PAPER_STATE and len(material["latent"]) == 27 and "latent" not in material["params"]
+    assert (material["capacity"], material["params_per_material"], material["corrections"]) == ("latent", 39, {})
 
 
 SHIPPED = Path(__file__).resolve().parents[2] / "models" / "enhanced-ggx" / "model.json"
@@ -53,7 +56,7 @@ def test_fit_with_the_shipped_enhanced_ggx_out_of_the_box(table):
     plain = neuenh("fit", "--model", "ggx", table, "--epochs", "60", "--json")
     assert out.returncode == 0 and plain.returncode == 0, out.stderr + plain.stderr
     report, reference = json.loads(out.stdout), json.loads(plain.stdout)
-    assert report["state"] != "0" * 11 and len(report["materials"][0]["params"]["latent"]) == 27
+    assert report["state"] != "0" * 11 and len(report["materials"][0]["latent"]) == 27
     assert report["materials"][0]["loss"] < 1.5 * reference["materials"][0]["loss"] + 2e-3
 
 

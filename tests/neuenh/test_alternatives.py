@@ -20,7 +20,7 @@ import torch
 from neuenh.checkpoint import Bundle
 from neuenh.data.synthetic import dielectric_fresnel
 from neuenh.graph import Term
-from neuenh.materials import MaterialTable
+from neuenh.materials import MaterialParams, MaterialTable
 from neuenh.models import get_model
 from neuenh.ops import NUMPY
 from neuenh.search import Constraints, hamming_ball
@@ -289,10 +289,8 @@ def test_specialize_the_numpy_backend_and_a_module_beside_alternatives_equal_eva
     model = get_model("ggx", alternatives=True, state="".join(map(str, digits)), seed=3).double()
     rng = np.random.default_rng(11)
     params = {k: v[0] for k, v in random_params(model, 1, rng).items()}
-    params["latent"] = rng.random(model.latent_dim)
-    wi, wo = random_pairs({k: np.broadcast_to(v, (500, len(v))) for k, v in params.items() if k != "latent"},
-                          500, rng)
-    tensors = {k: torch.as_tensor(v) for k, v in params.items()}
+    tensors = MaterialParams({k: torch.as_tensor(v) for k, v in params.items()}, torch.as_tensor(rng.random(model.latent_dim)))
+    wi, wo = random_pairs({k: np.broadcast_to(v, (500, len(v))) for k, v in params.items()}, 500, rng)
     want = model.evaluate(torch.as_tensor(wi), torch.as_tensor(wo), tensors)
     special = model.specialize(tensors)
     torch.testing.assert_close(special(torch.as_tensor(wi), torch.as_tensor(wo)), want, rtol=1e-10, atol=1e-12)
@@ -300,7 +298,7 @@ def test_specialize_the_numpy_backend_and_a_module_beside_alternatives_equal_eva
     for expr in model.graph.positions:  # every alternative term in numpy equals torch
         term = model.chosen_terms().get(expr.name, expr)
         if isinstance(term, Term) and not model.is_neural(model.digits[model.graph.index[expr.name]]):
-            values = {k: np.tile(v, (500, 1)) for k, v in params.items() if k != "latent"}
+            values = {k: np.tile(v, (500, 1)) for k, v in params.items()}
             np.testing.assert_allclose(
                 np.asarray(term.formula(make_shading(wi, wo, values, NUMPY))),
                 term.formula(make_shading(torch.as_tensor(wi), torch.as_tensor(wo),

@@ -24,7 +24,7 @@ import pytest
 import torch
 
 from neuenh.graph import Term
-from neuenh.materials import MaterialTable
+from neuenh.materials import MaterialParams, MaterialTable
 from neuenh.models import available_models, get_model
 from neuenh.ops import NUMPY, TORCH
 from neuenh.shading import make_shading
@@ -186,11 +186,11 @@ def test_all_zero_state_of_an_enhanced_model_is_the_analytical_model(name, state
     params = random_params(plain, 500, rng)
     wi, wo = random_directions(params, 500, rng)
     want = plain.evaluate(torch.as_tensor(wi), torch.as_tensor(wo), torch_params(params))
-    params["latent"] = rng.random((500, enhanced.latent_dim))
-    got = enhanced.evaluate(torch.as_tensor(wi), torch.as_tensor(wo), torch_params(params), state="0" * len(state))
+    record = MaterialParams(torch_params(params), torch.as_tensor(rng.random((500, enhanced.latent_dim))))
+    got = enhanced.evaluate(torch.as_tensor(wi), torch.as_tensor(wo), record, state="0" * len(state))
     assert torch.equal(got, want)
     # ... while the enhanced state itself is a different function.
-    assert not torch.equal(enhanced.evaluate(torch.as_tensor(wi), torch.as_tensor(wo), torch_params(params)), want)
+    assert not torch.equal(enhanced.evaluate(torch.as_tensor(wi), torch.as_tensor(wo), record), want)
 
 
 @pytest.mark.parametrize("name", MODELS)
@@ -632,12 +632,12 @@ def test_gradients_match_finite_differences(name, state):
 # ============================================================================================
 # 5. Errors name their culprit
 # ============================================================================================
-def _call(name: str, *, drop=(), set_=None, wi=None, state=None, model_state=None):
+def _call(name: str, *, drop=(), set_=None, wi=None, state=None, model_state=None, latent=None):
     model = get_model(name, state=model_state)
     params = {k: torch.as_tensor(v) for k, v in spec_values(model, 2).items() if k not in drop}
     params.update(set_ or {})
     w = torch.as_tensor(rows(direction(20, 0), direction(40, 90)))
-    return model.evaluate(w if wi is None else wi, w, params, state=state)
+    return model.evaluate(w if wi is None else wi, w, MaterialParams(params, latent), state=state)
 
 
 ERRORS = {
@@ -656,8 +656,11 @@ ERRORS = {
     "neural-state-on-analytical": (lambda m: _call(m, state="1" * len(get_model(m).positions)), "no module"),
     "missing-latent": (lambda m: _call(m, model_state="1" * len(get_model(m).positions)), "latent"),
     "wrong-latent-width": (
-        lambda m: _call(m, model_state="1" * len(get_model(m).positions), set_={"latent": torch.ones(5)}), "latent"
+        lambda m: _call(m, model_state="1" * len(get_model(m).positions), latent=torch.ones(5)), "latent"
     ),
+    "old-style-latent-key": (lambda m: get_model(m).evaluate(torch.eye(3)[2:], torch.eye(3)[2:], {
+        **{k: torch.as_tensor(v) for k, v in spec_values(get_model(m), 1).items()}, "latent": torch.ones(27)}),
+        "MaterialParams(values, latent=...)"),
 }
 
 

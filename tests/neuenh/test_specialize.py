@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 import torch
 
+from neuenh.materials import MaterialParams
 from neuenh.models import available_models, get_model
 from test_models import (assert_relative, random_directions, random_params, stability_grid,
                          torch_params)
@@ -47,14 +48,13 @@ def check_specialized(model, wi, wo, params, rng, what: str, float32: bool = Tru
     model64 = copy.deepcopy(model).double()
     checked = 0
     for one, rows in materials_of(params):
-        material = torch_params(one, torch.float64)
-        if model.uses_latent:
-            material["latent"] = torch.as_tensor(rng.random(model.latent_dim))
+        latent = torch.as_tensor(rng.random(model.latent_dim)) if model.uses_latent else None
+        material = MaterialParams(torch_params(one, torch.float64), latent)
         special = model.specialize(material)
         wi64, wo64 = (torch.as_tensor(w[rows], dtype=torch.float64) for w in (wi, wo))
         with torch.no_grad():
             want = model64.evaluate(wi64, wo64, material)
-            want32 = model.evaluate(wi64.float(), wo64.float(), {k: v.float() for k, v in material.items()})
+            want32 = model.evaluate(wi64.float(), wo64.float(), material.to(torch.float32))
         got = special(wi64, wo64)
         assert got.shape == want.shape and got.dtype == torch.float64
         assert (got[(want == 0).all(1)] == 0).all(), f"{what}: non-zero where evaluate is zero (below a horizon)"
@@ -98,9 +98,8 @@ def test_what_is_folded():
     model = get_model("ggx", state="10011100100", seed=0)  # M neural, and the paper's modules
     params = {"normal": torch.tensor([0.1, -0.2]), "t_theta": torch.tensor([0.3]),
               "rho_d": torch.tensor([0.2, 0.3, 0.4]), "rho_s": torch.tensor([0.9, 0.8, 0.7]),
-              "alpha_x": torch.tensor([0.2]), "alpha_y": torch.tensor([0.05]), "f0": torch.tensor([0.04]),
-              "latent": torch.full((27,), 0.5)}
-    special = model.specialize(params)
+              "alpha_x": torch.tensor([0.2]), "alpha_y": torch.tensor([0.05]), "f0": torch.tensor([0.04])}
+    special = model.specialize(MaterialParams(params, torch.full((27,), 0.5)))
     assert sorted(special.constants) == ["M", "S"]
     assert sorted(special.modules) == ["F", "G", "S*D*F*G", "invE"]
     assert {p: m.layers[0][0].shape[1] for p, m in special.modules.items()} == \
@@ -120,7 +119,7 @@ def test_flops_are_the_layer_shapes_plus_the_analytical_part():
     plain = get_model("ggx").specialize(params).flops_per_evaluation
     assert 50 < plain < 400
     enhanced = get_model("ggx", state="00001100000", seed=0)  # G and invE neural, 6 inputs each
-    special = enhanced.specialize({**params, "latent": torch.full((27,), 0.5)})
+    special = enhanced.specialize(MaterialParams(params, torch.full((27,), 0.5)))
     modules = 2 * mlp_flops(6, (16, 32, 16))
     analytic = special.flops_per_evaluation - modules
     assert 0 < analytic < plain  # G's and invE's formulas are gone
@@ -133,13 +132,44 @@ def test_throughput_is_measured():
 
 
 @pytest.mark.parametrize("params, message", [
-    ({"rho_d": torch.tensor([0.2, 0.3, 0.4])}, "missing parameter"),
-    ({"alpha_x": torch.tensor([5.0])}, "alpha_x"),
-    ({"latent": torch.full((5,), 0.5)}, "width 27"),
+    (lambda full, latent: MaterialParams({"rho_d": torch.tensor([0.2, 0.3, 0.4])}, latent), "missing parameter"),
+    (lambda full, latent: MaterialParams({**full, "alpha_x": torch.tensor([5.0])}, latent), "alpha_x"),
+    (lambda full, latent: MaterialParams(full, torch.full((5,), 0.5)), "width 27"),
+    (lambda full, latent: MaterialParams(full), "latent code of width 27"),
+    (lambda full, latent: {**full, "latent": latent}, "MaterialParams"),
+    (lambda full, latent: MaterialParams(full, latent, {"F.layers.9.weight": torch.ones(1)}), "F.layers.9.weight"),
+    (lambda full, latent: MaterialParams(full, latent, {"F.layers.0.weight": torch.ones(2, 2)}), r"shape \(16, 45\)"),
 ])
 def test_errors_name_their_culprit(params, message):
     model = get_model("ggx", state=PAPER_STATE, seed=0)
-    full = {s.name: torch.full((s.width,), s.init) for s in model.specs} | {"latent": torch.full((27,), 0.5)}
-    given = params if "missing" in message else {**full, **params}
+    full = {s.name: torch.full((s.width,), s.init) for s in model.specs}
     with pytest.raises(ValueError, match=message):
-        model.specialize(given)
+        model.specialize(params(full, torch.full((27,), 0.5)))
+
+
+@pytest.mark.parametrize("key", ["F.layers.0.weight", "S*D*F*G.layers.3.bias"])
+def test_a_correction_acts_exactly_as_editing_the_shared_weight(key):
+    """A material's correction ``delta`` at a module weight gives, in ``evaluate`` and in
+    ``specialize``, the very values of a copy of the model whose shared weight was set to
+    ``weight + delta``; and it does change them."""
+    model = get_model("ggx", state="10011100100", seed=0)
+    rng = np.random.default_rng(4)
+    weight = model.neural.state_dict()[key]
+    delta = torch.as_tensor(rng.normal(0.0, 0.1, tuple(weight.shape)), dtype=torch.float32)
+    values = {s.name: torch.full((s.width,), s.init) for s in model.specs}
+    latent = torch.as_tensor(rng.random(27), dtype=torch.float32)
+    corrected = MaterialParams(values, latent, {key: delta}, capacity="dense")
+    edited = copy.deepcopy(model)
+    with torch.no_grad():
+        edited.neural.state_dict()[key].add_(delta)
+    params = random_params(model, 1, rng)
+    wi, wo = (torch.as_tensor(w, dtype=torch.float32) for w in random_directions(
+        {k: np.broadcast_to(v, (2000, v.shape[1])) for k, v in params.items()}, 2000, rng))
+    plain = MaterialParams(values, latent)
+    with torch.no_grad():
+        assert torch.equal(model.evaluate(wi, wo, corrected), edited.evaluate(wi, wo, plain))
+        assert not torch.equal(model.evaluate(wi, wo, corrected), model.evaluate(wi, wo, plain))
+    for dtype in (torch.float32, torch.float64):
+        w_i, w_o = wi.to(dtype), wo.to(dtype)
+        assert torch.equal(model.specialize(corrected)(w_i, w_o), edited.specialize(plain)(w_i, w_o))
+    assert corrected.n_params == 12 + 27 + weight.numel()

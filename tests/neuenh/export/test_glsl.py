@@ -14,6 +14,7 @@ from gl_runtime import gl_context, run_brdf, shade_sphere, validate
 from neuenh.export import identifier
 from neuenh.export.glsl import literal, material_source, write
 from neuenh.checkpoint import Bundle
+from neuenh.materials import MaterialParams
 from neuenh.models import available_models, get_model
 from neuenh.pretrained import bundle_path
 from test_models import DIRECTIONS, FRAMES, random_directions, random_params, spec_values, torch_params
@@ -66,14 +67,14 @@ def model_for(name: str, state: str):
     return get_model(name, state=state)
 
 
-def check_export(gl, model, material: dict, wi: np.ndarray, wo: np.ndarray, what: str) -> None:
+def check_export(gl, model, material: MaterialParams, wi: np.ndarray, wo: np.ndarray, what: str) -> None:
     """The exported material on llvmpipe against the float64 model at the same float32 directions."""
     special = model.specialize(material)
     wi, wo = wi.astype(np.float32), wo.astype(np.float32)  # what the shader reads
     got = run_brdf(gl, material_source(special, "m"), wi, wo).astype(np.float64)
     wi64, wo64 = torch.as_tensor(wi, dtype=torch.float64), torch.as_tensor(wo, dtype=torch.float64)
     with torch.no_grad():
-        want = copy.deepcopy(model).double().evaluate(wi64, wo64, {k: v.double() for k, v in material.items()}).numpy()
+        want = copy.deepcopy(model).double().evaluate(wi64, wo64, material.to(torch.float64)).numpy()
     want32 = special(wi64.float(), wo64.float()).double().numpy()  # torch's own float32 path
     assert np.isfinite(got).all(), what
     assert (got[(want == 0).all(1)] == 0).all(), f"{what}: non-zero below a horizon"
@@ -95,9 +96,8 @@ def test_exported_glsl_equals_the_torch_model_on_llvmpipe(gl, name, state, tmp_p
     if "1" in state:  # a neural shader takes llvmpipe a second or more to compile: the extremes and one random
         chosen = [chosen[0], chosen[2], chosen[3]]
     for i, params in enumerate(chosen):
-        material = torch_params({k: v[0] for k, v in params.items()}, torch.float64)
-        if model.uses_latent:
-            material["latent"] = torch.as_tensor(rng.random(model.latent_dim))
+        latent = torch.as_tensor(rng.random(model.latent_dim)) if model.uses_latent else None
+        material = MaterialParams(torch_params({k: v[0] for k, v in params.items()}, torch.float64), latent)
         if i == 0:
             validate(material_source(model.specialize(material), "m"), tmp_path)
         wi, wo = directions(model, params, rng)
@@ -114,7 +114,7 @@ def test_the_shipped_model_exports_each_of_its_materials(gl, tmp_path):
     rng = np.random.default_rng(3)
     for index in (0, len(bundle.materials) - 1):
         material = bundle.materials.as_params(index)
-        params = {k: v.double().numpy()[None] for k, v in material.items() if k != "latent"}
+        params = {k: v.double().numpy()[None] for k, v in material.values.items()}
         wi, wo = directions(bundle.model, params, rng)
         check_export(gl, bundle.model, material, wi, wo, f"enhanced-ggx {bundle.materials.names[index]}")
     validate(material_source(bundle.model.specialize(bundle.materials.as_params(0)), "m"), tmp_path)
@@ -165,8 +165,7 @@ def test_a_sphere_shaded_by_the_export_equals_the_renderer(gl, state):
     base = {s.name: np.full(s.width, s.init) for s in model.specs}
     params = torch_params({**base, "alpha_x": np.array([0.15]), "alpha_y": np.array([0.4]), "t_theta": np.array([0.6]),
                            "rho_d": np.array([0.3, 0.1, 0.05]), "rho_s": np.array([0.9, 0.8, 0.6])}, torch.float32)
-    if model.uses_latent:
-        params["latent"] = torch.full((model.latent_dim,), 0.3)
+    params = MaterialParams(params, torch.full((model.latent_dim,), 0.3) if model.uses_latent else None)
     special = model.specialize(params)
     lights = [((0.3, 0.8, 1.0), (3.0, 3.0, 3.0)), ((-1.0, 0.2, 0.4), (0.5, 0.7, 1.0)), ((0.0, -0.5, 1.0), (1.0, 0.4, 0.2))]
     scene = sphere_scene(48)
@@ -196,9 +195,8 @@ def test_the_generic_model_function_equals_the_model_for_any_material(gl, name, 
     ident = model.name
     n = sum(width for _, _, width in parameter_layout(model))
     for i, params in enumerate(materials(model, rng)[1:4]):
-        material = torch_params({k: v[0] for k, v in params.items()}, torch.float64)
-        if model.uses_latent:
-            material["latent"] = torch.as_tensor(rng.random(model.latent_dim))
+        latent = torch.as_tensor(rng.random(model.latent_dim)) if model.uses_latent else None
+        material = MaterialParams(torch_params({k: v[0] for k, v in params.items()}, torch.float64), latent)
         packed = ", ".join(literal(v) for v in pack_parameters(model, material))
         wrapper = source + (f"vec3 call(vec3 wi, vec3 wo) {{ float p[{n}] = float[{n}]({packed}); "
                             f"return neuenh_{ident}_brdf(wi, wo, p); }}\n")
@@ -211,7 +209,7 @@ def test_the_generic_model_function_equals_the_model_for_any_material(gl, name, 
             want = copy.deepcopy(model).double().evaluate(torch.as_tensor(wi32, dtype=torch.float64),
                                                           torch.as_tensor(wo32, dtype=torch.float64), material).numpy()
             own = model.float().evaluate(torch.as_tensor(wi32), torch.as_tensor(wo32),
-                                         {k: v.float() for k, v in material.items()}).double().numpy()
+                                         material.to(torch.float32)).double().numpy()
         assert np.isfinite(got).all() and (got[(want == 0).all(1)] == 0).all()
         scale = np.maximum(np.abs(want), 1e-3 * want.max())
         bound = max(1e-4, 2.5 * float((np.abs(own - want) / scale).max()))  # as float32 torch can do

@@ -22,6 +22,7 @@ mi_module = pytest.importorskip("mitsuba", reason="the mitsuba package (neuenh[e
 
 from neuenh.export import mitsuba as nm  # noqa: E402
 from neuenh.models import get_model  # noqa: E402
+from neuenh.materials import MaterialParams  # noqa: E402
 from neuenh.pretrained import load_model  # noqa: E402
 from test_models import DIRECTIONS, random_directions, random_params  # noqa: E402
 
@@ -35,12 +36,10 @@ nm.register()
 import drjit as dr  # noqa: E402
 
 
-def material(model, rng, **fixed) -> dict[str, torch.Tensor]:
+def material(model, rng, **fixed) -> MaterialParams:
     params = {k: torch.as_tensor(v[0]) for k, v in random_params(model, 1, rng).items()}
     params.update({k: torch.as_tensor(np.atleast_1d(v), dtype=torch.float64) for k, v in fixed.items()})
-    if model.uses_latent:
-        params["latent"] = torch.as_tensor(rng.random(model.latent_dim))
-    return params
+    return MaterialParams(params, torch.as_tensor(rng.random(model.latent_dim)) if model.uses_latent else None)
 
 
 def exported(model, params, tmp_path, name="m"):
@@ -58,7 +57,7 @@ def pairs(params, rng, n=4096) -> tuple[np.ndarray, np.ndarray]:
     """The hard cases about the material's normal, then random pairs, half near its peak."""
     import reference_brdfs as ref
 
-    rows = {k: v.numpy().reshape(1, -1) for k, v in params.items() if k != "latent"}
+    rows = {k: v.numpy().reshape(1, -1) for k, v in MaterialParams.of(params).values.items()}
     normal = ref.frame(rows, 1)[2][0]
     hard = [make(normal) for make in DIRECTIONS.values()]
     wi, wo = random_directions({k: np.repeat(v, n, 0) for k, v in rows.items()}, n, rng)
@@ -71,7 +70,7 @@ def shipped():
         model, table = load_model("enhanced-ggx")
     except ValueError:
         pytest.skip("no shipped models/enhanced-ggx")
-    return model, {k: v.double() for k, v in table.as_params(0).items()}
+    return model, table.as_params(0).to(torch.float64)
 
 
 CASES = {

@@ -18,6 +18,7 @@ one-line ValueError that writes nothing.
 from __future__ import annotations
 
 import copy
+import dataclasses
 from typing import NamedTuple
 
 import numpy as np
@@ -28,6 +29,7 @@ import torch
 
 from neuenh import __version__
 from neuenh.export.onnx import OPSET, generic_graph, material_graph, write
+from neuenh.materials import LATENT_NAME, MaterialParams
 from neuenh.models import available_models, get_model
 from neuenh.pretrained import load_model
 from test_models import above_mask, random_directions, random_params, stability_grid, torch_params
@@ -53,7 +55,7 @@ def run(sess: ort.InferenceSession, wi, wo, **params) -> np.ndarray:
 
 
 class Material(NamedTuple):
-    params: dict  # what specialize takes
+    params: MaterialParams  # what specialize takes
     special: object  # its SpecializedBRDF
     session: ort.InferenceSession  # its material graph
     wi: np.ndarray  # its direction pairs, float64
@@ -89,16 +91,20 @@ def exported(request):
         materials.append(Material(params, special, session(material_graph(special)), wi, wo, above))
 
     for one, rows in materials_of(grid):
-        params = torch_params(one) | ({"latent": latent} if latent is not None else {})
+        params = MaterialParams(torch_params(one), latent)
         add(params, wi[rows], wo[rows], above_mask(model, wi[rows], wo[rows], {k: v[rows] for k, v in grid.items()}))
-    randoms = [torch_params({k: v[0] for k, v in random_params(model, 1, rng).items()})
+    randoms = [MaterialParams(torch_params({k: v[0] for k, v in random_params(model, 1, rng).items()}), latent)
                for _ in range(4 - len(shipped))]
     n = N_RANDOM_ALL_NEURAL if request.param == "ggx-all-neural" else N_RANDOM
-    for params in randoms + [{k: v.double() for k, v in p.items()} for p in shipped]:
-        params = params | ({"latent": latent} if latent is not None and "latent" not in params else {})
-        rows = {k: np.broadcast_to(v.numpy().reshape(1, -1), (n, v.numel())) for k, v in params.items() if k != "latent"}
+    for params in randoms + [p.to(torch.float64) for p in shipped]:
+        rows = {k: np.broadcast_to(v.numpy().reshape(1, -1), (n, v.numel())) for k, v in params.values.items()}
         add(params, *random_directions(rows, n, rng), None)
     return request.param, model, materials, generic_graph(model)
+
+
+def graph_inputs(params: MaterialParams) -> dict[str, torch.Tensor]:
+    """A material's record as the generic graph's named inputs: its values, then its latent code."""
+    return {**params.values, **({LATENT_NAME: params.latent} if params.latent is not None else {})}
 
 
 def relative_errors(got, want, floor: float) -> np.ndarray:
@@ -162,7 +168,7 @@ def test_the_material_graph_equals_the_torch_evaluators(exported):
     errors = Errors()
     for m in materials:
         wi32, wo32 = (torch.as_tensor(w, dtype=torch.float32) for w in (m.wi, m.wo))
-        what = f"{case} {({k: v.tolist() for k, v in m.params.items() if k != 'latent'})}"
+        what = f"{case} {({k: v.tolist() for k, v in m.params.values.items()})}"
         # float64: the specialized evaluator's own float64 kernel, = evaluate to 1e-9 (test_specialize)
         errors.check(what, run(m.session, wi32, wo32), m.special(wi32, wo32).numpy(),
                      lambda i, o, special=m.special: special(i, o).numpy(), wi32, wo32,
@@ -178,29 +184,31 @@ def test_the_generic_graph_equals_evaluate_with_a_material_per_row(exported):
     case, model, materials, blob = exported
     sess = session(blob)
     assert [i.name for i in onnx.load_from_string(blob).graph.input] == \
-        ["wi", "wo", *model.param_names, *(["latent"] if model.uses_latent else [])]
+        ["wi", "wo", *model.param_names, *([LATENT_NAME] if model.uses_latent else [])]
     rng = np.random.default_rng(5)
     extra = random_params(model, 4096, rng)
     if model.uses_latent:
-        extra["latent"] = rng.random((4096, model.latent_dim))
+        extra[LATENT_NAME] = rng.random((4096, model.latent_dim))
     w_i, w_o = random_directions(extra, 4096, rng)
     wi = torch.as_tensor(np.vstack([m.wi[:2048] for m in materials] + [w_i]), dtype=torch.float32)
     wo = torch.as_tensor(np.vstack([m.wo[:2048] for m in materials] + [w_o]), dtype=torch.float32)
-    rows = {k: np.vstack([np.broadcast_to(m.params[k].numpy().reshape(1, -1), (len(m.wi[:2048]), m.params[k].numel()))
-                          for m in materials] + [extra[k]])
+    inputs = [graph_inputs(m.params) for m in materials]
+    rows = {k: np.vstack([np.broadcast_to(i[k].numpy().reshape(1, -1), (len(m.wi[:2048]), i[k].numel()))
+                          for m, i in zip(materials, inputs)] + [extra[k]])
             for k in extra}
     rows32 = {k: torch.as_tensor(v, dtype=torch.float32) for k, v in rows.items()}
     got = run(sess, wi, wo, **rows32)
-    model64, rows64 = copy.deepcopy(model).double(), {k: v.double() for k, v in rows32.items()}
+    record = MaterialParams({k: v for k, v in rows32.items() if k != LATENT_NAME}, rows32.get(LATENT_NAME))
+    model64 = copy.deepcopy(model).double()
     with torch.no_grad():
-        want = model.evaluate(wi, wo, rows32).numpy()
+        want = model.evaluate(wi, wo, record).numpy()
         errors = Errors()
-        errors.check(case, got, want, lambda i, o: model64.evaluate(i, o, rows64).numpy(), wi, wo)
+        errors.check(case, got, want, lambda i, o: model64.evaluate(i, o, record.to(torch.float64)).numpy(), wi, wo)
     errors.check_conditioned(case)
 
     # one row of parameters serves every sample
     m = materials[-1]
-    one = {k: v.numpy().reshape(1, -1) for k, v in m.params.items()}
+    one = {k: v.numpy().reshape(1, -1) for k, v in graph_inputs(m.params).items()}
     many = {k: np.repeat(v, len(m.wi), 0) for k, v in one.items()}
     np.testing.assert_array_equal(run(sess, m.wi, m.wo, **one), run(sess, m.wi, m.wo, **many))
 
@@ -237,11 +245,11 @@ def test_write_gives_loadable_files_with_their_metadata(shipped, tmp_path):
         meta = sess.get_modelmeta().custom_metadata_map
         assert meta["model"] == "ggx" and meta["state"] == model.state and meta["formula"] == model.describe()
         assert meta["neuenh_version"] == __version__ and meta.get("material") == name
-        assert ("latent" in meta["inputs"]) == (name is None) and sess.get_modelmeta().producer_name == "neuenh"
+        assert (LATENT_NAME in meta["inputs"]) == (name is None) and sess.get_modelmeta().producer_name == "neuenh"
         if name is not None:
             rng = np.random.default_rng(1)
-            wi, wo = random_directions({k: v.numpy().reshape(1, -1).repeat(64, 0) for k, v in materials[name].items()
-                                        if k != "latent"}, 64, rng)
+            wi, wo = random_directions({k: v.numpy().reshape(1, -1).repeat(64, 0)
+                                        for k, v in materials[name].values.items()}, 64, rng)
             wi32, wo32 = (torch.as_tensor(w, dtype=torch.float32) for w in (wi, wo))
             want = model.specialize(materials[name])(wi32, wo32).numpy()
             # the files run (accuracy is the tests above: near a sharp peak two float32 paths part by 2e-4)
@@ -260,7 +268,8 @@ def test_write_gives_loadable_files_with_their_metadata(shipped, tmp_path):
 def test_a_bad_material_is_a_one_line_value_error_that_writes_nothing(shipped, tmp_path, names, message):
     model, materials = shipped
     params = next(iter(materials.values()))
-    given = {name: params | ({"alpha_x": torch.tensor([5.0])} if name == "rough" else {}) for name in names}
+    given = {name: dataclasses.replace(params, values={**params.values, "alpha_x": torch.tensor([5.0])})
+             if name == "rough" else params for name in names}
     with pytest.raises(ValueError, match=message) as error:
         write(model, given, tmp_path / "out")
     assert "\n" not in str(error.value)
