@@ -12,7 +12,7 @@ import sys
 
 from neuenh_service.storage import StorageError
 
-from . import data, export, fit, render, report, scene, search, serve
+from . import data, encoder, export, fit, render, report, scene, search, serve
 
 
 class UsageError(Exception):
@@ -33,6 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_parser(commands)
     export.add_parser(commands)
     scene.add_parser(commands)
+    encoder.add_parser(commands)
     return parser
 
 

@@ -14,6 +14,9 @@ A bundle directory holds
   module weights (keys ``<k>.<position>.layers.<i>.weight``) and their training materials' mean
   latent code (``<k>.latent_mean``, a start for new fits); ``model.json`` lists them
   (round, state, validation loss, weights, parameters per material).
+* ``encoder.safetensors``: optional, the model's *encoder* (``neuenh.encoder.MaterialEncoder``):
+  measurements of a material -> its parameters, the start of its fit; ``model.json``'s ``encoder``
+  holds its description and training record. A bundle without one fits from the usual starts.
 
 Loading never unpickles: safetensors and JSON only. Every file is written atomically (temporary
 file + rename) and ``model.json`` last, so a directory with a ``model.json`` is complete.
@@ -35,6 +38,7 @@ import torch
 from safetensors.torch import load as st_load
 from safetensors.torch import load_file, save, save_file
 
+from .encoder import MaterialEncoder
 from .graph import BRDFModel
 from .materials import MaterialTable
 from .models import get_model
@@ -44,6 +48,7 @@ FORMAT = "neuenh-bundle"
 VERSION = 1
 MODEL_JSON, WEIGHTS, MATERIALS = "model.json", "weights.safetensors", "materials.safetensors"
 RUNGS = "rungs.safetensors"
+ENCODER = "encoder.safetensors"
 
 
 class BundleError(ValueError):
@@ -87,6 +92,7 @@ class Bundle:
     provenance: dict[str, Any] = field(default_factory=dict)
     metrics: dict[str, Any] = field(default_factory=dict)
     rungs: list[Rung] = field(default_factory=list)  # cheapest (first committed) to latest
+    encoder: MaterialEncoder | None = None  # amortised starts (neuenh.encoder), if trained
 
     @classmethod
     def initial(
@@ -123,6 +129,7 @@ class Bundle:
             ],
             "materials": list(self.materials.names) if self.materials is not None else [],
             "rungs": [r.describe() for r in self.rungs],
+            **({"encoder": self.encoder.describe()} if self.encoder is not None else {}),
             "training": self.training,
             "provenance": self.provenance,
             "metrics": self.metrics,
@@ -146,6 +153,10 @@ class Bundle:
             digests[RUNGS] = _atomic(directory / RUNGS, lambda p: save_file(_rung_tensors(self.rungs), p))
         elif (directory / RUNGS).exists():
             (directory / RUNGS).unlink()
+        if self.encoder is not None:
+            digests[ENCODER] = _atomic(directory / ENCODER, lambda p: save_file(self.encoder.tensors(), p))
+        elif (directory / ENCODER).exists():
+            (directory / ENCODER).unlink()
         text = json.dumps({**self.describe(), "digests": digests}, indent=2, sort_keys=False) + "\n"
         _atomic(directory / MODEL_JSON, lambda p: Path(p).write_text(text))
         return directory
@@ -161,7 +172,7 @@ class Bundle:
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise BundleError(f"{meta_path}: not valid JSON ({exc})") from None
         for name, digest in (meta.get("digests") or {}).items():  # bundles saved before digests have none
-            if name not in (WEIGHTS, MATERIALS, RUNGS):
+            if name not in (WEIGHTS, MATERIALS, RUNGS, ENCODER):
                 raise BundleError(f"{meta_path}: digests name an unknown file {name!r}")
             path = directory / name
             if path.is_file() and _sha256(path) != digest:  # a missing one is named by its reader below
@@ -172,7 +183,8 @@ class Bundle:
         if (directory / MATERIALS).exists():
             materials = _read_materials(directory / MATERIALS)
         rungs = _read_safetensors(directory / RUNGS) if meta.get("rungs") else {}
-        return cls._assemble(meta, weights, materials, str(directory), rungs)
+        encoder = _read_safetensors(directory / ENCODER) if meta.get("encoder") else None
+        return cls._assemble(meta, weights, materials, str(directory), rungs, encoder)
 
     # -- wire --------------------------------------------------------------------------------
     def to_bytes(self) -> bytes:
@@ -182,6 +194,8 @@ class Bundle:
             tensors.update({f"material.{k}": v for k, v in self.materials.tensors().items()})
             meta.update(self.materials.metadata())
         tensors.update({f"rung.{k}": v for k, v in _rung_tensors(self.rungs).items()})
+        if self.encoder is not None:
+            tensors.update({f"encoder.{k}": v for k, v in self.encoder.tensors().items()})
         return save(tensors, metadata=meta)
 
     @classmethod
@@ -194,11 +208,15 @@ class Bundle:
             mt = {k[len("material."):]: v for k, v in tensors.items() if k.startswith("material.")}
             materials = (mt, meta)
         rungs = {k[len("rung."):]: v for k, v in tensors.items() if k.startswith("rung.")}
-        return cls._assemble(json.loads(meta["model.json"]), weights, materials, "<bytes>", rungs)
+        description = json.loads(meta["model.json"])
+        encoder = ({k[len("encoder."):]: v for k, v in tensors.items() if k.startswith("encoder.")}
+                   if description.get("encoder") else None)
+        return cls._assemble(description, weights, materials, "<bytes>", rungs, encoder)
 
     @classmethod
     def _assemble(cls, meta: dict, weights: dict, materials, where: str,
-                  rung_tensors: dict[str, torch.Tensor] | None = None) -> "Bundle":
+                  rung_tensors: dict[str, torch.Tensor] | None = None,
+                  encoder_tensors: dict[str, torch.Tensor] | None = None) -> "Bundle":
         if meta.get("format") != FORMAT:
             raise BundleError(f"{where}: not a {FORMAT} (format {meta.get('format')!r})")
         if meta.get("version") != VERSION:
@@ -245,7 +263,14 @@ class Bundle:
                     model.corrected_weights(table.as_params(i).corrections)  # keys and shapes of this model's
             except (ValueError, KeyError, TypeError) as exc:
                 raise BundleError(f"{where}: {exc}") from None
-        return cls(model, table, meta.get("training", {}), meta.get("provenance", {}), meta.get("metrics", {}), rungs)
+        encoder = None
+        if encoder_tensors is not None:
+            try:
+                encoder = MaterialEncoder.from_tensors(model.specs, meta["encoder"], encoder_tensors)
+            except ValueError as exc:
+                raise BundleError(f"{where} encoder: {exc}") from None
+        return cls(model, table, meta.get("training", {}), meta.get("provenance", {}), meta.get("metrics", {}), rungs,
+                   encoder)
 
 
 def blob_metadata(blob: bytes) -> dict[str, str]:

@@ -80,6 +80,13 @@ class _Continuous(_Source):
     def sampling(self) -> Sampling:
         return Sampling(self.near_mirror, self.every_azimuth)
 
+    def load_materials(self) -> list:
+        """The source's materials (named, with ``evaluate`` and ``samples``), unsampled."""
+        raise NotImplementedError
+
+    def build(self, check: Callable[[], None] | None = None) -> Samples:
+        return sample_materials(self.load_materials(), self.samples, self.seed, check=check, sampling=self.sampling)
+
 
 class SyntheticZoo(_Continuous):
     """Materials plain GGX cannot represent (neuenh.data.synthetic.synthetic_zoo)."""
@@ -93,10 +100,9 @@ class SyntheticZoo(_Continuous):
         if unknown:
             raise ValueError(f"unknown zoo families {unknown}; available: {list(ZOO_FAMILIES)}")
 
-    def build(self, check: Callable[[], None] | None = None) -> Samples:
+    def load_materials(self) -> list:
         families = tuple(self.families) if self.families else None
-        return sample_materials(self._named(synthetic_zoo(self.materials, self.seed, families)), self.samples,
-                                self.seed, check=check, sampling=self.sampling)
+        return self._named(synthetic_zoo(self.materials, self.seed, families))
 
 
 class SyntheticGGX(_Continuous):
@@ -106,9 +112,8 @@ class SyntheticGGX(_Continuous):
     materials: int = Field(100, ge=1)
     noise: float = Field(0.1, ge=0.0)
 
-    def build(self, check: Callable[[], None] | None = None) -> Samples:
-        return sample_materials(self._named(synthetic_ggx(self.materials, self.seed, self.noise)), self.samples,
-                                self.seed, check=check, sampling=self.sampling)
+    def load_materials(self) -> list:
+        return self._named(synthetic_ggx(self.materials, self.seed, self.noise))
 
 
 # -- measured files --------------------------------------------------------------------------
@@ -153,17 +158,14 @@ class NBRDFSource(_Files, _Continuous):
     def _no_duplicates(cls, v):
         return _unique(v, "NBRDF materials")
 
-    def build(self, check: Callable[[], None] | None = None) -> Samples:
+    def load_materials(self) -> list:
         found = detect_format(self.path)
         if found != "nbrdf":
             raise DataError(f"{self.path}: expected NBRDF weights for an 'nbrdf' source, but the file holds "
                             f"{_KIND_LABEL[found]}")
         if self.materials is None:
-            materials = list(load_nbrdf(self.path).values())
-        else:
-            materials = [nbrdf_material(self.path, name) for name in self.materials]
-        return sample_materials(self._named(materials), self.samples, self.seed, check=check,
-                                sampling=self.sampling)
+            return self._named(list(load_nbrdf(self.path).values()))
+        return self._named([nbrdf_material(self.path, name) for name in self.materials])
 
 
 class _PathsSource(_Files):
@@ -177,9 +179,8 @@ class _PathsSource(_Files):
 
 
 class _MeasuredPaths(_PathsSource, _Continuous):
-    def build(self, check: Callable[[], None] | None = None) -> Samples:
-        materials = self._named([_load(p, self._kind) for p in self.paths])
-        return sample_materials(materials, self.samples, self.seed, check=check, sampling=self.sampling)
+    def load_materials(self) -> list:
+        return self._named([_load(p, self._kind) for p in self.paths])
 
 
 class MERLSource(_MeasuredPaths):

@@ -11,10 +11,13 @@ material, weights, fit time. Two kinds cover every model of the comparison:
   Parameters per material: the analytical ones plus the latent code if a module reads it.
 * :class:`NBRDFContender` — a network fitted from scratch per material (``nbrdf_fit``); its 675
   weights are per material, so they count as parameters per material, and it has no shared weights.
+* :class:`EncodedContender` — a model whose parameters its encoder (``neuenh.encoder``) predicts
+  from the measurements in one pass, without any fitting: what an amortised start is worth alone.
 """
 
 from __future__ import annotations
 
+import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Callable
@@ -22,12 +25,13 @@ from typing import Callable
 import torch
 
 from ..data.samples import Samples
-from ..fit import FitConfig, fit_materials
+from ..encoder import MaterialEncoder
+from ..fit import FitConfig, fit_materials, per_material_loss
 from ..graph import BRDFModel
 from ..materials import MaterialTable
 from .nbrdf_fit import NBRDFConfig, fit_nbrdf
 
-__all__ = ["Contender", "FittedMaterial", "GraphContender", "NBRDFContender"]
+__all__ = ["Contender", "EncodedContender", "FittedMaterial", "GraphContender", "NBRDFContender"]
 
 Directions = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
@@ -72,16 +76,35 @@ class GraphContender(Contender):
     def fit(self, samples: Samples, seed: int = 0) -> FittedMaterial:
         _one_material(samples)
         result = fit_materials(self.model, samples, self.config, seed=seed, trained=self.trained)
-        params = self.model.used_params(result.materials.as_params(0))
-        model = self.model
+        return _fitted(self.name, self.model, result.materials, result.losses[0], result.wall_s)
 
-        @torch.no_grad()
-        def predict(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
-            return model.unclipped(wi, wo, params)
 
-        brdf = model.specialize(params)  # equals model.evaluate(wi, wo, params), faster
-        return FittedMaterial(self.name, predict, brdf, result.losses[0], result.wall_s, params.n_params,
-                              model.n_weights())
+class EncodedContender(Contender):
+    """``model`` with the parameters ``encoder`` predicts from the fit samples: no fitting at all."""
+
+    def __init__(self, name: str, label: str, family: str, model: BRDFModel, encoder: MaterialEncoder):
+        self.name, self.label, self.family = name, label, family
+        self.model, self.encoder = model, encoder
+
+    def fit(self, samples: Samples, seed: int = 0) -> FittedMaterial:
+        _one_material(samples)
+        start = time.perf_counter()
+        materials = self.encoder.encode(samples)
+        wall_s = time.perf_counter() - start
+        (loss,) = per_material_loss(self.model, materials, samples)
+        return _fitted(self.name, self.model, materials, loss, wall_s)
+
+
+def _fitted(name: str, model: BRDFModel, materials: MaterialTable, fit_loss: float, fit_s: float) -> FittedMaterial:
+    """``model`` with the first material of ``materials`` as a contender's result."""
+    params = model.used_params(materials.as_params(0))
+
+    @torch.no_grad()
+    def predict(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        return model.unclipped(wi, wo, params)
+
+    brdf = model.specialize(params)  # equals model.evaluate(wi, wo, params), faster
+    return FittedMaterial(name, predict, brdf, fit_loss, fit_s, params.n_params, model.n_weights())
 
 
 class NBRDFContender(Contender):

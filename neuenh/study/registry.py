@@ -10,10 +10,12 @@ from pathlib import Path
 from ..modules import ModuleConfig
 from ..models.ggx_residual import RESIDUAL_STATE
 
-__all__ = ["ANALYTICAL", "BASELINES", "Baseline", "ContenderInfo", "EFFICIENCY_CONTENDERS", "ENHANCED",
+__all__ = ["ANALYTICAL", "BASELINES", "Baseline", "ContenderInfo", "EFFICIENCY_CONTENDERS", "ENCODED", "ENHANCED",
            "OTHER_ENHANCED", "contender_infos", "shipped_others"]
 
 ENHANCED = "enhanced"
+# the enhanced model's encoder alone (no fit: ``contenders.EncodedContender``), when its bundle has one
+ENCODED = "enhanced-encoder"
 ANALYTICAL = {"ggx": "GGX", "cook_torrance": "Cook-Torrance", "ward": "Ward"}
 
 
@@ -57,10 +59,11 @@ OTHER_ENHANCED = {"enhanced-cook-torrance": ("Enhanced Cook-Torrance", "cook_tor
                   "enhanced-ward": ("Enhanced Ward", "ward")}
 
 
-def contender_infos(others: tuple[str, ...] = ()) -> list[ContenderInfo]:
+def contender_infos(others: tuple[str, ...] = (), encoded: bool = False) -> list[ContenderInfo]:
     """Every model of the study, in the order of its tables; ``others``: the names of
-    ``OTHER_ENHANCED`` to include (those shipped)."""
+    ``OTHER_ENHANCED`` to include (those shipped); ``encoded``: the enhanced model's encoder alone too."""
     return [ContenderInfo(ENHANCED, "Enhanced GGX (ours)", "enhanced"),
+            *([ContenderInfo(ENCODED, "Enhanced GGX, encoder alone (no fit)", "enhanced")] if encoded else []),
             *(ContenderInfo(n, label, "analytical") for n, label in ANALYTICAL.items()),
             *(ContenderInfo(n, OTHER_ENHANCED[n][0], "enhanced") for n in others),
             *(ContenderInfo(b.name, b.label, b.family) for b in BASELINES.values()),
@@ -77,4 +80,4 @@ def shipped_others() -> tuple[str, ...]:
 
 # The models of the data-efficiency curves (``study.efficiency``): the question is where a shared
 # model's prior beats a network fitted from scratch, against the analytical model and the residual MLP.
-EFFICIENCY_CONTENDERS = (ENHANCED, "ggx", "residual-1x", "nbrdf")
+EFFICIENCY_CONTENDERS = (ENHANCED, ENCODED, "ggx", "residual-1x", "nbrdf")

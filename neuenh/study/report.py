@@ -12,7 +12,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .registry import ANALYTICAL, BASELINES, EFFICIENCY_CONTENDERS, ENHANCED, OTHER_ENHANCED, contender_infos
+from .registry import ANALYTICAL, BASELINES, EFFICIENCY_CONTENDERS, ENCODED, ENHANCED, OTHER_ENHANCED, contender_infos
 from .summary import MaterialResult, StudySummary
 
 __all__ = ["StudySettings", "find_materials", "run_study"]
@@ -79,7 +79,9 @@ def run_study(settings: StudySettings) -> StudySummary:
     paths = find_materials(settings.rgl, settings.materials)
     enhanced, _ = load_model(settings.model, "--model")  # fails early on a wrong name
     path = bundle_path(settings.model)
-    provenance = Bundle.load(path).provenance if path else {}
+    bundle = Bundle.load(path) if path else None
+    provenance = bundle.provenance if bundle else {}
+    encoded = bundle is not None and bundle.encoder is not None
     materials = []
     with concurrent.futures.ProcessPoolExecutor(max_workers=settings.jobs,
                                                 mp_context=multiprocessing.get_context("fork")) as pool:
@@ -91,7 +93,7 @@ def run_study(settings: StudySettings) -> StudySummary:
     materials.sort(key=lambda m: m.material)
     s = settings
     summary = StudySummary.of(
-        materials, contender_infos(s.others), command=s.command, generated=time.strftime("%Y-%m-%d", time.gmtime()),
+        materials, contender_infos(s.others, encoded), command=s.command, generated=time.strftime("%Y-%m-%d", time.gmtime()),
         wall_s=time.perf_counter() - start,
         settings={"fit_samples": s.fit_samples, "test_samples": s.test_samples, "size": s.size, "scene": s.scene,
                   "eval_pairs": s.eval_pairs, "fit_starts": s.fit_starts, "light_samples": s.samples ** 2,
@@ -114,15 +116,20 @@ def _contenders(s: StudySettings) -> list:
     from ..checkpoint import Bundle
     from ..fit import FitConfig
     from ..models import get_model
-    from ..pretrained import load_model
-    from .contenders import GraphContender, NBRDFContender
+    from ..pretrained import bundle_path, load_model
+    from .contenders import EncodedContender, GraphContender, NBRDFContender
     from .nbrdf_fit import NBRDFConfig
 
     fit = FitConfig(epochs=s.fit_epochs, starts=s.fit_starts)
+    path = bundle_path(s.model)
+    encoder = Bundle.load(path).encoder if path else None
     out = []
-    for info in contender_infos(s.others):
+    for info in contender_infos(s.others, encoder is not None):
         if info.name == ENHANCED:
             model, trained = load_model(s.model)
+        elif info.name == ENCODED:
+            out.append(EncodedContender(info.name, info.label, info.family, load_model(s.model)[0], encoder))
+            continue
         elif info.name in OTHER_ENHANCED:
             model, trained = load_model(info.name)
         elif info.name in ANALYTICAL:
