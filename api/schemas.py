@@ -8,7 +8,7 @@ import functools
 import json
 
 from datetime import datetime, timezone
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -153,6 +153,8 @@ class CandidatePublic(BaseModel):
     pruned: bool = Field(description="stopped early by successive halving; its losses are from the cut")
     train_loss: float | None
     val_loss: float | None
+    fit_score: float | None = Field(description="held-out log-L1 on the materials the job's data holds out, "
+                                                "fitted with the candidate's modules frozen (null: not scored)")
     epochs: int
     wall_s: float
     node: str | None
@@ -163,8 +165,8 @@ class CandidatePublic(BaseModel):
     def from_record(cls, c: CandidateRecord, r: RoundRecord, naming: "Naming") -> "CandidatePublic":
         return cls(state=c.state, change=naming.change(r.parent_state, c.state), ok=c.ok,
                    winner=c.state == r.winner_state, pruned=c.pruned, train_loss=c.train_loss,
-                   val_loss=c.val_loss, epochs=c.epochs, wall_s=c.wall_s, node=c.node, error=c.error,
-                   seed=c.seed)
+                   val_loss=c.val_loss, fit_score=c.fit_score, epochs=c.epochs, wall_s=c.wall_s, node=c.node,
+                   error=c.error, seed=c.seed)
 
 
 class WarmupPublic(BaseModel):
@@ -187,6 +189,7 @@ class RoundPublic(BaseModel):
     winner_state: str
     change: str = Field(description="what the winner changed from the parent (as a candidate's change)")
     winner_val_loss: float
+    winner_fit_score: float | None = Field(description="the winner's fit score (null: not scored)")
     gain_over_start: float | None = Field(description="1 - winner_val_loss / the history's start_val_loss: "
                                                       "the share of the starting state's loss removed so far")
     converged: bool = Field(description="the stay candidate won a search round: the search stopped here")
@@ -204,13 +207,20 @@ class RoundPublic(BaseModel):
     def from_record(cls, r: RoundRecord, naming: "Naming", start: float | None) -> "RoundPublic":
         return cls(round=r.index, kind=r.kind, parent_state=r.parent_state, winner_state=r.winner_state,
                    change=naming.change(r.parent_state, r.winner_state),
-                   winner_val_loss=r.winner_val_loss, gain_over_start=_gain(r.winner_val_loss, start),
+                   winner_val_loss=r.winner_val_loss, winner_fit_score=r.winner_fit_score,
+                   gain_over_start=_gain(r.winner_val_loss, start),
                    converged=r.converged, outcome=r.outcome,
                    warmup=WarmupPublic.from_record(r.warmup) if r.warmup else None, recovered=r.recovered,
                    started_at=_time(r.started_at), finished_at=_time(r.finished_at),
                    wall_s=r.finished_at - r.started_at,
                    candidates=[CandidatePublic.from_record(c, r, naming) for c in r.candidates],
                    extra=r.extra)
+
+
+def _score(spec: Any) -> str:
+    """A stored spec's search.score ('val' for specs written before it existed or not a mapping)."""
+    search = spec.get("search") if isinstance(spec, dict) else None
+    return "fit" if isinstance(search, dict) and search.get("score") == "fit" else "val"
 
 
 class HistoryPublic(BaseModel):
@@ -221,6 +231,8 @@ class HistoryPublic(BaseModel):
     terminal: bool
     reason: str | None = Field(description="as the job's: 'budget' when its budget ran out")
     current_state: str | None
+    score: Literal["val", "fit"] = Field(description="what selected each round's winner (the spec's search.score): "
+                                                     "'val' the validation loss, 'fit' the fit score")
     start_val_loss: float | None = Field(description="round 0's stay candidate: the starting state (plain "
                                                      "analytical by default) trained like every candidate")
     gain_over_start: float | None = Field(description="1 - the last winner's val loss / start_val_loss")
@@ -238,7 +250,7 @@ class HistoryPublic(BaseModel):
         last = last or (rounds[-1] if rounds else None)
         start = start_val_loss(round0)
         return cls(job_id=job.id, status=job.status, terminal=job.terminal, reason=job.reason,
-                   current_state=job.current_state,
+                   current_state=job.current_state, score=_score(job.spec),
                    start_val_loss=start, gain_over_start=_gain(last.winner_val_loss, start) if last else None,
                    rounds=[RoundPublic.from_record(r, naming, start) for r in rounds],
                    next_since_round=rounds[-1].index + 1 if rounds else since_round)

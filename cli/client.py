@@ -446,17 +446,21 @@ def _follow(api: Api, job_id: str, args) -> int:
 
 
 def _history_table(rounds: list[dict]) -> str:
-    """One row per round with the change and the gain the service describes (as the dashboard)."""
-    rows = [("round", "parent -> winner", "changed", "val loss", "vs start", "ok/total", "wall")]
+    """One row per round with the change and the gain the service describes (as the dashboard);
+    the winner's fit score beside its val loss when the job scored candidates on held-out materials."""
+    fit = any(r.get("winner_fit_score") is not None for r in rounds)
+    rows = [("round", "parent -> winner", "changed", "val loss", *(("fit score",) if fit else ()), "vs start",
+             "ok/total", "wall")]
     for r in rounds:
         ok = f"{sum(c['ok'] for c in r['candidates'])}/{len(r['candidates'])}"
         ok += f" ({r['recovered']} recovered)" if r.get("recovered") else ""
         gain = "-" if r["gain_over_start"] is None else f"{-100 * r['gain_over_start']:+.1f}%"
+        score = "-" if r.get("winner_fit_score") is None else f"{r['winner_fit_score']:.5f}"
         rows.append((str(r["round"]) + (" polish" if r["kind"] == "polish" else ""),
                      f"{r['parent_state']} -> {r['winner_state']}",
                      r["change"] + (" converged" if r["converged"] else ""),
-                     f"{r['winner_val_loss']:.5f}", gain, ok, f"{r['wall_s']:.1f}s"))
-    return _table(rows, right=(0, 3, 4, 5, 6))
+                     f"{r['winner_val_loss']:.5f}", *((score,) if fit else ()), gain, ok, f"{r['wall_s']:.1f}s"))
+    return _table(rows, right=tuple(i for i, h in enumerate(rows[0]) if h not in ("parent -> winner", "changed")))
 
 
 def _jobs_table(found: list[dict]) -> str:
@@ -475,7 +479,7 @@ def _job_text(job: dict) -> str:
     p = job.get("progress")
     if p:
         best = f"{p['best_val_loss']:.5f}" if p["best_val_loss"] is not None else "-"
-        lines.append(f"  progress   round {p['round']}  candidates {p['done']}/{p['total']}  best val {best}  "
+        lines.append(f"  progress   round {p['round']}  candidates {p['done']}/{p['total']}  best {best}  "
                      f"{p['message']}".rstrip())
     if job["error"]:
         lines.append(f"  error      {job['error']}")

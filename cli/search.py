@@ -124,6 +124,7 @@ def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
         "formula": bundle.model.describe(),
         "weights": bundle.model.n_weights(),
         "val_loss": final.val_loss,
+        "fit_score": final.fit_score,
         "path": [r.winner_state for r in rounds],
         "round0_plain_val_loss": stay0.val_loss,
         "bundle": str(out / "model"),
@@ -149,6 +150,8 @@ def format_summary(s: dict) -> str:
             f"  path          {' -> '.join(s['path'])}",
             f"  val log-L1    {s['val_loss']:.5f} (plain {s['model']} after round 0: {s['round0_plain_val_loss']:.5f})",
         ]
+        if s.get("fit_score") is not None:
+            lines.append(f"  fit score     {s['fit_score']:.5f} (log-L1 on the held-out materials, fitted with the modules frozen)")
         if "plain_val_loss_same_epochs" in s:
             lines.append(f"  plain {s['model']} trained the same {s['plain_epochs']} epochs: "
                          f"{s['plain_val_loss_same_epochs']:.5f}"
@@ -167,7 +170,7 @@ class ProgressDisplay:
 
     def __call__(self, p: Progress) -> None:
         best = f"{p.best_val_loss:.5f}" if p.best_val_loss is not None else "-"
-        text = (f"round {p.round}  candidates {p.done}/{p.total}  best val {best}  "
+        text = (f"round {p.round}  candidates {p.done}/{p.total}  best {best}  "
                 f"{_clock(p.elapsed_s)}  {p.message}")
         if self.live:
             self.stream.write("\r\033[K" + text)

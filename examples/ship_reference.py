@@ -3,6 +3,7 @@
     .venv/bin/python examples/ship_reference.py runs/reference [--to models/enhanced-ggx]
     .venv/bin/python examples/ship_reference.py runs/reference-ward --spec examples/reference-ward.yaml \
         --to models/enhanced-ward
+    .venv/bin/python examples/ship_reference.py runs/reference-fit --spec examples/reference-fit.yaml
 
 Takes the finished job of the spec (default ``examples/reference.yaml``) from the store in that data
 folder, and writes its final bundle (the winner of the last committed round: module weights, the
@@ -68,8 +69,9 @@ def main() -> int:
             "rounds": [{"index": r.index, "parent_state": r.parent_state, "winner_state": r.winner_state,
                         "kind": r.kind.value,
                         "warmup": dataclasses.asdict(r.warmup) if r.warmup else None,
-                        "candidates": [{"state": c.state, "val_loss": c.val_loss, "epochs": c.epochs,
-                                        "weights": neural_weights(spec, c.state), "wall_s": round(c.wall_s, 1)}
+                        "candidates": [{"state": c.state, "val_loss": c.val_loss, "fit_score": c.fit_score,
+                                        "epochs": c.epochs, "weights": neural_weights(spec, c.state),
+                                        "wall_s": round(c.wall_s, 1)}
                                        for c in r.candidates]}
                        for r in rounds],
         },

@@ -31,6 +31,22 @@ from .materials import MaterialTable
 
 
 @dataclass(frozen=True)
+class FitScoreConfig:
+    """How ``neuenh.selection`` scores a trained candidate on materials kept out of training: each
+    held-out material's parameters are fitted (modules frozen, ``fit.fit_materials``, ``epochs``) to
+    ``fit_samples`` of its samples, and the log-L1 is measured on up to ``test_samples`` others."""
+
+    fit_samples: int = 1000
+    test_samples: int = 4000
+    epochs: int = 100
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.fit_samples < 1 or self.test_samples < 1 or self.epochs < 1:
+            raise ValueError(f"invalid fit score config {self}")
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     epochs: int = 30
     lr: float = 1e-3
@@ -44,6 +60,9 @@ class TrainConfig:
     # bench/bench_speed.py at 1.5x (batch 4096) and 1.8x (batch 1e5) the eager step, after about
     # 8 s of compiling per batch shape, so it pays from about 700 steps of 1e5 samples on.
     compile: bool = False
+    # After training, score the candidate by fitting the data's held-out materials (``neuenh.selection``
+    # does, in the worker); None: no fit score.
+    fit_score: FitScoreConfig | None = None
 
     def __post_init__(self) -> None:
         if self.epochs < 0 or self.batch_size < 1 or self.lr <= 0 or not 0 <= self.rmsprop_alpha < 1 \
@@ -68,6 +87,8 @@ class CandidateResult:
     bundle: Bundle
     epoch_losses: list[float] = field(default_factory=list)
     error: str | None = None  # set when training diverged (non-finite loss)
+    fit_score: float | None = None  # neuenh.selection's score on held-out materials, when asked
+    fit_score_s: float = 0.0  # the part of wall_s that scoring took
 
     @property
     def ok(self) -> bool:

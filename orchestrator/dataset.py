@@ -48,16 +48,23 @@ def _file_digest(path: Path) -> str:
 
 
 def to_bytes(data: TrainingData) -> bytes:
-    tensors = {f"{part}.{f}": getattr(getattr(data, part), f).contiguous()
-               for part in ("train", "val") for f in _FIELDS}
-    return save(tensors, metadata={"names": json.dumps(list(data.names))})
+    parts = {"train": data.train, "val": data.val, **({"holdout": data.holdout} if data.holdout is not None else {})}
+    tensors = {f"{part}.{f}": getattr(samples, f).contiguous() for part, samples in parts.items() for f in _FIELDS}
+    metadata = {"names": json.dumps(list(data.names))}
+    if data.holdout is not None:
+        metadata["holdout_names"] = json.dumps(list(data.holdout.names))
+    return save(tensors, metadata=metadata)
 
 
 def from_bytes(blob: bytes) -> TrainingData:
-    names = tuple(json.loads(blob_metadata(blob)["names"]))
+    metadata = blob_metadata(blob)
+    names = {"train": tuple(json.loads(metadata["names"]))}
+    names["val"] = names["train"]
+    if "holdout_names" in metadata:
+        names["holdout"] = tuple(json.loads(metadata["holdout_names"]))
     tensors = load(blob)
-    parts = {part: Samples(*(tensors[f"{part}.{f}"] for f in _FIELDS), names) for part in ("train", "val")}
-    return TrainingData(parts["train"], parts["val"])
+    parts = {part: Samples(*(tensors[f"{part}.{f}"] for f in _FIELDS), part_names) for part, part_names in names.items()}
+    return TrainingData(parts["train"], parts["val"], parts.get("holdout"))
 
 
 def prepare_dataset(spec: JobSpec, artifacts, check: Callable[[], None] | None = None) -> tuple[TrainingData, str]:

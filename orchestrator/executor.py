@@ -53,6 +53,8 @@ class CandidateReport:
     node: str
     error: str | None = None
     bundle: bytes | None = None  # the trained candidate, None when it failed
+    fit_score: float | None = None  # on the held-out materials (neuenh.selection), when the job asks
+    fit_score_s: float = 0.0  # the part of wall_s that scoring took
 
     @property
     def ok(self) -> bool:

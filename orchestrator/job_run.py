@@ -126,7 +126,7 @@ class JobRun:
             if stop:
                 self.stop_reason, finished = stop, True
             state, parent = self.parse(winner.task.state), winner.bundle
-            self.emit(RUNNING, round=k, done=len(result.reports), total=len(result.reports), best=winner.val_loss,
+            self.emit(RUNNING, round=k, done=len(result.reports), total=len(result.reports), best=self.loss(winner),
                       state=winner.task.state, message="converged" if finished else "committed")
             k += 1
         outcome = CONVERGED if finished and self.stop_reason is None else STOPPED
@@ -242,7 +242,7 @@ class JobRun:
         if not report.ok:
             raise RuntimeError(f"polishing {name} failed: {report.error}")
         self.commit(k, state, report, [report], started, kind=RoundKind.POLISH, outcome=outcome)
-        self.emit(RUNNING, round=k, done=1, total=1, best=report.val_loss, state=name, message="polished")
+        self.emit(RUNNING, round=k, done=1, total=1, best=self.loss(report), state=name, message="polished")
 
     # -- steps ---------------------------------------------------------------------------------
     def train(self, k: int, parents: list[bytes], tasks: list[CandidateTask], config,
@@ -252,7 +252,7 @@ class JobRun:
         is persisted as it arrives, so a crash loses only the candidates still in flight."""
         reports = self.recover(k, phase, tasks)
         todo = [t for t in tasks if t.state not in {r.task.state for r in reports}]
-        best = min((r.val_loss for r in reports if r.ok), default=None)
+        best = min((self.loss(r) for r in reports if r.ok and math.isfinite(self.loss(r))), default=None)
         self.emit(RUNNING, round=k, done=len(reports), total=len(tasks), best=best, message=phase)
         cancelled = lambda: self.should_stop() or self.cancel_requested() or self.budget_spent() is not None  # noqa: E731
         limit = (lambda unfinished: self.share.limit(self.job_id, self.resources, unfinished)) if self.share else unlimited
@@ -261,8 +261,8 @@ class JobRun:
                                               owner=self.job_id, limit=limit):
                 self.persist(k, phase, report)
                 reports.append(report)
-                if report.ok and (best is None or report.val_loss < best):
-                    best = report.val_loss
+                if report.ok and math.isfinite(self.loss(report)) and (best is None or self.loss(report) < best):
+                    best = self.loss(report)
                 self.jobs.append_event(self.job_id, "candidate", {"round": k, "phase": phase, **_candidate_row(report)})
                 self.emit(RUNNING, round=k, done=len(reports), total=len(tasks), best=best, state=report.task.state,
                           message=phase)
@@ -289,7 +289,8 @@ class JobRun:
             nan = float("nan")
             reports.append(CandidateReport(task, nan if c.train_loss is None else c.train_loss,
                                            nan if c.val_loss is None else c.val_loss, c.epochs, c.wall_s,
-                                           c.node or "unknown", error=c.error, bundle=bundle))
+                                           c.node or "unknown", error=c.error, bundle=bundle, fit_score=c.fit_score,
+                                           fit_score_s=c.extra.get("fit_score_s", 0.0)))
         if reports:
             self.recovered[k] = self.recovered.get(k, 0) + len(reports)
             log.info("job %s: round %d (%s): %d of %d candidates recovered from before the restart",
@@ -302,10 +303,17 @@ class JobRun:
         self.jobs.record_candidate(self.job_id, FinishedCandidate(k, phase, _candidate_record(report, False), key))
         self.charge(cpu_s=report.wall_s * self.resources.cpus)
 
+    def loss(self, report: CandidateReport) -> float:
+        """What selects (``search.score``): the candidate's validation loss, or its fit score on the
+        held-out materials (NaN when it has none: not eligible)."""
+        if self.spec.search.score == "fit":
+            return float("nan") if report.fit_score is None else report.fit_score
+        return report.val_loss
+
     def outcomes(self, reports: list[CandidateReport]) -> list[Outcome]:
-        """What the selection rule compares: each state's loss, cost and failure."""
+        """What the selection rule compares: each state's loss (``loss``), cost and failure."""
         weight = self.spec.search.complexity_weight
-        return [Outcome(self.parse(r.task.state), r.val_loss, self.cost(r) if weight and r.ok else 0.0,
+        return [Outcome(self.parse(r.task.state), self.loss(r), self.cost(r) if weight and r.ok else 0.0,
                         failed=not r.ok)
                 for r in reports]
 
@@ -327,11 +335,12 @@ class JobRun:
         stop = self.spec.search.stop_when
         if stop is None:
             return None
-        if stop.val_loss_below is not None and winner.val_loss <= stop.val_loss_below:
-            return f"validation loss {winner.val_loss:.5g} <= val_loss_below {stop.val_loss_below:g}"
+        loss, what = self.loss(winner), "fit score" if self.spec.search.score == "fit" else "validation loss"
+        if stop.val_loss_below is not None and loss <= stop.val_loss_below:
+            return f"{what} {loss:.5g} <= val_loss_below {stop.val_loss_below:g}"
         stay = next((r for r in reports if r.task.state == self.format(state) and r.ok), None)
-        if stop.gain_below is not None and stay is not None:
-            gain = 1.0 - winner.val_loss / stay.val_loss
+        if stop.gain_below is not None and stay is not None and math.isfinite(self.loss(stay)):
+            gain = 1.0 - loss / self.loss(stay)
             if gain < stop.gain_below:
                 return f"gain {100 * gain:.2f} % over stay < gain_below {100 * stop.gain_below:g} %"
         return None
@@ -403,12 +412,13 @@ def _candidate_row(r: CandidateReport) -> dict:
     """A report as JSON (non-finite losses as None)."""
     finite = lambda x: x if math.isfinite(x) else None  # noqa: E731
     return {"state": r.task.state, "seed": r.task.seed, "train_loss": finite(r.train_loss),
-            "val_loss": finite(r.val_loss), "epochs": r.epochs, "wall_s": r.wall_s, "node": r.node,
-            "error": r.error}
+            "val_loss": finite(r.val_loss), "fit_score": None if r.fit_score is None else finite(r.fit_score), "epochs": r.epochs, "wall_s": r.wall_s,
+            "node": r.node, "error": r.error}
 
 
 def _candidate_record(r: CandidateReport, pruned: bool) -> CandidateRecord:
     return CandidateRecord(
         state=r.task.state, train_loss=r.train_loss, val_loss=r.val_loss, epochs=r.epochs, wall_s=r.wall_s,
         node=r.node, error=r.error if r.error or not pruned else PRUNED, seed=r.task.seed, pruned=pruned,
+        fit_score=r.fit_score, extra={"fit_score_s": round(r.fit_score_s, 3)} if r.fit_score_s else {},
     )

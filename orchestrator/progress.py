@@ -12,7 +12,7 @@ class Progress:
     round: int  # the round in flight (-1 outside rounds)
     done: int  # candidates reported in the current phase
     total: int  # candidates of the current phase
-    best_val_loss: float | None
+    best_val_loss: float | None  # the lowest loss that selects (search.score: the val loss or the fit score)
     state: str  # the last state reported
     elapsed_s: float  # since the job's run started in this process
     message: str = ""  # the phase ("train", "warmup", "halving", "polish", ...) or what happened

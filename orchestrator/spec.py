@@ -2,7 +2,8 @@
 
     model: ggx
     search: {radius: 1, epochs_per_round: 30, max_rounds: 20, max_neural: null, fixed: {},
-             complexity_weight: 0.0, min_improvement: 0.0, prune: none}
+             complexity_weight: 0.0, min_improvement: 0.0, prune: none, score: val,
+             fit_score: {fit_samples: 1000, test_samples: 4000, epochs: 100}}
     module: {hidden: [16, 32, 16]}
     latent_dim: 27
     train: {optimizer: rmsprop, lr: 1.0e-3, batch_size: 100000, val_fraction: 0.1, seed: 0}
@@ -27,7 +28,7 @@ from neuenh.graph import BRDFModel
 from neuenh.models import available_models, get_model, models_with_alternatives
 from neuenh.modules import ModuleConfig
 from neuenh.search import Constraints
-from neuenh.train import TrainConfig
+from neuenh.train import FitScoreConfig, TrainConfig
 
 
 def lone_surrogate_path(value: Any, path: str = "") -> str | None:
@@ -57,7 +58,8 @@ class _Strict(BaseModel):
 
 class StopWhen(_Strict):
     """"Enough accuracy for its cost": end the search (STOPPED, reason "stop_when") after a round whose
-    winner is good enough, instead of adding modules until nothing helps. Either or both."""
+    winner is good enough, instead of adding modules until nothing helps. Either or both. Both read the
+    loss that selects (``search.score``): the validation loss, or the fit score."""
 
     val_loss_below: float | None = Field(None, gt=0.0, description=(
         "stop once the round's winner has a validation loss at most this"))
@@ -69,6 +71,17 @@ class StopWhen(_Strict):
         if self.val_loss_below is None and self.gain_below is None:
             raise ValueError("give val_loss_below, gain_below or both")
         return self
+
+
+class FitScoreSpec(_Strict):
+    """How each candidate is scored on the held-out materials (``neuenh.selection``)."""
+
+    fit_samples: int = Field(1000, ge=1, description="samples of each held-out material its parameters are fitted to")
+    test_samples: int = Field(4000, ge=1, description="of its other samples, at most this many are measured")
+    epochs: int = Field(100, ge=1, description="the fit's epochs (fit.fit_materials): a short fit keeps the score cheap")
+
+    def config(self, seed: int) -> FitScoreConfig:
+        return FitScoreConfig(self.fit_samples, self.test_samples, self.epochs, seed)
 
 
 class SearchSpec(_Strict):
@@ -89,6 +102,13 @@ class SearchSpec(_Strict):
         "(on the first training material, one thread) and kept in the job's events so a resumed job reuses it"))
     stop_when: StopWhen | None = None
     min_improvement: float = Field(0.0, ge=0.0, lt=1.0, description="relative gain a change must bring over stay")
+    score: Literal["val", "fit"] = Field("val", description=(
+        "what selects a round's winner (and halving's survivors, and stop_when): 'val', the validation loss "
+        "(held-out samples of the training materials); 'fit', the fit score: the materials the data sources "
+        "hold out ('holdout'), never trained on, fitted with the candidate's modules frozen on part of their "
+        "samples and measured on the rest (neuenh.selection), the way users use a model. Whenever materials "
+        "are held out, both are computed and recorded"))
+    fit_score: FitScoreSpec = Field(default_factory=FitScoreSpec)
     prune: Literal["none", "halving"] = "none"
     halving_fraction: float = Field(0.34, gt=0.0, lt=1.0, description="share of the epochs before halving")
     polish_epochs: int = Field(0, ge=0, description=(
@@ -185,6 +205,9 @@ class JobSpec(_Strict):
         if self.alternatives and self.model not in models_with_alternatives():
             raise ValueError(f"alternatives: model {self.model!r} offers none; those that do: "
                              f"{', '.join(models_with_alternatives())}")
+        if self.search.score == "fit" and not self.holds_out():
+            raise ValueError("search.score: fit scores candidates on held-out materials, but no data source "
+                             "holds any out: give a source 'holdout: N'")
         counts = dict(zip(self.positions(), self.model_instance().digit_counts))
         self.constraints()  # raises on unknown position names
         for name, digit in self.search.fixed.items():
@@ -196,6 +219,10 @@ class JobSpec(_Strict):
         return self
 
     # -- what the orchestrator needs ---------------------------------------------------------
+    def holds_out(self) -> bool:
+        """Some data source keeps materials out of training (candidates get a fit score)."""
+        return any(source.holdout for source in self.data)
+
     def model_instance(self, state: str | None = None) -> BRDFModel:
         """The spec's model (its module choices, latent size and alternatives) in ``state``."""
         return _model(self.model, state, self.module.config(), self.latent_dim, self.alternatives)
@@ -226,7 +253,8 @@ class JobSpec(_Strict):
     def train_config(self, epochs: int | None = None) -> TrainConfig:
         return TrainConfig(epochs=self.search.epochs_per_round if epochs is None else epochs,
                            lr=self.train.lr, batch_size=self.train.batch_size, lr_final=self.train.lr_final,
-                           compile=self.train.compile)
+                           compile=self.train.compile,
+                           fit_score=self.search.fit_score.config(self.train.seed) if self.holds_out() else None)
 
     def polish_config(self) -> TrainConfig:
         """The final state's last training: ``polish_epochs``, lr decayed to ``lr_final`` (lr/100)."""

@@ -59,7 +59,7 @@ UNFINISHED: frozenset[JobStatus] = frozenset(s for s in JobStatus if not s.termi
 
 #: Event kinds the store writes itself; the orchestrator may append any other kind.
 EVENT_STATUS = "status"  # payload {"status", "previous", "error"}; also written on creation
-EVENT_ROUND = "round"    # payload {"round", "winner_state", "winner_val_loss", "artifact_key"}
+EVENT_ROUND = "round"    # payload {"round", "winner_state", "winner_val_loss", "winner_fit_score", "artifact_key"}
 
 
 def check_transition(job_id: str, old: JobStatus, new: JobStatus) -> None:
@@ -186,12 +186,14 @@ class CandidateRecord:
     seed: int | None = None     # seed of its fresh modules: an interrupted round re-runs with it
     pruned: bool = False        # stopped early by successive halving (its losses are from the cut)
     extra: dict[str, Any] = field(default_factory=dict)  # free-form, e.g. epoch_losses
+    fit_score: float | None = None  # on the materials the data held out (neuenh.selection); None: not scored
 
     def __post_init__(self) -> None:
         if not isinstance(self.state, str) or not self.state:
             raise InvalidRecordError(f"candidate state must be a non-empty string, got {self.state!r}")
         object.__setattr__(self, "train_loss", _finite_or_none(self.train_loss))
         object.__setattr__(self, "val_loss", _finite_or_none(self.val_loss))
+        object.__setattr__(self, "fit_score", _finite_or_none(self.fit_score))
         object.__setattr__(self, "epochs", int(self.epochs))
         object.__setattr__(self, "wall_s", float(self.wall_s))
         object.__setattr__(self, "pruned", bool(self.pruned))
@@ -255,6 +257,10 @@ class RoundRecord:
     @property
     def winner_val_loss(self) -> float:
         return self.winner.val_loss  # type: ignore[return-value]  # checked finite on creation
+
+    @property
+    def winner_fit_score(self) -> float | None:
+        return self.winner.fit_score
 
     @property
     def converged(self) -> bool:
@@ -446,7 +452,8 @@ def validate_charge(job_id: str, wall_s: float, cpu_s: float) -> tuple[float, fl
 
 def round_payload(record: RoundRecord) -> dict[str, Any]:
     return {"round": record.index, "winner_state": record.winner_state,
-            "winner_val_loss": record.winner_val_loss, "artifact_key": record.artifact_key}
+            "winner_val_loss": record.winner_val_loss, "winner_fit_score": record.winner_fit_score,
+            "artifact_key": record.artifact_key}
 
 
 __all__ = [

@@ -143,6 +143,9 @@ MIGRATIONS: tuple[Migration, ...] = (
             PRIMARY KEY (plan_id, name)
         )""",
     )),
+    Migration(7, "each candidate's fit score on the materials its job held out", (
+        "ALTER TABLE candidates ADD COLUMN fit_score REAL",  # NULL: not scored (no held-out materials)
+    )),
 )
 
 SCHEMA_VERSION = MIGRATIONS[-1].version

@@ -306,11 +306,11 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
                        record.recovered, canonical_json(record.extra, "round extra")))
             for position, cand in enumerate(record.candidates):
                 c.execute("INSERT INTO candidates (job_id, round_index, position, state, train_loss, "
-                          "val_loss, epochs, wall_s, node, error, seed, pruned, extra) "
-                          "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                          "val_loss, epochs, wall_s, node, error, seed, pruned, extra, fit_score) "
+                          "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                           (job_id, i, position, cand.state, cand.train_loss, cand.val_loss,
                            cand.epochs, cand.wall_s, cand.node, cand.error, cand.seed, int(cand.pruned),
-                           canonical_json(cand.extra, "candidate extra")))
+                           canonical_json(cand.extra, "candidate extra"), cand.fit_score))
             c.execute("UPDATE jobs SET last_round = ?, current_state = ?, updated_at = ? WHERE id = ?",
                       (i, record.winner_state, now, job_id))
             _append(c, job_id, now, EVENT_ROUND, round_payload(record))
@@ -392,7 +392,7 @@ def _load_rounds(c: sqlite3.Connection, job_id: str, since: int,
         by_round[r["round_index"]].append(CandidateRecord(
             state=r["state"], train_loss=r["train_loss"], val_loss=r["val_loss"], epochs=r["epochs"],
             wall_s=r["wall_s"], node=r["node"], error=r["error"], seed=r["seed"], pruned=bool(r["pruned"]),
-            extra=json.loads(r["extra"])))
+            extra=json.loads(r["extra"]), fit_score=r["fit_score"]))
     return [RoundRecord(index=r["round_index"], parent_state=r["parent_state"],
                         winner_state=r["winner_state"], candidates=tuple(by_round[r["round_index"]]),
                         started_at=r["started_at"], finished_at=r["finished_at"],

@@ -19,6 +19,17 @@ def tiny_spec(**search):
     })
 
 
+def fit_scored_spec(**search):
+    """tiny_spec's search on 4 zoo materials, 2 of them held out: candidates are scored by fitting
+    those (search.score: fit) with a small budget."""
+    return parse_spec({
+        "search": {"epochs_per_round": 1, "max_rounds": 2, "score": "fit",
+                   "fit_score": {"fit_samples": 150, "test_samples": 150, "epochs": 8}, **search},
+        "train": {"batch_size": 1000, "lr": 5e-3},
+        "data": [{"source": "synthetic_zoo", "materials": 4, "samples": 300, "seed": 1, "holdout": 2}],
+    })
+
+
 def run_alone(where: Path, spec: dict) -> list[tuple]:
     """The spec's rounds (parent, winner, every candidate's state and validation loss) when run
     alone in this process with one thread per candidate, as a Ray task with one CPU trains it."""

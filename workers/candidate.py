@@ -1,5 +1,6 @@
-"""What a worker runs for one candidate: a pure call of ``neuenh.train.train_candidate`` that
-turns every outcome, exceptions included, into a ``CandidateReport``."""
+"""What a worker runs for one candidate: a pure call of ``neuenh.selection.train_and_score`` (the
+candidate trained, then scored on the held-out materials when the job asks) that turns every
+outcome, exceptions included, into a ``CandidateReport``."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ import socket
 import time
 
 from neuenh.checkpoint import Bundle
-from neuenh.train import TrainConfig, train_candidate
+from neuenh.selection import train_and_score
+from neuenh.train import TrainConfig
 from neuenh.data.samples import TrainingData
 from neuenh_service.orchestrator.executor import CandidateReport, CandidateTask
 
@@ -19,7 +21,7 @@ def run_candidate(
     start = time.perf_counter()
     node = node or socket.gethostname()
     try:
-        result = train_candidate(
+        result = train_and_score(
             Bundle.from_bytes(parent), task.state, data, dataclasses.replace(config, epochs=task.epochs), task.seed
         )
     except Exception as exc:  # a candidate's failure must not end the round
@@ -34,4 +36,6 @@ def run_candidate(
         node,
         error=result.error,
         bundle=result.bundle.to_bytes() if result.ok else None,
+        fit_score=result.fit_score,
+        fit_score_s=result.fit_score_s,
     )

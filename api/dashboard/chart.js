@@ -66,7 +66,9 @@ export function lossChart(rounds, hasJob) {
       const cy = axis.y(c.val_loss);
       if (c.winner) winners.push([cx, cy, c.change]);
       points.appendChild(svg("circle", { cx, cy, r: c.winner ? 6.5 : 4.2, class: cls, "data-state": c.state, "data-round": r.round, "data-loss": c.val_loss },
-        svg("title", {}, `${label}: val loss ${fmtLoss(c.val_loss)}${c.winner ? " — winner" : ""}`)));
+        svg("title", {}, `${label}: val loss ${fmtLoss(c.val_loss)}`
+          + (c.fit_score !== null && c.fit_score !== undefined ? `, fit score ${fmtLoss(c.fit_score)}` : "")
+          + (c.winner ? " — winner" : ""))));
     });
   }
   if (winners.length > 1) {

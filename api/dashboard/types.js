@@ -10,11 +10,11 @@
  *            current_state: string | null, spec: any, progress: Progress | null, positions: string[],
  *            choices?: Record<string, string[]>}} Job
  * @typedef {{state: string, change: string, ok: boolean, winner: boolean, pruned: boolean,
- *            val_loss: number | null, error: string | null}} Candidate
+ *            val_loss: number | null, fit_score?: number | null, error: string | null}} Candidate
  * @typedef {{round: number, kind: string, parent_state: string, winner_state: string, change: string,
- *            winner_val_loss: number, gain_over_start: number | null, converged: boolean,
+ *            winner_val_loss: number, winner_fit_score?: number | null, gain_over_start: number | null, converged: boolean,
  *            wall_s: number, recovered: number, candidates: Candidate[], extra?: {stop_when?: string}}} Round
- * @typedef {{job_id: string, status: string, terminal: boolean, reason: string | null,
+ * @typedef {{job_id: string, status: string, terminal: boolean, reason: string | null, score?: string,
  *            start_val_loss: number | null, gain_over_start: number | null, rounds: Round[],
  *            next_since_round: number}} History
  * @typedef {{job_id: string, candidates: number, cpus: number, gpus: number}} Holder

@@ -199,17 +199,23 @@ export function renderTrail(rounds, positions, job) {
   const body = clear(table.tBodies[0]);
   const foot = clear(/** @type {HTMLTableSectionElement} */ (table.tFoot));
   const nodes = positions.filter((n) => !isOperator(n)).length;
+  // Candidates scored on held-out materials (search.score, neuenh.selection): the winner's fit score beside its val loss.
+  const fit = rounds.some((r) => r.winner_fit_score !== null && r.winner_fit_score !== undefined);
+  const byFit = !!(job && job.spec && job.spec.search && job.spec.search.score === "fit");
+  const tail = fit ? 4 : 3;
   if (positions.length) {
     head.appendChild(el("tr", { class: "groups" },
       el("th", { colspan: 1 }),
       nodes ? el("th", { colspan: nodes, class: "group", text: "terms" }) : null,
       positions.length - nodes ? el("th", { colspan: positions.length - nodes, class: "group ops", text: "operators" }) : null,
-      el("th", { colspan: 3 })));
+      el("th", { colspan: tail })));
     head.appendChild(el("tr", {},
       el("th", { class: "num", text: "Round" }),
       positions.map((name, i) => el("th", { class: "pos" + (isOperator(name) ? " op" : ""), "data-index": i, title: name }, breakable(name))),
       el("th", { text: "Change that won" }),
-      el("th", { class: "num", text: "Winner val loss" }),
+      el("th", { class: "num", text: "Winner val loss" + (fit && !byFit ? " (selects)" : "") }),
+      fit ? el("th", { class: "num", title: "held-out log-L1 on the materials the data holds out, fitted with the winner's modules frozen",
+        text: "Winner fit score" + (byFit ? " (selects)" : "") }) : null,
       el("th", { class: "num", text: "Wall" })));
   }
   /** @type {number | null} */
@@ -233,6 +239,7 @@ export function renderTrail(rounds, positions, job) {
       el("td", { class: "change" + (changed.size ? "" : " stay") }, changeText(r)),
       el("td", { class: "num mono" }, fmtLoss(r.winner_val_loss),
         delta ? el("span", { class: "delta " + (delta.down ? "down" : "up"), text: delta.text }) : null),
+      fit ? el("td", { class: "num mono fit-score", text: fmtLoss(r.winner_fit_score ?? null) }) : null,
       el("td", { class: "num muted" }, fmtSeconds(r.wall_s),
         r.recovered > 0 ? el("span", { class: "recovered", title: "candidates that had finished before a service restart, read back instead of trained again", text: `${r.recovered} recovered` }) : null)));
   }
@@ -240,7 +247,7 @@ export function renderTrail(rounds, positions, job) {
   if (p && p.total > 0 && !rounds.some((r) => r.round === p.round)) {
     foot.appendChild(el("tr", { class: "pending" },
       el("td", { class: "num", text: String(p.round) }),
-      el("td", { colspan: positions.length + 3, text: `training… ${p.done}/${p.total} candidates` + (p.best_val_loss !== null ? `, best ${fmtLoss(p.best_val_loss)}` : "") })));
+      el("td", { colspan: positions.length + tail, text: `training… ${p.done}/${p.total} candidates` + (p.best_val_loss !== null ? `, best ${fmtLoss(p.best_val_loss)}` : "") })));
   }
   $("trail-empty").hidden = rounds.length > 0 || !job;
   table.hidden = positions.length === 0;

@@ -52,6 +52,20 @@ class Samples:
     def of_material(self, i: int) -> "Samples":
         return self.subset(torch.nonzero(self.material == i).squeeze(1))
 
+    def select(self, materials: Sequence[int]) -> "Samples":
+        """The rows of ``materials`` (indices into ``names``) as a sample set of those materials
+        alone, in the given order (rows keep their relative order within each material)."""
+        materials = list(materials)
+        if len(set(materials)) != len(materials) or any(not 0 <= i < len(self.names) for i in materials):
+            raise ValueError(f"samples: cannot select materials {materials} of {len(self.names)}")
+        renumber = torch.full((len(self.names),), -1, dtype=torch.long)
+        renumber[materials] = torch.arange(len(materials))
+        new = renumber[self.material]
+        rows = torch.nonzero(new >= 0).squeeze(1)
+        rows = rows[torch.argsort(new[rows], stable=True)]
+        return Samples(self.wi[rows], self.wo[rows], self.f_r[rows], new[rows],
+                       tuple(self.names[i] for i in materials))
+
     def split(self, val_fraction: float, seed: int) -> tuple["Samples", "Samples"]:
         """Seeded random split into (train, validation); every material keeps its share."""
         if not 0.0 <= val_fraction < 1.0:
@@ -114,16 +128,23 @@ def rusinkiewicz_samples(evaluate, n: int, seed: int, isotropic: bool):
 
 @dataclass
 class TrainingData:
-    """Training and validation samples of the same materials (same ``names``, same order)."""
+    """Training and validation samples of the same materials (same ``names``, same order), and
+    optionally ``holdout``: every sample of materials kept out of training altogether (a data
+    source's ``holdout``), on which ``neuenh.selection`` scores candidates by fitting them."""
 
     train: Samples
     val: Samples
+    holdout: Samples | None = None
 
     def __post_init__(self) -> None:
         if self.train.names != self.val.names:
             raise ValueError("training and validation samples must list the same materials")
         if len(self.train) == 0:
             raise ValueError("no training samples")
+        if self.holdout is not None:
+            shared = sorted(set(self.holdout.names) & set(self.train.names))
+            if shared:
+                raise ValueError(f"held-out materials {shared} are also training materials")
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -132,5 +153,5 @@ class TrainingData:
     @property
     def nbytes(self) -> int:
         """Bytes of the materialised arrays (wi, wo, f_r and material ids of both parts)."""
-        return sum(t.nbytes for part in (self.train, self.val)
+        return sum(t.nbytes for part in (self.train, self.val, self.holdout) if part is not None
                    for t in (part.wi, part.wo, part.f_r, part.material))

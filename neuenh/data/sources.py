@@ -19,7 +19,9 @@ discriminated by ``source``. ``materialise`` turns a list of them into contiguou
 ==================  ==========================================  ==================================
 
 ``samples`` is the number of measurements **per material** and ``seed`` seeds them (material
-``i`` of a source uses ``seed * 100003 + i``, so adding a material changes no other). Continuous
+``i`` of a source uses ``seed * 100003 + i``, so adding a material changes no other). ``holdout``
+keeps that many of a source's materials out of training (``held_out``): their samples go to
+``TrainingData.holdout``, where a search scores candidates by fitting them (``neuenh.selection``). Continuous
 sources (synthetic, NBRDF, MERL, RGL) are sampled uniformly in Rusinkiewicz coordinates; tables
 and capture texels use their stored measurements — all of them by default (``samples`` omitted),
 else a seeded subset of that many rows. Files are read by ``load_measured`` / the capture reader,
@@ -37,7 +39,8 @@ from pathlib import Path
 
 from typing import Callable, Annotated, Literal, Sequence, Union
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+import torch
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from .samples import TrainingData
 from .errors import DataError
@@ -60,6 +63,17 @@ class _Source(BaseModel):
     prefix: str = Field("", description="prepended to every material name (to keep names unique)")
     # below 2^32: material i's seed is seed * 100003 + i, which must fit torch's 64-bit seeds
     seed: int = Field(0, ge=0, lt=2**32)
+    holdout: int = Field(0, ge=0, description=(
+        "this many of the source's materials (chosen by a permutation seeded with 'seed') are kept out "
+        "of training altogether: a search scores candidates by fitting them (search.score: fit)"))
+
+    @model_validator(mode="after")
+    def _some_left(self):
+        listed = getattr(self, "materials", None)
+        count = listed if isinstance(listed, int) else len(listed) if listed else None
+        if count is not None and self.holdout >= count:
+            raise ValueError(f"holdout ({self.holdout}) must leave at least one of the {count} materials to train on")
+        return self
 
     def _named(self, materials: list) -> list:
         for m in materials:
@@ -256,9 +270,30 @@ def materialise(sources: Sequence[Source], val_fraction: float, seed: int,
                 raise ValueError(f"material name {name!r} occurs in {where}; names must be unique across "
                                  "sources (set 'prefix' on a source to tell them apart)")
             origin[name] = k
-    samples = Samples.concat(parts)
-    return TrainingData(*samples.split(val_fraction, seed))
+    kept, held = zip(*(_hold_out(source, part) for source, part in zip(sources, parts)))
+    held = [h for h in held if h.names]
+    samples = Samples.concat(kept)
+    return TrainingData(*samples.split(val_fraction, seed), holdout=Samples.concat(held) if held else None)
+
+
+def held_out(source: Source, n_materials: int) -> list[int]:
+    """Indices of the ``source.holdout`` materials (of ``n_materials``) kept out of training: the
+    first of a permutation seeded with the source's seed, in index order. A fixed set: the same
+    source gives the same materials whatever else the job holds."""
+    if not source.holdout:
+        return []
+    if source.holdout >= n_materials:
+        raise ValueError(f"a {source.source} source holds out {source.holdout} of its {n_materials} materials; "
+                         "at least one must remain to train on")
+    order = torch.randperm(n_materials, generator=torch.Generator().manual_seed(source.seed))
+    return sorted(order[: source.holdout].tolist())
+
+
+def _hold_out(source: Source, part: Samples) -> tuple[Samples, Samples]:
+    """(the materials trained on, the materials held out) of one source's samples."""
+    held = held_out(source, len(part.names))
+    return part.select([i for i in range(len(part.names)) if i not in held]), part.select(held)
 
 
 __all__ = ["DataSource", "Source", "SyntheticZoo", "SyntheticGGX", "NBRDFSource", "MERLSource", "RGLSource",
-           "TableSource", "EXRCaptureSource", "materialise"]
+           "TableSource", "EXRCaptureSource", "held_out", "materialise"]

@@ -333,6 +333,27 @@ def test_many_rounds_failed_candidates_and_other_digits_are_drawn(page, server, 
     assert page.locator("#trail tbody tr[data-round='1'] .recovered").count() == 1
 
 
+def test_a_search_scored_by_fit_shows_each_winners_fit_score_beside_its_val_loss(page, server, finished):
+    """search.score: fit (served as the history's rounds' winner_fit_score): the trail gains a fit score
+    column, marked as the one that selects, and each candidate's point tells both losses."""
+    job, history = fake_job(finished[0]["positions"], rounds=3)
+    job["spec"] = {"search": {"score": "fit"}}
+    for r in history["rounds"]:
+        for i, c in enumerate(r["candidates"]):
+            c["fit_score"] = 0.03 + 0.001 * i if c["ok"] else None
+        r["winner_fit_score"] = next(c["fit_score"] for c in r["candidates"] if c["winner"])
+    history["score"] = "fit"
+    page.route("**/v1/jobs/fake", lambda route: route.fulfill(json=job))
+    page.route("**/v1/jobs/fake/history?*", lambda route: route.fulfill(json=history))
+    open_job(page, server, "fake", 3)
+    headers = page.eval_on_selector_all("#trail thead th", "ths => ths.map(th => th.textContent)")
+    assert "Winner fit score (selects)" in headers and "Winner val loss" in headers
+    shown = page.locator("#trail tbody td.fit-score").all_text_contents()
+    assert [float(x) for x in shown] == pytest.approx([r["winner_fit_score"] for r in history["rounds"]], rel=1e-3)
+    title = page.locator("#chart svg .pt.winner").first.locator("title").text_content()
+    assert "val loss" in title and "fit score" in title
+
+
 def test_download_button_yields_the_model_zip(page, server, finished, tmp_path):
     job, history = finished
     open_job(page, server, job["id"], len(history["rounds"]))

@@ -12,7 +12,7 @@ import pytest
 
 from neuenh.checkpoint import Bundle
 from neuenh_service.storage import JobStatus
-from jobspecs import tiny_spec
+from jobspecs import fit_scored_spec, tiny_spec
 
 from live_api import running_server, wait_for
 
@@ -81,6 +81,25 @@ def test_history_has_every_candidate_and_the_winner(client, finished):
     later = client.get(f"/jobs/{job['id']}/history", params={"since_round": 1}).json()
     assert [r["round"] for r in later["rounds"]] == [r["round"] for r in h["rounds"][1:]]
     assert (later["start_val_loss"], later["gain_over_start"]) == (h["start_val_loss"], h["gain_over_start"])
+
+
+def test_a_search_scored_by_fit_serves_both_losses(client, finished):
+    """search.score: fit: every trained candidate's fit score is served beside its val loss, the
+    winner is the lowest fit score; a job without held-out materials serves none."""
+    h = client.get(f"/jobs/{finished[2]['id']}/history").json()
+    assert h["score"] == "val" and all(r["winner_fit_score"] is None for r in h["rounds"])
+    assert all(c["fit_score"] is None for r in h["rounds"] for c in r["candidates"])
+    r = client.post("/jobs", json=fit_scored_spec(max_rounds=1).model_dump(mode="json"))
+    assert r.status_code == 202, r.text
+    job = wait_for(client, r.json()["id"])
+    assert job["status"] in ("STOPPED", "CONVERGED"), job["error"]
+    h = client.get(f"/jobs/{job['id']}/history").json()
+    assert h["score"] == "fit"
+    [round0] = h["rounds"]
+    scored = [c for c in round0["candidates"] if c["ok"]]
+    assert scored and all(c["fit_score"] is not None and c["val_loss"] is not None for c in scored)
+    assert round0["winner_fit_score"] == min(c["fit_score"] for c in scored)
+    assert next(c for c in scored if c["winner"])["fit_score"] == round0["winner_fit_score"]
 
 
 def test_model_downloads_as_a_loadable_bundle(client, finished, tmp_path):

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
-from jobspecs import tiny_spec
+from jobspecs import fit_scored_spec, tiny_spec
 
 from live_api import live_server, running_server, wait_for  # noqa: F401  (live_server: fixture)
 from neuenh.checkpoint import Bundle
@@ -242,6 +242,19 @@ def test_history_table_and_json_agree_with_the_service(server, api, submitted):
                     f"{100 * (r['winner_val_loss'] / start - 1):+.1f}%",
                     f"{ok}/{len(r['candidates'])}", f"{r['wall_s']:.1f}s"]
         assert row.split() == expected
+
+
+def test_history_of_a_search_scored_by_fit_shows_the_fit_score(server, api):
+    r = api.post("/jobs", json=fit_scored_spec(max_rounds=1).model_dump(mode="json"))
+    assert r.status_code == 202, r.text
+    job = wait_for(api, r.json()["id"])
+    served = api.get(f"/jobs/{job['id']}/history").json()
+    out = client("history", job["id"], url=server.url)
+    assert out.returncode == 0, out.stderr
+    header, row = out.stdout.splitlines()
+    assert "val loss  fit score" in header
+    r0 = served["rounds"][0]
+    assert f"{r0['winner_val_loss']:.5f}  {r0['winner_fit_score']:.5f}" in row
 
 
 def test_history_into_a_closed_pipe_ends_quietly(server, submitted):

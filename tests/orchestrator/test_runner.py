@@ -5,11 +5,12 @@ import pytest
 from safetensors.torch import load
 
 from neuenh.checkpoint import Bundle, blob_metadata
+from neuenh.data.sources import materialise
 from neuenh_service.orchestrator.runner import Orchestrator
 from neuenh_service.storage import JobStatus
 from neuenh_service.workers.inline import InlineExecutor
 
-from jobspecs import tiny_spec
+from jobspecs import fit_scored_spec, tiny_spec
 from neuenh_service.orchestrator.spec import parse_spec
 
 
@@ -471,3 +472,25 @@ def test_a_time_cost_is_measured_once_per_state_and_kept_for_a_resume(orchestrat
     again = JobRun(job.id, spec, jobs, stores[1], InlineExecutor(), lambda p: None, lambda: False)
     report = CandidateReport(CandidateTask("00100000000", 0, 1), 0.1, 0.1, 1, 0.0, "inline", bundle=None)
     assert again.cost(report) == by_state["00100000000"] / 100.0
+
+
+def test_a_search_scored_by_fit_selects_the_lowest_fit_score_and_records_both(orchestrator, stores):
+    jobs, artifacts = stores
+    spec = fit_scored_spec(max_rounds=1)
+    job = orchestrator.run(orchestrator.submit(spec)[0].id)
+    assert job.error is None
+    rounds = jobs.rounds(job.id)
+    held = set(materialise(spec.data, spec.train.val_fraction, spec.train.seed).holdout.names)
+    assert len(held) == 2
+    for r in rounds:
+        scored = [c for c in r.candidates if c.ok]
+        assert scored and all(c.fit_score is not None and c.val_loss is not None for c in scored)
+        assert all(0 < c.extra["fit_score_s"] < c.wall_s for c in scored)  # its price, part of the candidate's
+        best = min(c.fit_score for c in scored)
+        assert r.winner_fit_score == best  # not the lowest validation loss: the lowest fit score
+        bundle = Bundle.from_bytes(artifacts.get(r.artifact_key))
+        assert bundle.metrics["fit_score"] == r.winner_fit_score
+        trained = set(bundle.materials.names)
+        assert len(trained) == 2 and not trained & held  # the held-out materials were never trained on
+    scored_events = [e.payload for e in jobs.events(job.id) if e.kind == "candidate"]
+    assert all(e["fit_score"] is not None for e in scored_events if e["error"] is None)

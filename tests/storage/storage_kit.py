@@ -25,13 +25,15 @@ def flip(state: str, position: int) -> str:
 def hamming_round(index: int, parent: str, winner_position: int | None, *,
                   extra: dict | None = None) -> RoundRecord:
     """Round ``index`` around ``parent``: stay + one flip per position; the flip of
-    ``winner_position`` wins (None: stay wins). Losses are distinct and deterministic."""
+    ``winner_position`` wins (None: stay wins). Losses are distinct and deterministic; every third
+    candidate has no fit score."""
     states = [parent] + [flip(parent, p) for p in range(len(parent))]
     winner = parent if winner_position is None else flip(parent, winner_position)
     candidates = [
         CandidateRecord(state=s, train_loss=0.5 + k / 100, val_loss=(0.1 if s == winner else 0.6 + k / 100),
                         epochs=3, wall_s=1.25 + k, node=f"node-{k % 2}", seed=1000 * index + k,
-                        extra={"epoch_losses": [0.9, 0.7, 0.5 + k / 100]})
+                        extra={"epoch_losses": [0.9, 0.7, 0.5 + k / 100]},
+                        fit_score=None if k % 3 == 2 else 0.2 + k / 100)  # some not scored
         for k, s in enumerate(states)
     ]
     return RoundRecord(index=index, parent_state=parent, winner_state=winner,

@@ -340,6 +340,8 @@ class TestJobStoreContract:
         r = chain[5]
         assert r.extra == {"radius": 1} and r.candidates[1].extra["epoch_losses"][0] == 0.9
         assert [c.seed for c in r.candidates] == [5000 + k for k in range(N_POSITIONS + 1)]
+        assert [c.fit_score for c in r.candidates] == [0.2, 0.21, None, 0.23, 0.24, None]
+        assert r.winner_fit_score == r.winner.fit_score
 
     # ------------------------------------------------------------------ finished candidates
 
@@ -465,8 +467,9 @@ class TestRecords:
 
     def test_candidate_fields_are_normalised(self):
         c = CandidateRecord(state="01", train_loss=1, val_loss=math.inf, epochs=3.0, wall_s=2,
-                            extra={"k": (1, 2)})
-        assert (c.train_loss, c.val_loss, c.epochs, c.wall_s, c.extra) == (1.0, None, 3, 2.0, {"k": [1, 2]})
+                            extra={"k": (1, 2)}, fit_score=math.nan)
+        assert (c.train_loss, c.val_loss, c.epochs, c.wall_s, c.extra, c.fit_score) == \
+            (1.0, None, 3, 2.0, {"k": [1, 2]}, None)
         with pytest.raises(InvalidRecordError):
             CandidateRecord(state="", train_loss=1, val_loss=1, epochs=1, wall_s=1)
         assert isinstance(hamming_round(0, INITIAL, None).candidates, tuple)

@@ -102,6 +102,30 @@ def test_materialise_is_seeded_and_reproducible(files):
     assert not torch.equal(other.train.wi, materialise([source(**kinds(files)["merl"])], 0.2, seed=5).train.wi)
 
 
+def test_held_out_materials_are_a_fixed_set_kept_out_of_training(files):
+    """A source's ``holdout`` materials leave training and validation; their samples are exactly the
+    ones the source draws for them, whatever other sources the job holds."""
+    zoo = dict(source="synthetic_zoo", materials=5, samples=120, seed=7)
+    alone = materialise([source(**zoo, holdout=2)], 0.2, seed=5)
+    beside = materialise([source(**kinds(files)["table"]), source(**zoo, holdout=2)], 0.2, seed=5)
+    full = source(**zoo).build()
+    held = alone.holdout.names
+    assert len(held) == 2 and held == beside.holdout.names and set(held) < set(full.names)
+    assert not set(held) & set(alone.names) and len(alone.names) == 3
+    for i, name in enumerate(held):
+        mine = alone.holdout.of_material(i)
+        theirs = full.of_material(full.names.index(name))
+        assert torch.equal(mine.wi, theirs.wi) and torch.equal(mine.f_r, theirs.f_r)
+    assert materialise([source(**zoo)], 0.2, seed=5).holdout is None
+
+
+@pytest.mark.parametrize("fields", [dict(source="synthetic_zoo", materials=3, holdout=3),
+                                    dict(source="nbrdf", path="x.npz", materials=["a"], holdout=1)])
+def test_a_source_must_keep_a_material_to_train_on(fields):
+    with pytest.raises(ValueError, match="holdout .* must leave at least one of the"):
+        source(**fields)
+
+
 def test_names_must_be_unique_across_sources(files):
     table = kinds(files)["table"]
     with pytest.raises(ValueError, match=r"material name 'felt' occurs in data\[0\] \(table\) and data\[1\] \(table\).*prefix"):
