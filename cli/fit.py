@@ -35,6 +35,8 @@ from neuenh.fit import FitConfig, fit_materials
 from neuenh.models import available_models
 from neuenh.pretrained import load_model, shipped_models
 
+from .tables import fit_report
+
 
 def add_parser(commands) -> None:
     p = commands.add_parser("fit", help="fit measured materials with a model (module weights frozen)",
@@ -94,7 +96,7 @@ def run(args) -> int:
             provenance["heldout_tables"] = [str(t) for t in args.test]
         Bundle(model, result.materials, provenance=provenance, metrics=metrics).save(args.output)
         report["bundle"] = str(args.output)
-    print(json.dumps(report, indent=2) if args.json else _table(report))
+    print(json.dumps(report, indent=2) if args.json else fit_report(report))
     return 0
 
 
@@ -117,24 +119,3 @@ def _check_heldout_args(args) -> None:
             raise ValueError(f"--predictions {args.predictions}: directory {parent} does not exist")
         if args.predictions.is_dir():
             raise ValueError(f"--predictions {args.predictions} is a directory")
-
-
-def _table(report: dict) -> str:
-    lbfgs = report["method"] == "fast" and set(report["state"]) == {"0"}  # a plain model's fast fit
-    lines = [f"{report['model']} (state {report['state']}), {report['method']} fit, "
-             f"{report['epochs']} {'L-BFGS iterations' if lbfgs else 'epochs'} in {report['wall_s']:.1f} s"]
-    for m in report["materials"]:
-        p = m["params"]
-        scalars = "  ".join(f"{k}={_fmt(v)}" for k, v in p.items())
-        heldout = f"  held-out {m['heldout_log_l1']:.5f}" if "heldout_log_l1" in m else ""
-        lines.append(f"  {m['name']}: log-L1 {m['loss']:.5f}{heldout}  {m['params_per_material']} parameters "
-                     f"({m['capacity']})  {scalars}")
-    if "predictions" in report:
-        lines.append(f"predictions written to {report['predictions']}")
-    if "bundle" in report:
-        lines.append(f"bundle written to {report['bundle']}")
-    return "\n".join(lines)
-
-
-def _fmt(values: list[float]) -> str:
-    return f"{values[0]:.4g}" if len(values) == 1 else "(" + ", ".join(f"{v:.3g}" for v in values) + ")"

@@ -20,6 +20,8 @@ from pathlib import Path
 from neuenh.scene import MaterialPlan, load_scene, plan_scene
 from neuenh.scene.outputs import write_plan
 
+from .tables import plan_totals
+
 
 def add_parser(commands) -> None:
     p = commands.add_parser("scene", help="plan a scene: per material, the cheapest model within tolerance",
@@ -61,9 +63,7 @@ def run(args) -> int:
     else:
         for m in plan.materials:
             print(f"{m.name:32s} {plan.rung_info(m.chosen)['label']:40.40s} error {m.result(m.chosen).error:.4f}")
-        p, r, c = totals["plan"], totals["richest"], totals["cheapest"]
-        print(f"frame: plan {p['cost_ns']:.0f} ns, error {p['error']:.4f} | richest everywhere {r['cost_ns']:.0f} ns, "
-              f"{r['error']:.4f} | cheapest everywhere {c['cost_ns']:.0f} ns, {c['error']:.4f}")
+        print(plan_totals(totals))
         print(f"wrote {args.output / 'plan.md'}")
     return 0
 

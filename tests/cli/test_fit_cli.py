@@ -108,9 +108,9 @@ def test_test_adds_heldout_log_l1_to_json_and_table(held_out, heldout_run):
     assert material["name"] == "steel" and material["heldout_samples"] == 1000
     assert material["heldout_table"] == str(held_out)
     assert 0 < material["heldout_log_l1"] < 0.1 and abs(material["heldout_log_l1"] - material["loss"]) < 0.02
-    from neuenh_service.cli.fit import _table  # the text report (without --json) of the same run
+    from neuenh_service.cli.tables import fit_report  # the text report (without --json) of the same run
 
-    assert f"steel: log-L1 {material['loss']:.5f}  held-out {material['heldout_log_l1']:.5f}" in _table(heldout_run[0])
+    assert f"steel: log-L1 {material['loss']:.5f}  held-out {material['heldout_log_l1']:.5f}" in fit_report(heldout_run[0])
 
 
 def test_predictions_are_the_fitted_model_at_the_heldout_directions(held_out, heldout_run):

@@ -10,14 +10,40 @@ for ``reconnect_s`` before giving up with exit code 3.
 
 from __future__ import annotations
 
+import argparse
+import sys
 import time
 from datetime import datetime
 from types import SimpleNamespace
 from typing import TextIO
 
-from .client_api import UNREACHABLE, Api, ClientError
+from .api import UNREACHABLE, Api, ClientError
+from .commands import job_status, note, print_json, rounds_committed
 
 SUCCESS = ("CONVERGED", "STOPPED")
+
+
+def follow_args(p: argparse.ArgumentParser) -> None:
+    """``--interval`` and ``--reconnect``, for the commands that follow a job."""
+    p.add_argument("--interval", type=float, default=0.5, metavar="SECONDS", help="how often to poll (default 0.5)")
+    p.add_argument("--reconnect", type=float, default=60.0, metavar="SECONDS",
+                   help="how long to wait out a service that went away, e.g. restarting (default 60)")
+
+
+def follow_to_end(api: Api, job_id: str, args) -> int:
+    """Follow ``job_id`` on stderr, say how it ended (``--json``: print the finished job) and return
+    its exit code; Ctrl-C stops following (130), not the job."""
+    try:
+        job = follow(api, job_id, sys.stderr, interval=args.interval, reconnect_s=args.reconnect)
+    except KeyboardInterrupt:
+        note(f"stopped watching job {job_id}; it keeps running on the service "
+             f"(neuenh-client cancel {job_id} stops it)")
+        return 130
+    code, line = outcome(job)
+    note(line)
+    if args.json:
+        print_json(job)
+    return code
 
 
 def follow(api: Api, job_id: str, stream: TextIO, *, interval: float = 0.5, reconnect_s: float = 60.0) -> dict:
@@ -28,7 +54,7 @@ def follow(api: Api, job_id: str, stream: TextIO, *, interval: float = 0.5, reco
 
 class _Follower:
     def __init__(self, api: Api, job_id: str, stream: TextIO, interval: float, reconnect_s: float):
-        from .search import ProgressDisplay  # (imports the orchestrator, so only when following)
+        from ..search import ProgressDisplay  # (imports the orchestrator, so only when following)
 
         self.api, self.job_id, self.interval, self.reconnect_s = api, job_id, interval, reconnect_s
         self.display = ProgressDisplay(stream)
@@ -97,9 +123,7 @@ class _Follower:
 def outcome(job: dict) -> tuple[int, str]:
     """The exit code of a finished job (0 converged or stopped, 1 failed or cancelled) and a line
     saying how it ended."""
-    rounds = 0 if job["last_round"] is None else job["last_round"] + 1
-    line = f"job {job['id']}: {job['status']}" + (f" ({job['reason']})" if job.get("reason") else "") + \
-        f" after {rounds} round(s)"
+    line = f"job {job['id']}: {job_status(job)} after {rounds_committed(job)} round(s)"
     if job.get("current_state"):
         line += f", state {job['current_state']}"
     if job.get("error"):

@@ -23,7 +23,9 @@ import httpx
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 CONNECT_TIMEOUT_S = 5.0
-READ_TIMEOUT_S = 30.0
+READ_TIMEOUT_S = 30.0  # an answer's default wait (``--timeout``); the long calls below wait longer
+DOWNLOAD_TIMEOUT_S = 300.0  # a model, an export, a scene's uploaded files
+FIT_TIMEOUT_S = 3600.0  # fitting materials on the service
 
 OK, JOB_FAILED, USAGE, UNREACHABLE = 0, 1, 2, 3
 

@@ -1,9 +1,9 @@
-"""Saving a job's model as ``neuenh-client download`` does: a bundle directory (``model.json``,
-``weights.safetensors``, ``materials.safetensors``) or, for a target ending in ``.zip``, the archive
-itself. Either way it is written atomically: extracted beside the target, loaded with
-``Bundle.load`` to prove it is whole, then renamed into place. An existing non-empty target is
-refused (exit 2) unless ``force``; the check runs before the download too, so nothing is fetched
-for nothing.
+"""``neuenh-client download JOB [-o DIR|FILE.zip] [--force]``: a job's model (its last committed
+round), saved as a bundle directory (``model.json``, ``weights.safetensors``,
+``materials.safetensors``) or, for a target ending in ``.zip``, the archive itself. Either way it
+is written atomically: extracted beside the target, loaded with ``Bundle.load`` to prove it is
+whole, then renamed into place. An existing non-empty target is refused (exit 2) unless ``force``;
+the check runs before the download too, so nothing is fetched for nothing.
 """
 
 from __future__ import annotations
@@ -15,7 +15,32 @@ import tempfile
 import zipfile
 from pathlib import Path
 
-from .client_api import JOB_FAILED, USAGE, ClientError
+from .api import DOWNLOAD_TIMEOUT_S, JOB_FAILED, USAGE, Api, ClientError
+from .commands import Commands, job_arg, json_arg, note, print_json
+
+
+def add_parser(commands: Commands) -> None:
+    p = commands.add("download", run, "download a job's model (its last committed round)")
+    job_arg(p)
+    p.add_argument("-o", "--output", type=Path, metavar="DIR|FILE.zip",
+                   help="a directory to extract the bundle into (default ./neuenh-JOB), or a .zip to keep the archive")
+    p.add_argument("--force", action="store_true", help="replace an existing non-empty directory or zip")
+    json_arg(p, "print what was saved as JSON")
+
+
+def run(args, api: Api) -> int:
+    target = args.output or default_target(args.job)
+    check_target(target, args.force)
+    r = api.model(args.job, read_timeout=args.timeout or DOWNLOAD_TIMEOUT_S)
+    bundle = save_model(r.content, target, args.force)
+    saved = {"job_id": args.job, "round": int(r.headers.get("X-Neuenh-Round", -1)),
+             "state": bundle.model.state, "path": str(target)}
+    if args.json:
+        print_json(saved)
+    else:
+        print(target)
+        note(f"job {args.job} round {saved['round']} (state {saved['state']}) saved to {target}")
+    return 0
 
 
 def default_target(job_id: str) -> Path:

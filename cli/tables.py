@@ -1,0 +1,47 @@
+"""Plain text both command lines print (``neuenh`` and ``neuenh-client``): aligned tables, a fit
+report, a scene plan's frame totals. Pure formatting of the JSON the commands already hold, so the
+local command and the service's client print the same thing for the same result.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Sequence
+
+
+def table(rows: Sequence[Sequence[str]], right: Collection[int] = ()) -> str:
+    """``rows`` (the first is the header) as columns two spaces apart; the columns in ``right``
+    right-aligned (numbers), the others left-aligned; no trailing blanks."""
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return "\n".join("  ".join(c.rjust(w) if i in right else c.ljust(w) for i, (c, w) in enumerate(zip(r, widths))).rstrip()
+                     for r in rows)
+
+
+def fit_report(report: dict) -> str:
+    """A fit's report (``neuenh fit --json``'s, or ``POST /v1/jobs/{id}/fit``'s answer): a line for
+    the fit, then one per material with its loss, its parameter count and capacity, and its analytical
+    parameters (the latent code and corrections left out)."""
+    lbfgs = report["method"] == "fast" and set(report["state"]) == {"0"}  # a plain model's fast fit
+    lines = [f"{report['model']} (state {report['state']}), {report['method']} fit, "
+             f"{report['epochs']} {'L-BFGS iterations' if lbfgs else 'epochs'} in {report['wall_s']:.1f} s"]
+    for m in report["materials"]:
+        p = m["params"]
+        scalars = "  ".join(f"{k}={_values(v)}" for k, v in p.items())
+        heldout = f"  held-out {m['heldout_log_l1']:.5f}" if "heldout_log_l1" in m else ""
+        lines.append(f"  {m['name']}: log-L1 {m['loss']:.5f}{heldout}  {m['params_per_material']} parameters "
+                     f"({m['capacity']})  {scalars}")
+    if "predictions" in report:
+        lines.append(f"predictions written to {report['predictions']}")
+    if "bundle" in report:
+        lines.append(f"bundle written to {report['bundle']}")
+    return "\n".join(lines)
+
+
+def plan_totals(totals: dict) -> str:
+    """A scene plan's frame cost and error against choosing the richest or the cheapest rung everywhere."""
+    p, r, c = totals["plan"], totals["richest"], totals["cheapest"]
+    return (f"frame: plan {p['cost_ns']:.0f} ns, error {p['error']:.4f} | richest everywhere {r['cost_ns']:.0f} ns, "
+            f"{r['error']:.4f} | cheapest everywhere {c['cost_ns']:.0f} ns, {c['error']:.4f}")
+
+
+def _values(values: list[float]) -> str:
+    return f"{values[0]:.4g}" if len(values) == 1 else "(" + ", ".join(f"{v:.3g}" for v in values) + ")"
