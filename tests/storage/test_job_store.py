@@ -245,7 +245,7 @@ class TestJobStoreContract:
         event = job_store.events(job_id)[-1]
         assert event.kind == EVENT_ROUND
         assert event.payload == {"round": 0, "winner_state": flip(INITIAL, 3), "winner_val_loss": 0.1,
-                                 "artifact_key": record.artifact_key}
+                                 "winner_fit_score": record.winner_fit_score, "artifact_key": record.artifact_key}
 
     def test_failed_commit_leaves_nothing_of_the_round(self, job_store):
         job_id = running_job(job_store)
@@ -340,7 +340,7 @@ class TestJobStoreContract:
         r = chain[5]
         assert r.extra == {"radius": 1} and r.candidates[1].extra["epoch_losses"][0] == 0.9
         assert [c.seed for c in r.candidates] == [5000 + k for k in range(N_POSITIONS + 1)]
-        assert [c.fit_score for c in r.candidates] == [0.2, 0.21, None, 0.23, 0.24, None]
+        assert [c.fit_score for c in r.candidates] == [None if k % 3 == 2 else 0.2 + k / 100 for k in range(6)]
         assert r.winner_fit_score == r.winner.fit_score
 
     # ------------------------------------------------------------------ finished candidates
