@@ -254,7 +254,7 @@ def test_history_of_a_search_scored_by_fit_shows_the_fit_score(server, api):
     header, row = out.stdout.splitlines()
     assert "val loss  fit score" in header
     r0 = served["rounds"][0]
-    assert f"{r0['winner_val_loss']:.5f}  {r0['winner_fit_score']:.5f}" in row
+    assert f"{r0['winner_val_loss']:.5f} {r0['winner_fit_score']:.5f}" in " ".join(row.split())
 
 
 def test_history_into_a_closed_pipe_ends_quietly(server, submitted):
