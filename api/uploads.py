@@ -1,7 +1,7 @@
 """Measurement files uploaded with a request (``/v1/jobs/{id}/fit``, ``/v1/plan-uploads``).
 
 Each upload is streamed to a folder, read there by the route's reader (a table is refused from its
-row count alone, before any value is read: ``neuenh.data.table``), and kept under the name of its
+row count alone, before its values are read: ``neuenh.data.table``), and kept under the name of its
 content's SHA-256, so the same file uploaded twice is one file and a plan that names it reads
 exactly what was checked. A file that cannot be read is a 422 naming the upload, never the folder.
 A plan's files stay while a plan that names them has not ended (``PlanUploads``).
@@ -76,7 +76,7 @@ def _receive_one(upload: UploadFile, name: str, folder: Path, read, max_rows: in
             value = read(Path(tmp), name)
         except TableTooLarge as exc:  # refused from the row count alone, before reading values
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                f"{shown}: {exc.rows} measurements exceed this service's limit of "
+                                f"{shown}: {exc.counted} measurements exceed this service's limit of "
                                 f"{max_rows} per material (NEUENH_MAX_SAMPLES)") from None
         except DataError as exc:  # its message names the temporary path: name the upload instead
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc).replace(tmp, shown)) from None

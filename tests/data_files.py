@@ -62,6 +62,17 @@ def tensor_file_bytes(fields: dict[str, np.ndarray], align: int = 8, overrides=N
     return header + b"\0" * (offset - len(header)) + body
 
 
+def aliased_tensor_file_bytes(n_fields: int, block_bytes: int) -> bytes:
+    """A tensor_file of ONE data block of ``block_bytes`` whose ``n_fields`` fields (u8 vectors) all
+    name it: the header of an attack that would make every field a copy of the block."""
+    header = b"tensor_file\0" + struct.pack("<BBI", 1, 0, n_fields)
+    names = [f"f{i}".encode() for i in range(n_fields)]
+    header_len = len(header) + sum(2 + len(n) + 2 + 1 + 8 + 8 for n in names)
+    for name in names:
+        header += struct.pack("<H", len(name)) + name + struct.pack("<HBQQ", 1, 1, header_len, block_bytes)
+    return header + bytes(block_bytes)
+
+
 def write_tensor_file(path: Path, fields: dict[str, np.ndarray]) -> Path:
     path.write_bytes(tensor_file_bytes(fields))
     return path

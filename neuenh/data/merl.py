@@ -139,13 +139,16 @@ def parse_merl(content: bytes, path: str | os.PathLike = "<bytes>") -> np.ndarra
         raise fail(f"{what}: a MERL table is {FILE_SIZE} bytes (header + 3 x {N_BINS} float64), "
                    f"the file has {len(content)}")
     raw = np.frombuffer(content, dtype="<f8", offset=12).reshape(3, N_BINS)
-    bad = ~np.isfinite(raw)
-    if bad.any():
-        channel, index = (int(v[0]) for v in np.nonzero(bad))
-        i_h, i_d, i_p = np.unravel_index(index, DIMS)
-        raise fail(f"{int(bad.sum())} non-finite value(s), first in channel {'RGB'[channel]} at bin "
-                   f"(theta_h {i_h}, theta_d {i_d}, phi_d {i_p})")
-    return (raw * SCALE[:, None]).reshape(3, *DIMS)
+    scaled = raw * SCALE[:, None]
+    # Models compute in float32: a value beyond its range would be inf there (a silently wrong fit).
+    for bad, what in ((~np.isfinite(raw), "non-finite value(s)"),
+                      (np.abs(scaled) > np.finfo(np.float32).max, "value(s) beyond float32's range (3.4e38)")):
+        if bad.any():
+            channel, index = (int(v[0]) for v in np.nonzero(bad))
+            i_h, i_d, i_p = np.unravel_index(index, DIMS)
+            raise fail(f"{int(bad.sum())} {what}, first in channel {'RGB'[channel]} at bin "
+                       f"(theta_h {i_h}, theta_d {i_d}, phi_d {i_p})")
+    return scaled.reshape(3, *DIMS)
 
 
 def read_merl(path: str | os.PathLike) -> np.ndarray:

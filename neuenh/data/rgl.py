@@ -92,7 +92,7 @@ def parse_tensor_file(content: bytes, path: str | os.PathLike = "<bytes>") -> di
         pos += width
         return values
 
-    entries: dict[str, tuple[np.dtype, int, tuple[int, ...]]] = {}
+    entries: dict[str, tuple[np.dtype, int, tuple[int, ...], int]] = {}  # dtype, offset, shape, bytes
     for i in range(n_fields):
         where = f"field {i + 1} of {n_fields}"
         (name_len,) = take("<H", f"the name length of {where}")
@@ -113,18 +113,37 @@ def parse_tensor_file(content: bytes, path: str | os.PathLike = "<bytes>") -> di
             raise fail(f"{where} has shape {list(shape)}, larger than the whole file ({size} bytes)")
         if name in entries:
             raise fail(f"{where} appears twice")
-        entries[name] = (DTYPES[code], offset, shape)
-    # The data, once the whole header is known to be sound.
+        entries[name] = (DTYPES[code], offset, shape, math.prod(shape) * DTYPES[code].itemsize)
+    _check_layout(entries, pos, size, fail)
+    # The data, once the whole header is known to be sound: every field its own bytes, so the copies
+    # together hold at most the file's size.
     fields: dict[str, np.ndarray] = {}
-    for name, (dtype, offset, shape) in entries.items():
-        count = math.prod(shape)
-        nbytes = count * dtype.itemsize
+    for name, (dtype, offset, shape, _) in entries.items():
+        data = np.frombuffer(content, dtype=dtype, count=math.prod(shape), offset=offset).reshape(shape)
+        fields[name] = data.astype(dtype.newbyteorder("="))  # a native-order copy
+    return fields
+
+
+def _check_layout(entries: dict[str, tuple[np.dtype, int, tuple[int, ...], int]], header_end: int, size: int,
+                  fail) -> None:
+    """Each field's bytes lie inside the file after the header, apart from every other field's: a
+    header whose fields all name one block (or overlap) would make every field a copy of it, swelling
+    a small file to any size in memory, so it is refused before anything is copied."""
+    for name, (dtype, offset, shape, nbytes) in entries.items():
         if offset > size or nbytes > size - offset:
             raise fail(f"field {name!r} ({dtype.name}{list(shape)}, {nbytes} bytes at offset {offset}) "
                        f"extends past the end of the file ({size} bytes)")
-        data = np.frombuffer(content, dtype=dtype, count=count, offset=offset).reshape(shape)
-        fields[name] = data.astype(dtype.newbyteorder("="))  # a native-order copy
-    return fields
+    total = sum(nbytes for *_, nbytes in entries.values())
+    if total > size - header_end:
+        raise fail(f"its fields claim {total} bytes in all, more than the {size - header_end} bytes after its "
+                   "header: fields overlap")
+    spans = sorted((offset, offset + nbytes, name) for name, (_, offset, _, nbytes) in entries.items() if nbytes)
+    if spans and spans[0][0] < header_end:
+        start, _, name = spans[0]
+        raise fail(f"field {name!r} starts at byte {start}, inside the header (which ends at byte {header_end})")
+    for (_, end, first), (start, _, second) in zip(spans, spans[1:]):
+        if start < end:
+            raise fail(f"fields {first!r} and {second!r} overlap (bytes {start}..{end - 1} belong to both)")
 
 
 def read_tensor_file(path: str | os.PathLike) -> dict[str, np.ndarray]:

@@ -24,8 +24,9 @@ Column names are case-insensitive and may come in any order; the nine required o
 present, and no other column is allowed (a typo would otherwise be silently ignored).
 
 Both formats are validated the same way — unit directions (|norm - 1| <= 1e-3) above the horizon
-(z > 0), finite values, ``f_r`` and ``weight`` non-negative, matching lengths, at least one row, at
-most the reader's ``max_rows`` (an npz's from its headers, before inflating) — and every problem is a
+(z > 0), finite values within float32's range (what the models compute in), ``f_r`` and ``weight``
+non-negative, matching lengths, at least one row, at most the reader's ``max_rows`` (an npz's from
+its headers, before inflating; a CSV's counted as it streams) — and every problem is a
 ``TableError`` naming the file, the row (0-based, the same in both formats; CSV errors add the
 1-based line of the file) and what is wrong.
 
@@ -38,7 +39,6 @@ its ``metadata["weight"]``), ready for a weighted loss; ``neuenh data inspect`` 
 from __future__ import annotations
 
 import csv
-import io
 import os
 import zipfile
 from dataclasses import dataclass
@@ -54,6 +54,7 @@ CSV_COLUMNS = ("wi_x", "wi_y", "wi_z", "wo_x", "wo_y", "wo_z", "r", "g", "b")
 WEIGHT = "weight"
 _KEYS = ("wi", "wo", "f_r")
 _UNIT_TOLERANCE = 1e-3
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 _ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
 
 
@@ -62,11 +63,16 @@ class TableError(DataError):
 
 
 class TableTooLarge(TableError):
-    """A table with more rows than the reader was allowed (``max_rows``)."""
+    """A table with more rows than the reader was allowed (``max_rows``): ``rows`` of them, or None
+    when it was refused at its first row beyond the limit (a CSV, counted as it is read)."""
 
-    def __init__(self, path: Path, rows: int, max_rows: int):
-        super().__init__(f"{path}: {rows} rows exceed the limit of {max_rows}")
+    def __init__(self, path: Path, rows: int | None, max_rows: int):
         self.rows, self.max_rows = rows, max_rows
+        super().__init__(f"{path}: {self.counted} rows exceed the limit of {max_rows}")
+
+    @property
+    def counted(self) -> str:
+        return str(self.rows) if self.rows is not None else f"more than {self.max_rows}"
 
 
 @dataclass
@@ -188,19 +194,40 @@ def _read_npz(path: Path, max_rows: int | None = None) -> dict[str, np.ndarray]:
     return arrays
 
 
-def _read_csv(path: Path, max_rows: int | None = None) -> dict[str, np.ndarray]:
+def _csv_lines(path: Path):
+    """(1-based line number, text) of every line that is neither blank nor a comment, streamed from
+    the file: only one line is held at a time (a non-UTF-8 byte is named by its offset in the file)."""
+    offset = 0
     try:
-        text = path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise TableError(f"{path}: not a CSV table (not UTF-8 text: byte {exc.start} is {exc.object[exc.start:exc.start + 1]!r})") from None
+        with open(path, "rb") as f:
+            for line_no, raw in enumerate(f, start=1):
+                try:
+                    line = raw.decode("utf-8")
+                except UnicodeDecodeError as exc:
+                    raise TableError(f"{path}: not a CSV table (not UTF-8 text: byte {offset + exc.start} is "
+                                     f"{raw[exc.start:exc.start + 1]!r})") from None
+                offset += len(raw)
+                if line_no == 1:
+                    line = line.lstrip("\ufeff")
+                stripped = line.strip()
+                if stripped and not stripped.startswith("#"):
+                    yield line_no, line.rstrip("\r\n")
     except OSError as exc:
         raise TableError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    lines = text.lstrip("\ufeff").splitlines()
-    numbered = [(i + 1, line) for i, line in enumerate(lines) if line.strip() and not line.lstrip().startswith("#")]
-    if not numbered:
+
+
+_CSV_CHUNK = 1 << 13  # rows parsed at once: their text is held only until they are numbers
+
+
+def _read_csv(path: Path, max_rows: int | None = None) -> dict[str, np.ndarray]:
+    """The CSV table's columns, read in one streaming pass: rows are counted as they come (a table
+    over ``max_rows`` is refused at its first row beyond the limit) and turned into numbers a chunk at
+    a time, so memory holds the values, never the file's text split into line objects."""
+    lines = _csv_lines(path)
+    first = next(lines, None)
+    if first is None:
         raise TableError(f"{path}: the table is empty (no header line {','.join(CSV_COLUMNS)})")
-    _too_many(path, len(numbered) - 1, max_rows)
-    header_line, header_text = numbered[0]
+    header_line, header_text = first
     header = [c.strip().strip('"').lower() for c in next(csv.reader([header_text]))]
     duplicates = sorted({c for c in header if header.count(c) > 1})
     if duplicates:
@@ -213,23 +240,22 @@ def _read_csv(path: Path, max_rows: int | None = None) -> dict[str, np.ndarray]:
     if unknown:
         raise TableError(f"{path}: line {header_line}: unknown column(s) {unknown} (allowed: "
                          f"{','.join(CSV_COLUMNS)},{WEIGHT})")
-    body = numbered[1:]
     width = len(header)
-    rows = list(csv.reader(io.StringIO("\n".join(line for _, line in body))))
-    for row_index, ((line_no, _), row) in enumerate(zip(body, rows)):
-        if len(row) != width:
-            raise TableError(f"{path}: row {row_index} (line {line_no}): {len(row)} values, the header has {width}")
-    try:
-        values = np.array(rows, dtype=np.float64).reshape(len(rows), width)
-    except ValueError:
-        for row_index, ((line_no, _), row) in enumerate(zip(body, rows)):
-            for column, cell in zip(header, row):
-                try:
-                    float(cell)
-                except ValueError:
-                    raise TableError(f"{path}: row {row_index} (line {line_no}): {column} is not a number "
-                                     f"({cell.strip()!r})") from None
-        raise  # pragma: no cover - numpy refused a value float() accepts
+    chunks: list[np.ndarray] = []
+    line_numbers: list[int] = []
+    pending: list[tuple[int, str]] = []
+    for line in lines:
+        if max_rows is not None and len(line_numbers) + len(pending) >= max_rows:
+            raise TableTooLarge(path, None, max_rows)
+        pending.append(line)
+        if len(pending) == _CSV_CHUNK:
+            chunks.append(_csv_values(path, pending, header, len(line_numbers)))
+            line_numbers += [n for n, _ in pending]
+            pending = []
+    if pending:
+        chunks.append(_csv_values(path, pending, header, len(line_numbers)))
+        line_numbers += [n for n, _ in pending]
+    values = np.concatenate(chunks) if chunks else np.zeros((0, width))
     index = {c: header.index(c) for c in header}
     arrays = {
         "wi": values[:, [index[c] for c in CSV_COLUMNS[0:3]]],
@@ -238,8 +264,28 @@ def _read_csv(path: Path, max_rows: int | None = None) -> dict[str, np.ndarray]:
     }
     if WEIGHT in index:
         arrays[WEIGHT] = values[:, index[WEIGHT]]
-    arrays["_lines"] = np.array([line_no for line_no, _ in body], dtype=np.int64)
+    arrays["_lines"] = np.array(line_numbers, dtype=np.int64)
     return arrays
+
+
+def _csv_values(path: Path, lines: list[tuple[int, str]], header: list[str], first_row: int) -> np.ndarray:
+    """The numbers of a chunk of data lines (rows ``first_row``, ...), as float64 (rows, columns)."""
+    rows = list(csv.reader(text for _, text in lines))
+    width = len(header)
+    for row_index, ((line_no, _), row) in enumerate(zip(lines, rows), start=first_row):
+        if len(row) != width:
+            raise TableError(f"{path}: row {row_index} (line {line_no}): {len(row)} values, the header has {width}")
+    try:
+        return np.array(rows, dtype=np.float64).reshape(len(rows), width)
+    except ValueError:
+        for row_index, ((line_no, _), row) in enumerate(zip(lines, rows), start=first_row):
+            for column, cell in zip(header, row):
+                try:
+                    float(cell)
+                except ValueError:
+                    raise TableError(f"{path}: row {row_index} (line {line_no}): {column} is not a number "
+                                     f"({cell.strip()!r})") from None
+        raise  # pragma: no cover - numpy refused a value float() accepts
 
 
 def _validated(path: Path, arrays: dict[str, np.ndarray], fmt: str) -> tuple[Samples, torch.Tensor | None]:
@@ -262,6 +308,13 @@ def _validated(path: Path, arrays: dict[str, np.ndarray], fmt: str) -> tuple[Sam
         if not finite.all():
             row = int(np.argwhere(~finite)[0, 0])
             raise TableError(f"{path}: {key} has non-finite values (first at {where(row)})")
+        # The samples are float32: a finite float64 beyond its range would be inf there, and a fit
+        # on it would return its initial parameters with a null loss instead of an error.
+        beyond = np.abs(a) > _FLOAT32_MAX
+        if beyond.any():
+            row = int(np.argwhere(beyond)[0, 0])
+            raise TableError(f"{path}: {key} has values beyond float32's range of 3.4e38, which the models "
+                             f"compute in (first at {where(row)})")
     for key in ("wi", "wo"):
         norms = np.linalg.norm(np.asarray(arrays[key], dtype=np.float64), axis=1)
         bad = np.abs(norms - 1) > _UNIT_TOLERANCE

@@ -202,6 +202,9 @@ BROKEN = {
     "nan": (lambda c: _corrupt(c, 12 + 8 * (N_BINS + 7), struct.pack("<d", float("nan"))),
             r"non-finite value\(s\), first in channel G at bin \(theta_h 0, theta_d 0, phi_d 7\)"),
     "inf": (lambda c: _corrupt(c, 12, struct.pack("<d", float("-inf"))), "non-finite"),
+    # issue 26, case 8: finite in float64, inf in the float32 the models compute in
+    "beyond float32": (lambda c: _corrupt(c, 12 + 8 * (2 * N_BINS + 3), struct.pack("<d", 1e300)),
+                       r"1 value\(s\) beyond float32's range .* first in channel B at bin \(theta_h 0, theta_d 0, phi_d 3\)"),
 }
 
 

@@ -7,6 +7,7 @@ materials (uniform / linear VNDF, bilinear rgb: every step of the evaluator is e
 
 import math
 import struct
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -14,12 +15,12 @@ import pytest
 import torch
 
 from neuenh.data.errors import DataError
-from neuenh.data.rgl import RGLMaterial, TensorFileError, load_rgl, read_tensor_file
+from neuenh.data.rgl import RGLMaterial, TensorFileError, load_rgl, parse_tensor_file, read_tensor_file
 from neuenh.data.directions import to_rusinkiewicz
 
 from data_files import (
-    RGL_DIR, RGL_MATERIALS, RGL_REFERENCE, hemisphere, shared, tensor_file_bytes, tiny_rgl_fields,
-    write_tensor_file,
+    RGL_DIR, RGL_MATERIALS, RGL_REFERENCE, aliased_tensor_file_bytes, hemisphere, shared, tensor_file_bytes,
+    tiny_rgl_fields, write_tensor_file,
 )
 
 
@@ -235,7 +236,16 @@ BROKEN = {
     "non-finite": (nan_vndf, "'vndf' has 1 non-finite"),
     "theta_i not increasing": (lambda: with_field(theta_i=np.array([0, 1, 0.5], dtype=np.float32)), "strictly increasing"),
     "zero vndf": (lambda: with_field(vndf=np.zeros((1, 3, 4, 5), dtype=np.float32)), "integrate to zero"),
+    # issue 26: a header naming one block for several fields would copy it once per field
+    "aliased fields": (lambda: aliased_tensor_file_bytes(400, 4096), r"claim 1638400 bytes in all, more than the 4096"),
+    "overlapping fields": (lambda: valid_bytes(ndf={"offset": first_data_offset()}), "fields 'version' and 'ndf' overlap"),
+    "data inside the header": (lambda: valid_bytes(version={"offset": 20}), "'version' starts at byte 20, inside the header"),
 }
+
+
+def first_data_offset() -> int:
+    """Where the first field's data ('version', whose offset is at byte 30 of the header) begin."""
+    return struct.unpack_from("<Q", valid_bytes(), 30)[0]
 
 
 @pytest.mark.parametrize("case", list(BROKEN))
@@ -246,6 +256,21 @@ def test_broken_files_raise_data_error_naming_file_and_problem(tmp_path, case):
         load_rgl(path)
     assert isinstance(info.value, DataError) and isinstance(info.value, ValueError)
     assert str(info.value).startswith(str(path))
+
+
+def test_aliased_fields_are_refused_before_anything_is_copied():
+    """Issue 26, case 1: 400 fields naming one 4 MB block took a server from 492 MB to 1,998 MB
+    before its 422. Refused from the header alone: what the parser allocates stays far below one
+    copy of the block (measured by tracemalloc, which numpy reports its arrays to)."""
+    content = aliased_tensor_file_bytes(400, 4 << 20)
+    tracemalloc.start()
+    try:
+        with pytest.raises(TensorFileError, match="fields overlap"):
+            parse_tensor_file(content, "aliased.bsdf")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < (4 << 20) // 8, f"the parser allocated {peak} bytes"
 
 
 def test_duplicate_field_is_an_error(tmp_path):

@@ -82,12 +82,14 @@ def test_csv_header_with_a_typo_gets_a_precise_error_not_unrecognised(tmp_path):
     ([GOOD_ROW, GOOD_ROW, "0,0,1,0.6,0,0.8,0.1,abc,0.3"], HEADER, r"row 2 \(line 4\): g is not a number \('abc'\)"),
     ([GOOD_ROW, "0,0,1,0.6,0,0.8,0.1,nan,0.3"], HEADER, r"f_r has non-finite values \(first at row 1 \(line 3\)\)"),
     ([GOOD_ROW, "0,0,1,0.6,0,0.8,0.1,-0.2,0.3"], HEADER, r"f_r has negative values \(first at row 1 \(line 3\)\)"),
+    ([GOOD_ROW, GOOD_ROW, "0,0,1,0.6,0,0.8,0.1,1e39,0.3"], HEADER,
+     r"f_r has values beyond float32's range .*first at row 2 \(line 4\)"),
     ([GOOD_ROW, "0,0,2,0.6,0,0.8,0.1,0.2,0.3"], HEADER, r"wi must hold unit vectors \(row 1 \(line 3\) has norm 2\)"),
     ([GOOD_ROW + ",1", GOOD_ROW + ",-1"], HEADER + ",weight", r"weight has negative values \(first at row 1"),
     ([GOOD_ROW + ",0", GOOD_ROW + ",0"], HEADER + ",weight", "weight is zero on every row"),
     (["# only a comment"], HEADER, "the table is empty"),
     ([], "# nothing but comments", "the table is empty"),
-], ids=["missing-column", "unknown-column", "duplicate-column", "short-row", "not-a-number", "nan", "negative",
+], ids=["missing-column", "unknown-column", "duplicate-column", "short-row", "not-a-number", "nan", "negative", "beyond-float32",
         "non-unit", "negative-weight", "zero-weights", "header-only", "no-header"])
 def test_bad_csv_names_file_row_and_problem(tmp_path, rows, header, match):
     path = _csv(tmp_path / "bad.csv", rows, header)
@@ -149,8 +151,32 @@ def test_a_csv_over_the_row_limit_is_refused(tmp_path):
     wi, wo, f_r, _ = _arrays(n=40)
     path = write_table(tmp_path / "t.csv", wi, wo, f_r)
     assert len(read_table(path, max_rows=40)) == 40
-    with pytest.raises(TableError, match="40 rows exceed the limit of 39"):
+    with pytest.raises(TableError, match="more than 39 rows exceed the limit of 39"):
         read_table(path, max_rows=39)
+
+
+def test_a_csv_is_counted_while_streaming_and_refused_early(tmp_path):
+    """Issue 26, case 5: a 60 MB CSV of ``1,`` lines took a server from 889 MB to 4,474 MB before its
+    422 (the whole text split into line objects first). Streamed, it is refused at the first row
+    beyond the limit: the reader's peak allocation (tracemalloc) is the lines it holds before parsing
+    them — at most the limit's 1000 here, ~130 B each as Python strings — never the file's 60 MB."""
+    import tracemalloc
+
+    path = tmp_path / "lines.csv"
+    with open(path, "w") as f:
+        f.write(HEADER + "\n")
+        for _ in range(60):
+            f.write("1,\n" * 333_333)  # 60 x 1 MB
+    size = path.stat().st_size
+    assert size > 59_000_000
+    tracemalloc.start()
+    try:
+        with pytest.raises(TableError, match="more than 1000 rows exceed the limit of 1000"):
+            read_table(path, max_rows=1000)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 1000 * 200, f"{peak} bytes allocated reading a {size}-byte file"
 
 
 def test_an_npz_header_claiming_more_than_the_archive_holds_is_one_error(tmp_path):
