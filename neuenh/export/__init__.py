@@ -38,12 +38,17 @@ class MissingRuntime(ValueError):
     """A format whose writer needs a package of the ``neuenh[export]`` extra that is not installed."""
 
 
+class ExportError(ValueError):
+    """What was asked cannot be exported as asked (an unknown format, no materials, two material
+    names that become one file name); the message names the materials."""
+
+
 def export(model, materials: Mapping[str, MaterialParams], fmt: str, out_dir: Path) -> list[Path]:
     """Write ``materials`` of ``model`` in format ``fmt`` into ``out_dir``; returns the files."""
     if fmt not in FORMATS:
-        raise ValueError(f"unknown export format {fmt!r}; choose one of {', '.join(FORMATS)}")
+        raise ExportError(f"unknown export format {fmt!r}; choose one of {', '.join(FORMATS)}")
     if not materials:
-        raise ValueError("nothing to export: no materials")
+        raise ExportError("nothing to export: no materials")
     try:
         writer = importlib.import_module(f"{__name__}.{fmt}")
     except ImportError as exc:
@@ -58,7 +63,7 @@ def file_names(materials, suffix: str) -> dict[str, str]:
     for material in materials:
         name = identifier(material)
         if name in names:
-            raise ValueError(f"materials {names[name]!r} and {material!r} both export as {name}{suffix}; rename one")
+            raise ExportError(f"materials {names[name]!r} and {material!r} both export as {name}{suffix}; rename one")
         names[name] = material
     return names
 

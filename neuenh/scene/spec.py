@@ -37,7 +37,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 __all__ = ["CaptureEntry", "FileEntry", "FitSpec", "RenderSpec", "RungsEntry", "SceneError", "SceneSpec",
-           "Tolerance", "load_scene", "parse_scene"]
+           "Tolerance", "load_scene", "parse_scene", "scene_data"]
 
 RENDER_METRICS = ("delta_e_itp", "ssim")
 
@@ -150,15 +150,29 @@ def parse_scene(data: object, where: str = "scene") -> SceneSpec:
         raise SceneError(f"{where}: {_problems(exc)}") from None
 
 
+def scene_data(text: str, where: str = "scene") -> object:
+    """The data of a scene's YAML (or JSON) text; text that does not parse — malformed, nested deeper
+    than the parser's recursion allows, an integer beyond Python's 4,300-digit conversion limit — is
+    a SceneError naming ``where``."""
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise SceneError(f"{where}: not valid YAML or JSON ({str(exc).splitlines()[0]})") from None
+    except RecursionError:
+        raise SceneError(f"{where}: nested too deeply to be a scene") from None
+    except ValueError as exc:  # int() of a literal over sys.get_int_max_str_digits()
+        raise SceneError(f"{where}: {str(exc).splitlines()[0]}") from None
+
+
 def load_scene(path: str | os.PathLike) -> tuple[SceneSpec, Path]:
     """The scene at ``path`` and the folder its relative paths are relative to."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        text = path.read_text()
     except FileNotFoundError:
         raise SceneError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise SceneError(f"{path}: a folder, not a scene file") from None
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError as exc:
         raise SceneError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    return parse_scene(data, str(path)), path.resolve().parent
+    return parse_scene(scene_data(text, str(path)), str(path)), path.resolve().parent
