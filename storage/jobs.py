@@ -71,6 +71,20 @@ def check_transition(job_id: str, old: JobStatus, new: JobStatus) -> None:
             f"{old.value} may move to {allowed}")
 
 
+def stored_idempotency_key(key: str, owner: str | None) -> str:
+    """An idempotency key as stored: scoped by its owner, so two owners' equal keys name two jobs (or
+    plans) and neither learns of the other's. A key holds no line break (an HTTP header cannot), so
+    owner and key never run together."""
+    if not isinstance(key, str) or not key or "\n" in key or "\r" in key:
+        raise InvalidRecordError(f"an idempotency key is a non-empty string without line breaks, got {key!r}")
+    return key if owner is None else f"{owner}\n{key}"
+
+
+def caller_idempotency_key(stored: str | None) -> str | None:
+    """The key as its caller gave it (``stored_idempotency_key`` undone)."""
+    return None if stored is None else stored.rsplit("\n", 1)[-1]
+
+
 def canonical_json(value: Any, what: str) -> str:
     """Strict, canonical JSON text (sorted keys): equal values give equal text."""
     try:
@@ -326,8 +340,9 @@ class JobStore(ABC):
     ``tests/storage/test_job_store.py`` checks it against each one):
 
     * **Jobs.** ``create_job`` stores a spec as ``QUEUED`` under a fresh id. With an
-      ``idempotency_key`` that is already stored, it returns that job (``created=False``) if the
-      spec is equal, and raises ``ConflictError`` if it differs. ``get_job`` raises
+      ``idempotency_key`` that the same owner already used, it returns that job (``created=False``)
+      if the spec is equal, and raises ``ConflictError`` if it differs; keys are per owner (another
+      owner's equal key is another job). ``get_job`` raises
       ``NotFoundError`` for an unknown id (every method taking a ``job_id`` does).
     * **Status** follows ``TRANSITIONS`` (QUEUED -> PREPARING -> RUNNING -> CONVERGED | STOPPED |
       CANCELLED | FAILED, and QUEUED/PREPARING -> CANCELLED | FAILED). ``set_status`` checks the

@@ -146,6 +146,9 @@ MIGRATIONS: tuple[Migration, ...] = (
     Migration(7, "each candidate's fit score on the materials its job held out", (
         "ALTER TABLE candidates ADD COLUMN fit_score REAL",  # NULL: not scored (no held-out materials)
     )),
+    Migration(8, "each DONE plan's stored files with their SHA-256, checked when read back", (
+        "ALTER TABLE plans ADD COLUMN files TEXT",  # canonical JSON {name: sha256}; NULL before this version
+    )),
 )
 
 SCHEMA_VERSION = MIGRATIONS[-1].version

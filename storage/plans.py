@@ -9,8 +9,10 @@ strict JSON checked before anything is written, frozen records.
 * **Atomicity.** ``record_material`` writes one material's result in one transaction; ``finish``
   writes the whole plan and the DONE status in one transaction.
 * **Idempotency.** Recording a material twice keeps the first result (a resumed plan that re-plans
-  a material it had finished does not change it); ``create_plan`` with an idempotency key already
-  used for the same scene returns that plan.
+  a material it had finished does not change it); ``create_plan`` with an idempotency key the same
+  owner already used for the same scene returns that plan (keys are per owner).
+* **Status.** QUEUED -> RUNNING -> DONE | FAILED, and QUEUED/RUNNING -> CANCELLED | FAILED; of two
+  racing changes (a cancel and a finish) one wins, the other gets ``IllegalTransitionError``.
 * **Threads.** Every method may be called from any thread.
 """
 
@@ -30,17 +32,19 @@ class PlanStatus(enum.StrEnum):
     RUNNING = "RUNNING"
     DONE = "DONE"
     FAILED = "FAILED"
+    CANCELLED = "CANCELLED"
 
     @property
     def terminal(self) -> bool:
-        return self in (PlanStatus.DONE, PlanStatus.FAILED)
+        return self in (PlanStatus.DONE, PlanStatus.FAILED, PlanStatus.CANCELLED)
 
 
 PLAN_TRANSITIONS: Mapping[PlanStatus, frozenset[PlanStatus]] = {
-    PlanStatus.QUEUED: frozenset({PlanStatus.RUNNING, PlanStatus.FAILED}),
-    PlanStatus.RUNNING: frozenset({PlanStatus.DONE, PlanStatus.FAILED}),
+    PlanStatus.QUEUED: frozenset({PlanStatus.RUNNING, PlanStatus.FAILED, PlanStatus.CANCELLED}),
+    PlanStatus.RUNNING: frozenset({PlanStatus.DONE, PlanStatus.FAILED, PlanStatus.CANCELLED}),
     PlanStatus.DONE: frozenset(),
     PlanStatus.FAILED: frozenset(),
+    PlanStatus.CANCELLED: frozenset(),
 }
 
 
@@ -61,6 +65,7 @@ class PlanRecord:
     materials_total: int | None = None  # known once the scene's materials are read
     materials_done: int = 0
     result: dict[str, Any] | None = field(default=None, repr=False)  # the plan (Plan.to_json), when DONE
+    files: dict[str, str] = field(default_factory=dict)  # when DONE: each stored file's SHA-256 by name
 
     @property
     def terminal(self) -> bool:
@@ -101,9 +106,14 @@ class PlanStore(ABC):
         """Name -> result of every material recorded so far, in recording order."""
 
     @abstractmethod
-    def finish(self, plan_id: str, result: Mapping[str, Any]) -> PlanRecord:
-        """DONE with the whole plan."""
+    def finish(self, plan_id: str, result: Mapping[str, Any], files: Mapping[str, str] | None = None) -> PlanRecord:
+        """DONE with the whole plan and the SHA-256 of each of its stored files (by name), so a file
+        read back can be checked."""
 
     @abstractmethod
     def fail(self, plan_id: str, error: str) -> PlanRecord:
         """FAILED, saying why."""
+
+    @abstractmethod
+    def cancel(self, plan_id: str) -> PlanRecord:
+        """CANCELLED (from QUEUED or RUNNING; ``IllegalTransitionError`` once it has ended)."""

@@ -29,9 +29,11 @@ from typing import Any
 from .errors import ConflictError, InvalidRecordError, NotFoundError, StorageError
 from .jobs import (EVENT_ROUND, EVENT_STATUS, UNFINISHED, CandidateRecord, EventRecord, FinishedCandidate,
                    HalvingRecord, JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord, StoreStatistics,
-                   WarmupRecord, canonical_json, check_transition, round_payload, status_filter, validate_charge,
-                   validate_error)
+                   WarmupRecord, caller_idempotency_key, canonical_json, check_transition, round_payload,
+                   status_filter, stored_idempotency_key, validate_charge, validate_error)
 from .migrations import migrate
+
+INT64_MAX = 2**63 - 1  # SQLite's largest integer: a larger bound is clamped to it, never sent as is
 
 
 class SQLiteDatabase:
@@ -145,23 +147,20 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
         if not isinstance(spec, Mapping):
             raise InvalidRecordError(f"a job spec is a JSON object (mapping), got {type(spec).__name__}")
         spec_json = canonical_json(dict(spec), "job spec")
-        if idempotency_key is not None and (not isinstance(idempotency_key, str) or not idempotency_key):
-            raise InvalidRecordError("an idempotency key must be a non-empty string")
+        stored_key = None if idempotency_key is None else stored_idempotency_key(idempotency_key, owner)
         now = time.time()
         with self._write("create job") as c:
-            if idempotency_key is not None:
-                row = c.execute("SELECT * FROM jobs WHERE idempotency_key = ?",
-                                (idempotency_key,)).fetchone()
+            if stored_key is not None:
+                row = owned_by_key(c, "jobs", stored_key, idempotency_key, owner)
                 if row is not None:
-                    if row["spec"] != spec_json or row["owner"] != owner:
-                        raise ConflictError(
-                            f"idempotency key {idempotency_key!r} was already used for job {row['id']} "
-                            f"with a different spec" + ("" if row["owner"] == owner else " or owner"))
+                    if row["spec"] != spec_json:
+                        raise ConflictError(f"idempotency key {idempotency_key!r} was already used for job "
+                                            f"{row['id']} with a different spec")
                     return _job(row), False
             job_id = uuid.uuid4().hex
             c.execute("INSERT INTO jobs (id, spec, status, created_at, updated_at, idempotency_key, owner) "
                       "VALUES (?, ?, ?, ?, ?, ?, ?)",
-                      (job_id, spec_json, JobStatus.QUEUED.value, now, now, idempotency_key, owner))
+                      (job_id, spec_json, JobStatus.QUEUED.value, now, now, stored_key, owner))
             _append(c, job_id, now, EVENT_STATUS,
                     {"status": JobStatus.QUEUED.value, "previous": None, "error": None})
         return JobRecord(id=job_id, spec=json.loads(spec_json), status=JobStatus.QUEUED,
@@ -200,7 +199,7 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
             except (TypeError, ValueError):
                 raise InvalidRecordError(f"invalid cursor {cursor!r}") from None
             where.append("seq < ?")
-            args.append(before)
+            args.append(min(before, INT64_MAX))  # SQLite's integers are int64: every seq is below
         sql = "SELECT * FROM jobs" + (" WHERE " + " AND ".join(where) if where else "")
         with self._read("list jobs") as c:
             rows = c.execute(sql + " ORDER BY seq DESC LIMIT ?", (*args, limit + 1)).fetchall()
@@ -319,8 +318,8 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
     def rounds(self, job_id: str, *, since_round: int = 0, until_round: int | None = None) -> list[RoundRecord]:
         with self._read(f"read rounds of job {job_id}") as c:
             _require(c, job_id)
-            until = None if until_round is None else int(until_round)
-            return _load_rounds(c, job_id, since=int(since_round), until=until)
+            until = None if until_round is None else min(int(until_round), INT64_MAX)
+            return _load_rounds(c, job_id, since=min(int(since_round), INT64_MAX), until=until)
 
     def last_round(self, job_id: str) -> RoundRecord | None:
         with self._read(f"read the last round of job {job_id}") as c:
@@ -366,9 +365,16 @@ def _require(c: sqlite3.Connection, job_id: str) -> sqlite3.Row:
 def _job(row: sqlite3.Row) -> JobRecord:
     return JobRecord(id=row["id"], spec=json.loads(row["spec"]), status=JobStatus(row["status"]),
                      created_at=row["created_at"], updated_at=row["updated_at"], error=row["error"],
-                     idempotency_key=row["idempotency_key"], last_round=row["last_round"],
+                     idempotency_key=caller_idempotency_key(row["idempotency_key"]), last_round=row["last_round"],
                      current_state=row["current_state"], owner=row["owner"], reason=row["reason"],
                      used_wall_s=row["used_wall_s"], used_cpu_s=row["used_cpu_s"])
+
+
+def owned_by_key(c: sqlite3.Connection, table: str, stored_key: str, key: str, owner: str | None):
+    """The row of ``table`` (jobs or plans) that ``owner`` created under ``key``: stored scoped by
+    its owner, or unscoped by a store written before keys were (then only the same owner's)."""
+    return c.execute(f"SELECT * FROM {table} WHERE idempotency_key IN (?, ?) AND owner IS ?",
+                     (stored_key, key, owner)).fetchone()
 
 
 def _append(c: sqlite3.Connection, job_id: str, now: float, kind: str, payload: Any) -> int:

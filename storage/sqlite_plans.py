@@ -10,9 +10,9 @@ from collections.abc import Mapping
 from typing import Any
 
 from .errors import ConflictError, InvalidRecordError, NotFoundError
-from .jobs import canonical_json
+from .jobs import canonical_json, stored_idempotency_key
 from .plans import PlanRecord, PlanStatus, PlanStore, check_plan_transition
-from .sqlite import SQLiteDatabase
+from .sqlite import SQLiteDatabase, owned_by_key
 
 
 class SQLitePlanStore(SQLiteDatabase, PlanStore):
@@ -21,19 +21,20 @@ class SQLitePlanStore(SQLiteDatabase, PlanStore):
         if not isinstance(scene, Mapping):
             raise InvalidRecordError(f"a scene is a JSON object (mapping), got {type(scene).__name__}")
         scene_json = canonical_json(dict(scene), "scene")
+        stored_key = None if idempotency_key is None else stored_idempotency_key(idempotency_key, owner)
         now = time.time()
         with self._write("create plan") as c:
-            if idempotency_key is not None:
-                row = c.execute("SELECT * FROM plans WHERE idempotency_key = ?", (idempotency_key,)).fetchone()
+            if stored_key is not None:
+                row = owned_by_key(c, "plans", stored_key, idempotency_key, owner)
                 if row is not None:
-                    if row["scene"] != scene_json or row["owner"] != owner:
+                    if row["scene"] != scene_json:
                         raise ConflictError(f"idempotency key {idempotency_key!r} was already used for plan "
-                                            f"{row['id']} with a different scene or owner")
+                                            f"{row['id']} with a different scene")
                     return _plan(c, row), False
             plan_id = uuid.uuid4().hex
             c.execute("INSERT INTO plans (id, scene, status, created_at, updated_at, owner, idempotency_key) "
                       "VALUES (?, ?, ?, ?, ?, ?, ?)",
-                      (plan_id, scene_json, PlanStatus.QUEUED.value, now, now, owner, idempotency_key))
+                      (plan_id, scene_json, PlanStatus.QUEUED.value, now, now, owner, stored_key))
             return _plan(c, _require(c, plan_id)), True
 
     def get_plan(self, plan_id: str) -> PlanRecord:
@@ -75,13 +76,17 @@ class SQLitePlanStore(SQLiteDatabase, PlanStore):
                              (plan_id,)).fetchall()
         return {r["name"]: json.loads(r["result"]) for r in rows}
 
-    def finish(self, plan_id: str, result: Mapping[str, Any]) -> PlanRecord:
-        return self._move(plan_id, PlanStatus.DONE, result=canonical_json(dict(result), f"plan {plan_id} result"))
+    def finish(self, plan_id: str, result: Mapping[str, Any], files: Mapping[str, str] | None = None) -> PlanRecord:
+        return self._move(plan_id, PlanStatus.DONE, result=canonical_json(dict(result), f"plan {plan_id} result"),
+                          files=canonical_json(dict(files or {}), f"plan {plan_id} files"))
 
     def fail(self, plan_id: str, error: str) -> PlanRecord:
         if not isinstance(error, str) or not error:
             raise InvalidRecordError(f"plan {plan_id}: a failure says why")
         return self._move(plan_id, PlanStatus.FAILED, error=error)
+
+    def cancel(self, plan_id: str) -> PlanRecord:
+        return self._move(plan_id, PlanStatus.CANCELLED)
 
     def _move(self, plan_id: str, status: PlanStatus, **columns) -> PlanRecord:
         with self._write(f"set status of plan {plan_id}") as c:
@@ -103,4 +108,5 @@ def _plan(c, row) -> PlanRecord:
     return PlanRecord(id=row["id"], scene=json.loads(row["scene"]), status=PlanStatus(row["status"]),
                       created_at=row["created_at"], updated_at=row["updated_at"], owner=row["owner"],
                       error=row["error"], materials_total=row["materials_total"], materials_done=int(done),
-                      result=json.loads(row["result"]) if row["result"] else None)
+                      result=json.loads(row["result"]) if row["result"] else None,
+                      files=json.loads(row["files"]) if row["files"] else {})

@@ -87,6 +87,14 @@ class TestJobStoreContract:
         assert len(job_store.list_jobs().jobs) == 2
         assert len(job_store.events(first.id)) == 1  # the repeat wrote nothing
 
+    def test_idempotency_keys_are_per_owner(self, job_store):
+        alices, _ = job_store.create_job({"model": "ggx"}, idempotency_key="k", owner="alice")
+        bobs, created = job_store.create_job({"model": "ward"}, idempotency_key="k", owner="bob")
+        assert created and bobs.id != alices.id and bobs.idempotency_key == "k"  # no 409 naming alice's job
+        assert job_store.create_job({"model": "ggx"}, idempotency_key="k", owner="alice") == (alices, False)
+        with pytest.raises(InvalidRecordError, match="line breaks"):
+            job_store.create_job({"model": "ggx"}, idempotency_key="a\nk", owner=None)
+
     def test_idempotency_key_with_another_spec_conflicts(self, job_store):
         job_store.create_job({"model": "ggx"}, idempotency_key="k")
         with pytest.raises(ConflictError, match="idempotency key 'k'"):

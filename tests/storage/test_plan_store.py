@@ -53,9 +53,27 @@ class TestPlanStore:
         assert created and not again and a.id == b.id
         with pytest.raises(ConflictError, match="k1"):
             store.create_plan({**SCENE, "ladder": ["ward"]}, owner="ana", idempotency_key="k1")
-        store.create_plan(SCENE, owner="bo")
+        bos, created = store.create_plan({**SCENE, "ladder": ["ward"]}, owner="bo", idempotency_key="k1")
+        assert created and bos.id != a.id  # keys are per owner: ana's plan is not named to bo
         assert [p.owner for p in store.list_plans()] == ["bo", "ana"]
         assert [p.id for p in store.list_plans(owner="ana")] == [a.id]
+
+    def test_a_plan_is_cancelled_once_and_a_finished_one_keeps_its_files(self, plan_backend):
+        store = plan_backend.open()
+        queued, _ = store.create_plan(SCENE)
+        running, _ = store.create_plan(SCENE)
+        store.start(running.id, 1)
+        assert [store.cancel(p.id).status for p in (queued, running)] == [PlanStatus.CANCELLED] * 2
+        assert store.get_plan(running.id).terminal and store.unfinished_plans() == []
+        assert store.cancel(running.id).status is PlanStatus.CANCELLED  # again: the same status, no change
+        with pytest.raises(InvalidRecordError, match="while it runs"):
+            store.record_material(running.id, "late", {})  # a planner still at work after the cancel
+        done, _ = store.create_plan(SCENE)
+        store.start(done.id, 0)
+        files = {"plan.json": "ab" * 32}
+        assert store.finish(done.id, {}, files).files == files == plan_backend.open().get_plan(done.id).files
+        with pytest.raises(IllegalTransitionError):
+            store.cancel(done.id)
 
     def test_materials_recorded_from_many_threads_all_arrive(self, plan_backend):
         store = plan_backend.open()
