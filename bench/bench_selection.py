@@ -1,35 +1,52 @@
-"""Issue 23's experiment: does a fit-based score track generalisation where the validation loss does not?
+"""Issue 23's experiment: does the fit score track generalisation where the validation loss does not?
 
-    python bench/bench_selection.py [--model enhanced-ggx] [--extra NAME=BUNDLE ...] [--zoo 14] [--ggx 6]
-                                    [--seed 1000] [--protocols uniform mirror] [--workers 2] [--json OUT.json]
-                                    [--write docs/BENCHMARKS.md]
+    python bench/bench_selection.py --json OUT.json [--model enhanced-ggx] [--extra NAME=BUNDLE ...]
+                                    [--zoo 16] [--ggx 8] [--seed 1000] [--phases score rgl-score ...]
+                                    [--workers 2] [--write docs/BENCHMARKS.md]
 
 Every rung of ``--model`` (each committed round's winner of the search that made it,
-``neuenh.pretrained.rungs``), every ``--extra`` bundle and plain GGX are fitted — modules frozen,
-per-material parameters free (``neuenh.fit.fit_materials``, default config), the way users use a
-model — to materials they never saw, and measured on other samples of the same materials
-(``neuenh.study.efficiency.measure_curve``): the visible protocols of docs/RESULTS.md, *uniform*
-10,000 fit / 10,000 test pairs and *mirror* 3,000 / 10,000 (half the pairs near the mirror direction).
+``neuenh.pretrained.rungs``), every ``--extra`` bundle and plain GGX are scored by
+``neuenh.selection.fit_score`` — modules frozen, each material's parameters fitted to part of its
+samples, the log-L1 measured on others — on materials none of them trained on, in *phases*:
 
-Materials:
+=============  =====================================  ===========================================
+phase          materials                              fit (``FitScoreConfig``), sampling
+=============  =====================================  ===========================================
+``score``      held out from the training sources:    the search's budget (examples/reference-fit.yaml:
+               ``--zoo`` synthetic zoo (seed          800 fit / 2,000 test samples, 80 epochs), a
+               ``--seed`` + 5), ``--ggx`` noisy GGX   quarter of the pairs near the mirror (as trained)
+               (``--seed`` + 4, noise 0.1)
+``user``       the same held-out materials            the user's fit (``neuenh fit``'s default 300
+                                                      epochs) to 3,000 samples, 1,000 tested, half
+                                                      near the mirror (issue 23's protocol)
+``score2``     a second draw (``--seed`` + 1000 + 5,  the search's budget: is the score's order stable?
+               + 4)
+``rgl-score``  the 8 RGL materials (final check only)  the search's budget
+``rgl-user``   the 8 RGL materials (final check only)  the user's fit (issue 23's protocol)
+=============  =====================================  ===========================================
 
-* **held out from the training sources** (what a fit-based selection may look at): ``--zoo``
-  synthetic zoo materials and ``--ggx`` noisy synthetic anisotropic GGX materials drawn with seeds
-  (``--seed`` + 5 and + 4) that no shipped model's search used (theirs: 5 and 4);
-* **the 8 RGL materials** of ``../shared/data/rgl`` (skipped when absent): measured only, never tuned on.
+The shipped models' searches drew their synthetic materials with seeds 5 and 4, so the held-out
+draws share the sources' families and distributions but no material. (The NBRDF stand-ins of MERL
+cannot be held out here: every shipped model trained on all 100.) RGL materials are measured only,
+never tuned on. Beside each model its in-sample validation loss, what its search selected by.
 
-Beside each model its in-sample validation loss (what the search selected by). ``--workers``
-processes fit materials in parallel, one torch thread each.
+Results go to ``--json`` after every finished (phase, group, model) unit, atomically; a rerun with
+the same arguments skips the units already there (resumable). The section is written from whatever
+units are complete; a missing cell reads "—". ``--workers`` processes run units in parallel, one
+torch thread each.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import statistics
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,163 +57,272 @@ from bench.report import publish  # noqa: E402
 
 SECTION = "## Selection by generalisation: the experiment (issue 23)"
 RGL = ROOT.parent / "shared" / "data" / "rgl"
-PROTOCOLS = {"uniform": 10_000, "mirror": 3_000}  # protocol -> fit samples (docs/RESULTS.md's visible protocols)
-N_TEST = 10_000
 
 
-def contenders(model: str, extras: dict[str, str]):
-    """(name, label, val loss, GraphContender) of every rung of ``model``, every extra bundle, plain GGX."""
+@dataclass(frozen=True)
+class Protocol:
+    """How a phase fits and measures: samples drawn per material, the share near the mirror, and
+    the fit score's budget (``FitScoreConfig``: fit samples, test samples, epochs)."""
+
+    near_mirror: float
+    fit_samples: int
+    test_samples: int
+    epochs: int
+
+    @property
+    def samples(self) -> int:
+        return self.fit_samples + self.test_samples
+
+
+SEARCH = Protocol(0.25, 800, 2_000, 80)  # examples/reference-fit.yaml's search.fit_score
+USER = Protocol(0.5, 3_000, 1_000, 300)  # issue 23: 3,000 fitted, half near the mirror, 1,000 held out; neuenh fit
+PHASES = {  # phase -> (groups, protocol, seed offset of the synthetic draws)
+    "score": (("zoo", "ggx"), SEARCH, 0),
+    "user": (("zoo", "ggx"), USER, 0),
+    "score2": (("zoo", "ggx"), SEARCH, 1000),
+    "rgl-score": (("rgl",), SEARCH, 0),
+    "rgl-user": (("rgl",), USER, 0),
+}
+
+
+def contenders(model: str, extras: dict[str, str]) -> list[tuple[str, float, object, object]]:
+    """(label, val loss, model, its training materials' mean latent as a table or None) of every rung
+    of ``model``, every extra bundle, and plain GGX."""
+    from neuenh.checkpoint import Bundle
     from neuenh.materials import MaterialTable
     from neuenh.models import get_model
     from neuenh.pretrained import load_model, rungs
-    from neuenh.study.contenders import GraphContender
 
     def trained(m, latent):
         return None if latent is None or not m.uses_latent else MaterialTable(
             m.specs, ["mean"], m.latent_dim, latent=latent.reshape(1, -1).float())
 
-    out = []
-    for r in rungs(model):
-        name = f"{model}@{r.round}:{r.state}"
-        out.append((name, r.val_loss, GraphContender(name, name, "enhanced", r.model, trained(r.model, r.latent_mean))))
+    out = [(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, trained(r.model, r.latent_mean)) for r in rungs(model)]
     for name, path in extras.items():
         m, table = load_model(path)
-        from neuenh.checkpoint import Bundle
         val = float(Bundle.load(path).metrics.get("val_loss", float("nan")))
         latent = table.latent.detach().mean(0) if table is not None and len(table) else None
-        out.append((f"{name}:{m.state}", val, GraphContender(name, name, "enhanced", m, trained(m, latent))))
-    out.append(("ggx", float("nan"), GraphContender("ggx", "GGX", "analytical", get_model("ggx"))))
+        out.append((f"{name}:{m.state}", val, m, trained(m, latent)))
+    out.append(("ggx", float("nan"), get_model("ggx"), None))
     return out
 
 
-def materials(zoo: int, ggx: int, seed: int, rgl: Path):
-    """(group, material) of every material measured: held-out synthetic ones, then RGL."""
-    from neuenh.data import load_measured
-    from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
+def draw(group: str, protocol: Protocol, args, offset: int):
+    """The samples of one group of materials under ``protocol`` (a data source, as a job draws them)."""
+    from neuenh.data.sources import RGLSource, SyntheticGGX, SyntheticZoo
 
-    out = [("zoo", m) for m in synthetic_zoo(zoo, seed + 5)] + [("ggx", m) for m in synthetic_ggx(ggx, seed + 4, 0.1)]
-    if rgl.is_dir():
-        out += [("rgl", load_measured(p)) for p in sorted(rgl.glob("*.bsdf"))]
-    return out
+    common = {"samples": protocol.samples, "near_mirror": protocol.near_mirror}
+    if group == "zoo":
+        return SyntheticZoo(source="synthetic_zoo", materials=args.zoo, seed=args.seed + offset + 5, **common).build()
+    if group == "ggx":
+        return SyntheticGGX(source="synthetic_ggx", materials=args.ggx, seed=args.seed + offset + 4, noise=0.1,
+                            **common).build()
+    return RGLSource(source="rgl", paths=[str(p) for p in sorted(Path(args.rgl).glob("*.bsdf"))], seed=0,
+                     every_azimuth=True, **common).build()
 
 
-_STATE: dict = {}
+_MODELS: list = []
 
 
-def _init(args_json: str) -> None:
+def _init(model: str, extras: dict[str, str]) -> None:
     import torch
 
     torch.set_num_threads(1)
-    args = json.loads(args_json)
-    _STATE["contenders"] = contenders(args["model"], args["extras"])
-    _STATE["materials"] = materials(args["zoo"], args["ggx"], args["seed"], Path(args["rgl"]))
-    _STATE["cases"] = [(p, PROTOCOLS[p]) for p in args["protocols"]]
+    _MODELS[:] = contenders(model, extras)
 
 
-def _measure(index: int) -> list[dict]:
-    from neuenh.study.efficiency import measure_curve
+def _score(index: int, holdout, protocol: Protocol) -> dict:
+    from neuenh.selection import fit_score
+    from neuenh.train import FitScoreConfig
 
-    group, material = _STATE["materials"][index]
-    rows = []
-    for protocol, n in _STATE["cases"]:
-        start = time.perf_counter()
-        points = measure_curve(material, [c for _, _, c in _STATE["contenders"]], sizes=(n,), protocols=(protocol,),
-                               n_test=N_TEST, seed=0)
-        for p in points:
-            rows.append({"group": group, "material": p.material, "protocol": protocol, "n_fit": n,
-                         "model": p.contender, "heldout": p.heldout_log_l1, "fit_s": p.fit_s})
-        print(f"{group:4s} {material.name:28s} {protocol:8s} {time.perf_counter() - start:6.1f} s  "
-              + "  ".join(f"{p.heldout_log_l1:.4f}" for p in points), flush=True)
-    return rows
+    _, _, model, trained = _MODELS[index]
+    scored = fit_score(model, holdout, FitScoreConfig(protocol.fit_samples, protocol.test_samples, protocol.epochs),
+                       trained=trained)
+    return {"per_material": dict(zip(holdout.names, scored.per_material)), "wall_s": scored.wall_s}
 
 
-def run(args) -> tuple[list[dict], list[tuple[str, float]]]:
-    config = json.dumps({"model": args.model, "extras": dict(e.split("=", 1) for e in args.extra), "zoo": args.zoo,
-                         "ggx": args.ggx, "seed": args.seed, "rgl": str(args.rgl), "protocols": args.protocols})
-    _init(config)
-    names = [(c.name, val) for _, val, c in _STATE["contenders"]]
-    labels = {c.name: name for name, _, c in _STATE["contenders"]}
-    with ProcessPoolExecutor(args.workers, initializer=_init, initargs=(config,)) as pool:
-        rows = [r for part in pool.map(_measure, range(len(_STATE["materials"]))) for r in part]
-    for r in rows:
-        r["model"] = labels[r["model"]]
-    return rows, [(labels[n], v) for n, v in names]
+def unit_key(phase: str, group: str, label: str) -> str:
+    return f"{phase}|{group}|{label}"
 
 
-def medians(rows: list[dict], group: str, protocol: str) -> dict[str, float]:
-    by: dict[str, list[float]] = {}
-    for r in rows:
-        if (r["group"] == group or (group == "synthetic" and r["group"] in ("zoo", "ggx"))) and r["protocol"] == protocol:
-            by.setdefault(r["model"], []).append(r["heldout"])
-    return {m: statistics.median(v) for m, v in by.items()}
+def save(path: Path, results: dict) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(results, indent=1))
+    os.replace(tmp, path)
 
 
-def ranks(values: list[float]) -> list[int]:
+def run(args, config: dict) -> dict:
+    """Every (phase, group, model) unit not yet in ``args.json``, written there as each finishes."""
+    results = json.loads(args.json.read_text()) if args.json.exists() else {}
+    if results.get("config") != config:
+        results = {"config": config, "units": {}}
+    models = contenders(args.model, config["extras"])
+    results["models"] = [(label, val) for label, val, _, _ in models]
+    save(args.json, results)
+    todo = [(phase, group, i) for phase in args.phases for group in PHASES[phase][0]
+            if group != "rgl" or Path(args.rgl).is_dir()
+            for i in range(len(models)) if unit_key(phase, group, models[i][0]) not in results["units"]]
+    print(f"{len(todo)} units to run, {len(results['units'])} done", flush=True)
+    drawn: dict = {}
+    with ProcessPoolExecutor(args.workers, initializer=_init, initargs=(args.model, config["extras"])) as pool:
+        running = {}
+        for phase, group, i in todo:
+            _, protocol, offset = PHASES[phase]
+            if (phase, group) not in drawn:
+                drawn[(phase, group)] = draw(group, protocol, args, offset)
+            running[pool.submit(_score, i, drawn[(phase, group)], protocol)] = (phase, group, models[i][0])
+        while running:
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in done:
+                phase, group, label = running.pop(future)
+                try:
+                    unit = future.result()
+                except Exception as error:  # noqa: BLE001 — one failed unit must not lose the others
+                    print(f"FAILED {phase} {group} {label}: {error!r}", flush=True)
+                    continue
+                results["units"][unit_key(phase, group, label)] = unit
+                save(args.json, results)
+                values = list(unit["per_material"].values())
+                print(f"{time.strftime('%H:%M:%S')} {phase:9s} {group:3s} {label:32s} mean {sum(values) / len(values):.4f}"
+                      f"  median {statistics.median(values):.4f}  {unit['wall_s']:6.1f} s", flush=True)
+    return results
+
+
+# -- the section ------------------------------------------------------------------------------------
+def cell(results: dict, phase: str, groups: tuple[str, ...], label: str) -> float | None:
+    """The mean over the materials of ``groups`` of ``label``'s held-out log-L1 in ``phase`` (the fit
+    score's own aggregate); None unless every group's unit is complete."""
+    values = []
+    for group in groups:
+        unit = results["units"].get(unit_key(phase, group, label))
+        if unit is None:
+            return None
+        values += unit["per_material"].values()
+    return sum(values) / len(values)
+
+
+def ranks(values: list[float]) -> list[float]:
+    """Ranks from 0, ties sharing their mean rank."""
     order = sorted(range(len(values)), key=lambda i: values[i])
-    out = [0] * len(values)
-    for rank, i in enumerate(order):
-        out[i] = rank
+    out = [0.0] * len(values)
+    i = 0
+    while i < len(order):
+        j = i
+        while j + 1 < len(order) and values[order[j + 1]] == values[order[i]]:
+            j += 1
+        for k in range(i, j + 1):
+            out[order[k]] = (i + j) / 2
+        i = j + 1
     return out
 
 
 def spearman(a: list[float], b: list[float]) -> float:
-    """Spearman's rank correlation of two equally long lists without ties."""
+    """Spearman's rank correlation (Pearson's of the ranks); NaN for fewer than 2 or constant ranks."""
     ra, rb = ranks(a), ranks(b)
-    n = len(a)
-    return 1 - 6 * sum((x - y) ** 2 for x, y in zip(ra, rb)) / (n * (n * n - 1))
+    n = len(ra)
+    if n < 2:
+        return float("nan")
+    ma, mb = sum(ra) / n, sum(rb) / n
+    cov = sum((x - ma) * (y - mb) for x, y in zip(ra, rb))
+    var = math.sqrt(sum((x - ma) ** 2 for x in ra) * sum((y - mb) ** 2 for y in rb))
+    return cov / var if var else float("nan")
 
 
-def markdown_section(env: dict, rows: list[dict], models: list[tuple[str, float]], args, command: str) -> str:
-    cases = [(p, PROTOCOLS[p]) for p in args.protocols]
-    groups = [g for g in ("zoo", "ggx", "synthetic", "rgl") if g == "synthetic" or any(r["group"] == g for r in rows)]
-    counts = {g: len({r["material"] for r in rows if r["group"] == g}) for g in ("zoo", "ggx", "rgl")}
-    counts["synthetic"] = counts["zoo"] + counts["ggx"]
+def columns(results: dict) -> list[tuple[str, str, tuple[str, ...]]]:
+    """(heading, phase, groups) of every column with at least one complete cell."""
+    out = []
+    for phase, (groups, _, _) in PHASES.items():
+        for heading, gs in ((f"{phase} zoo", ("zoo",)), (f"{phase} ggx", ("ggx",)), (f"{phase} both", groups)) \
+                if groups != ("rgl",) else ((phase, groups),):
+            if all(g in groups for g in gs) and any(cell(results, phase, gs, label) is not None
+                                                    for label, _ in results["models"]):
+                out.append((heading, phase, gs))
+    return out
+
+
+def fmt(x: float | None, digits: int = 4) -> str:
+    return "—" if x is None or x != x else f"{x:.{digits}f}"
+
+
+def markdown_section(env: dict, results: dict, command: str) -> str:
+    """The section from whatever units are complete: never fails on a partial run."""
+    config, models = results["config"], results["models"]
+    cols = columns(results)
+    n = {g: len(u["per_material"]) for k, u in results["units"].items() for g in [k.split("|")[1]]}
     lines = [SECTION, "", f"Command: `{command}`  ", machine_line(env), "",
-             "Each model fitted (`fit_materials`, default config, modules frozen) per material and measured on "
-             f"{N_TEST:,} other pairs (`neuenh.study.efficiency.measure_curve`, seed 0); medians of the held-out "
-             f"log-L1 over the materials. *zoo* ({counts['zoo']}) and *ggx* ({counts['ggx']}): materials of the "
-             f"training sources drawn with seeds no search used (synthetic_zoo seed {args.seed + 5}, synthetic_ggx "
-             f"seed {args.seed + 4}, noise 0.1); *RGL*: the visible 8, measured, never tuned on. *val*: the "
-             "in-sample validation loss the search selected by (held-out samples of its training materials).", ""]
-    header = "| model | val | " + " | ".join(f"{g} {p} {n:,}" for p, n in cases for g in groups) + " |"
-    lines += [header, "|---|---:|" + "---:|" * (len(cases) * len(groups))]
-    table = {(g, p): medians(rows, g, p) for p, _ in cases for g in groups}
-    for name, val in models:
-        cells = [f"{table[(g, p)].get(name, float('nan')):.4f}" for p, _ in cases for g in groups]
-        lines.append(f"| `{name}` | {val:.5f} | " + " | ".join(cells) + " |")
-    rungs = [(n, v) for n, v in models if n.startswith(args.model + "@")]
-    if len(rungs) >= 3:
-        vals = [v for _, v in rungs]
-        lines += ["", f"Spearman rank correlation over the {len(rungs)} rungs of `{args.model}` (1 = the same order):", "",
-                  "| score | " + " | ".join(f"{g} {p}" for p, _ in cases for g in groups if g != "synthetic") + " |",
-                  "|---|" + "---:|" * (len(cases) * (len(groups) - 1))]
-        for label, score in [("val (in-sample)", vals)] + [
-                (f"fit score, synthetic {p}", [table[("synthetic", p)][n] for n, _ in rungs]) for p, _ in cases]:
-            cells = [f"{spearman(score, [table[(g, p)][n] for n, _ in rungs]):+.2f}"
-                     for p, _ in cases for g in groups if g != "synthetic"]
-            lines.append(f"| {label} | " + " | ".join(cells) + " |")
+             "Every model scored by `neuenh.selection.fit_score` (modules frozen, each material's parameters fitted "
+             "to part of its samples, the mean log-L1 over materials measured on others) on materials it never "
+             f"trained on. *zoo* ({n.get('zoo', 0)}) and *ggx* ({n.get('ggx', 0)}): materials of the training "
+             f"sources drawn with seeds no search used (synthetic_zoo {config['seed'] + 5}, synthetic_ggx "
+             f"{config['seed'] + 4}; *score2*: {config['seed'] + 1005} and {config['seed'] + 1004}); *rgl*: the "
+             f"{n.get('rgl', 0) or 'unmeasured'} visible RGL materials, a final check only. *score* phases: the search's budget "
+             f"({SEARCH.fit_samples} fit / {SEARCH.test_samples} test samples, {SEARCH.epochs} epochs, "
+             f"{SEARCH.near_mirror:.0%} near the mirror); *user* phases: `neuenh fit`'s ({USER.fit_samples} / "
+             f"{USER.test_samples}, {USER.epochs} epochs, {USER.near_mirror:.0%} near the mirror). *val*: the "
+             "in-sample validation loss the model's search selected by. —: not measured (run cut short).", ""]
+    lines += ["| model | val | " + " | ".join(h for h, _, _ in cols) + " |", "|---|---:|" + "---:|" * len(cols)]
+    for label, val in models:
+        lines.append(f"| `{label}` | {fmt(val, 5)} | "
+                     + " | ".join(fmt(cell(results, p, gs, label)) for _, p, gs in cols) + " |")
+    selectors = [(h, p, gs) for h, p, gs in cols if p in ("score", "score2") and len(gs) > 1]
+    truths = [(h, p, gs) for h, p, gs in cols if len(gs) > 1 or p.startswith("rgl")]
+    for what, subset in ((f"the rungs of `{config['model']}` (one search, one training set)",
+                          [(label, val) for label, val in models if label.startswith(config["model"] + "@")]),
+                         ("every enhanced model", [(label, val) for label, val in models if label != "ggx"])):
+        if len(subset) < 3 or not truths:
+            continue
+        lines += ["", f"Spearman rank correlation over {what}, {len(subset)} models, of the score each row selects by "
+                  "with each column's held-out error (1: the same order; —: incomplete):", "",
+                  "| selected by | " + " | ".join(h for h, _, _ in truths) + " |", "|---|" + "---:|" * len(truths)]
+        for name, score in [("val (in-sample)", dict(subset))] + [
+                (h, {label: cell(results, p, gs, label) for label, _ in subset}) for h, p, gs in selectors]:
+            cells = []
+            for _, p, gs in truths:
+                truth = {label: cell(results, p, gs, label) for label, _ in subset}
+                complete = all(v is not None for v in list(score.values()) + list(truth.values()))
+                cells.append(fmt(spearman([score[k] for k, _ in subset], [truth[k] for k, _ in subset]), 2)
+                             if complete else "—")
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    walls = [(u["wall_s"], len(u["per_material"])) for k, u in results["units"].items()
+             if k.split("|")[0] in ("score", "score2") and not k.endswith("|ggx")]
+    if walls:
+        per = statistics.median(w / m for w, m in walls)
+        lines += ["", f"Price of the score (one torch thread, this shared machine): median {per:.2f} s per held-out "
+                  f"material and enhanced candidate at the search's budget, so {per * 10:.0f} s a candidate for "
+                  "examples/reference-fit.yaml's 10 held-out materials."]
     return "\n".join(lines) + "\n"
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", default="enhanced-ggx")
-    parser.add_argument("--extra", action="append", default=[], help="NAME=BUNDLE_DIR, a further model to measure")
-    parser.add_argument("--zoo", type=int, default=14)
-    parser.add_argument("--ggx", type=int, default=6)
+    parser.add_argument("--extra", action="append", default=[], help="NAME=BUNDLE_DIR, a further model to score")
+    parser.add_argument("--zoo", type=int, default=16)
+    parser.add_argument("--ggx", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--rgl", type=Path, default=RGL)
-    parser.add_argument("--protocols", nargs="+", choices=tuple(PROTOCOLS), default=list(PROTOCOLS))
+    parser.add_argument("--phases", nargs="+", choices=tuple(PHASES), default=list(PHASES))
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--json", type=Path)
+    parser.add_argument("--json", type=Path, required=True, help="results, written as units finish; resumed from")
+    parser.add_argument("--report-only", action="store_true", help="write the section from --json, run nothing")
     parser.add_argument("--write")
     args = parser.parse_args()
+    extras = {}
+    for e in args.extra:
+        name, sep, path = e.partition("=")
+        if not sep or not name or not Path(path).is_dir():
+            parser.error(f"--extra {e!r}: expected NAME=BUNDLE_DIR with an existing folder")
+        extras[name] = path
+    config = {"model": args.model, "extras": extras, "zoo": args.zoo, "ggx": args.ggx, "seed": args.seed}
     env = machine()
-    rows, models = run(args)
-    if args.json:
-        args.json.write_text(json.dumps({"rows": rows, "models": models}, indent=1))
-    command = "python bench/bench_selection.py " + " ".join(sys.argv[1:])
-    publish(markdown_section(env, rows, models, args, command), args.write, SECTION)
+    if args.report_only:
+        if not args.json.exists():
+            parser.error(f"--report-only: {args.json} does not exist")
+        results = json.loads(args.json.read_text())
+    else:
+        results = run(args, config)
+    command = "python bench/bench_selection.py " + " ".join(a for a in sys.argv[1:] if a != "--report-only")
+    publish(markdown_section(env, results, command), args.write, SECTION)
     return 0
 
 
