@@ -27,6 +27,8 @@ COPY orchestrator ./orchestrator
 COPY workers ./workers
 COPY api ./api
 COPY cli ./cli
+# the shipped models (neuenh.pretrained: enhanced-ggx, ...), installed as the package's data
+COPY models ./models
 # the export extra: GET /v1/jobs/{id}/export writes ONNX (onnx) beside GLSL and the Mitsuba plugin
 RUN pip install ".[export]" "ray==${RAY_VERSION}" "torch==${TORCH_VERSION}"
 

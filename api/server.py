@@ -15,7 +15,11 @@ from neuenh_service.storage import SQLiteJobStore
 from .settings import Settings, check_listen_address
 
 
-def serve(settings: Settings, announce: Callable[[str], None] = print) -> None:
+def _print_now(line: str) -> None:
+    print(line, flush=True)  # at once, also into a file (neuenh serve > serve.log): it tells the URL
+
+
+def serve(settings: Settings, announce: Callable[[str], None] = _print_now) -> None:
     import uvicorn
 
     from .app import artifact_store, create_app, owner_lock

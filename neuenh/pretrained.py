@@ -1,8 +1,10 @@
 """Models by name: analytical models of the registry, models shipped with neuenh, bundle folders.
 
 Shipped models are bundles committed under ``models/<name>/`` at the root of the source tree (the
-enhanced GGX trained by ``examples/reference.yaml`` is ``models/enhanced-ggx``); they are found
-next to the package in a checkout or an editable install, or under ``NEUENH_MODELS_DIR``.
+enhanced GGX trained by ``examples/reference.yaml`` is ``models/enhanced-ggx``). A wheel carries that
+folder as the package data ``neuenh/shipped_models/`` (pyproject.toml maps it there); a checkout or an
+editable install reads ``models/`` beside the package. A folder named by ``NEUENH_MODELS_DIR`` comes
+first: its bundles win over shipped ones of the same name.
 """
 
 from __future__ import annotations
@@ -18,9 +20,23 @@ from .models import available_models, get_model
 __all__ = ["bundle_path", "load_model", "rungs", "shipped_models"]
 
 
+_PACKAGE = Path(__file__).resolve().parent
+
+
+def _shipped_dir() -> Path | None:
+    """This installation's shipped models: a wheel's package data, else a source tree's ``models/``
+    (only in a source tree: beside an installed package, ``models/`` is someone else's folder)."""
+    installed = _PACKAGE / "shipped_models"
+    if installed.is_dir():
+        return installed
+    source_tree = _PACKAGE.parent
+    return source_tree / "models" if (source_tree / "pyproject.toml").is_file() else None
+
+
 def _models_dirs() -> list[Path]:
     dirs = [Path(os.environ["NEUENH_MODELS_DIR"])] if os.environ.get("NEUENH_MODELS_DIR") else []
-    return dirs + [Path(__file__).resolve().parent.parent / "models"]
+    shipped = _shipped_dir()
+    return dirs + ([shipped] if shipped is not None else [])
 
 
 def shipped_models() -> dict[str, Path]:

@@ -79,6 +79,17 @@ def live_server(tmp_path):
             s.stop()
 
 
+def wait_plan(client: httpx.Client, plan_id: str, timeout: float = 180.0) -> dict:
+    """The plan once it has ended (DONE or FAILED)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        plan = client.get(f"/plans/{plan_id}").json()
+        if plan["terminal"]:
+            return plan
+        assert time.monotonic() < deadline, plan
+        time.sleep(0.2)
+
+
 def wait_for(client: httpx.Client, job_id: str, until=lambda job: job["status"] in TERMINAL,
              timeout: float = 60.0) -> dict:
     deadline = time.monotonic() + timeout

@@ -17,6 +17,7 @@ from neuenh_service.storage import JobStatus, RoundRecord
 from ..auth import LOCAL
 from ..deps import (ArtifactStoreDep, Authorized, ChangeableJob, JobQueueDep, JobStoreDep, PrincipalDep,
                     SettingsDep, SubmitterDep, VisibleJob)
+from ..downloads import file_response
 from ..errors import COMMON, documented
 from ..limits import check_limits
 from ..schemas import HistoryPublic, JobCreate, JobList, JobPublic
@@ -99,8 +100,8 @@ def cancel_job(job: ChangeableJob, jobs: JobStoreDep) -> JobPublic:
 @router.get("/{job_id}/export", response_class=Response, responses={
     **_ERRORS, **documented({422: "a material the model does not hold, or too many",
                              501: "this service lacks the format's runtime (the neuenh[export] extra)"}),
-    200: {"content": {"application/zip": {}},
-          "description": "the exported files (neuenh export --format FORMAT): GLSL, ONNX or the Mitsuba plugin's"}})
+    **file_response("a zip of the exported files (neuenh export --format FORMAT): GLSL, ONNX or the Mitsuba "
+                    "plugin's")})
 def export_model(job: VisibleJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep,
                  format: Annotated[Literal["glsl", "onnx", "mitsuba"], Query(description="what to write")],
                  material: Annotated[list[str] | None, Query(max_length=MAX_EXPORTED,
@@ -149,8 +150,7 @@ def _last_round(job, jobs) -> RoundRecord:
 
 
 @router.get("/{job_id}/model", response_class=Response, responses={
-    **_ERRORS, 200: {"content": {"application/zip": {}},
-                     "description": "model.json, weights.safetensors, materials.safetensors"}})
+    **_ERRORS, **file_response("a zip of the bundle: model.json, weights.safetensors, materials.safetensors")})
 def download_model(job: VisibleJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep) -> Response:
     """The last committed bundle as a zip archive (load it with ``Bundle.load`` once extracted)."""
     job_id = job.id

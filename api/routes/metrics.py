@@ -7,12 +7,13 @@ from fastapi import APIRouter, Request, Response
 from prometheus_client import CONTENT_TYPE_LATEST
 
 from ..deps import Authorized
+from ..downloads import file_response
 from ..errors import documented
 
 router = APIRouter(tags=["metrics"], dependencies=[Authorized],
                    responses=documented({401: "missing or invalid bearer token"}))
 
 
-@router.get("/metrics", response_class=Response, responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}})
+@router.get("/metrics", response_class=Response, responses=file_response("the metrics", CONTENT_TYPE_LATEST))
 def metrics(request: Request) -> Response:
     return Response(request.app.state.metrics.render(), media_type=CONTENT_TYPE_LATEST)

@@ -29,6 +29,7 @@ from neuenh_service.storage import ArtifactStore, PlanRecord, PlanStatus
 from ..auth import LOCAL
 from ..deps import (ArtifactStoreDep, Authorized, FitLockDep, PlanQueueDep, PlanStoreDep, PrincipalDep,
                     SettingsDep, SubmitterDep, VisiblePlan)
+from ..downloads import file_response
 from ..errors import COMMON, documented
 from ..schemas import PlanList, PlanPublic
 from ..settings import Settings
@@ -165,7 +166,7 @@ def get_plan(plan: VisiblePlan, plan_queue: PlanQueueDep, artifacts: ArtifactSto
 
 
 @router.get("/{plan_id}/files/{name}", response_class=Response, responses={
-    **_ERRORS, 200: {"content": {t: {} for t in CONTENT_TYPES.values()}, "description": "one file of a DONE plan"}})
+    **_ERRORS, **file_response("one file of a DONE plan", *CONTENT_TYPES.values())})
 def plan_file(plan: VisiblePlan, name: str, artifacts: ArtifactStoreDep) -> Response:
     """One of the plan's files: plan.json, plan.md, cost_vs_error.png, contact_sheet.png, bundles.zip."""
     if name not in PLAN_FILES:

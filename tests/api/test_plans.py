@@ -11,18 +11,9 @@ import time
 import pytest
 import yaml
 
+from live_api import wait_plan
 from scene_files import scene, write_tables
 from neuenh_service.storage import SQLitePlanStore
-
-
-def wait_plan(c, plan_id: str, timeout: float = 180) -> dict:
-    deadline = time.monotonic() + timeout
-    while True:
-        plan = c.get(f"/plans/{plan_id}").json()
-        if plan["terminal"]:
-            return plan
-        assert time.monotonic() < deadline, plan
-        time.sleep(0.2)
 
 
 @pytest.fixture(scope="module")

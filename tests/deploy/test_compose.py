@@ -4,7 +4,7 @@ one-shot and the api. A radius-2 job submitted with ``neuenh-client`` trains on 
 its checkpoints land in the bucket, ``GET /v1/cluster`` lists the nodes; one worker node and the api
 are killed mid-round: the restarted api reads back the candidates that had finished, the round
 completes on the surviving node, nothing committed changes and the job ends where an
-uninterrupted run does.
+uninterrupted run does. Then the api plans a scene with every rung of the shipped enhanced-ggx.
 
 The one service not run as written is the object store: the MinIO image is replaced by moto's S3
 server (``moto_server``) on a loopback port; everything else is the compose file's own command."""
@@ -23,6 +23,10 @@ import yaml
 
 from compose_local import InterpolationError, LocalCompose, interpolate
 from jobspecs import run_alone, served_path
+from live_api import wait_plan
+from neuenh.data.synthetic import synthetic_ggx
+from neuenh.pretrained import rungs
+from scene_files import write_material
 from s3_server import MOTO_SERVER
 from serve_process import REPO, clean_env
 from neuenh_service.storage import SQLiteJobStore
@@ -77,6 +81,20 @@ def stack():
         yield compose
     finally:
         compose.close()
+
+
+def plan_with_the_shipped_model(api: httpx.Client, where: Path) -> dict:
+    """A scene sent with its measurements, planned on the api with every rung of the shipped
+    enhanced-ggx: the image carries models/ as package data (tests/test_packaging.py checks its
+    build context; here the api is this virtualenv's install, as the image's is its own)."""
+    table = write_material(where / "gloss.npz", synthetic_ggx(1, seed=3, noise_sigma=0.0)[0], n=1200)
+    scene = {"materials": [{"path": "gloss.npz"}], "ladder": [{"rungs": "enhanced-ggx"}],
+             "tolerance": {"metric": "log_l1", "relative": 0.1},
+             "fit": {"samples": 600, "test_samples": 600, "epochs": 20}}
+    r = api.post("/plan-uploads", data={"scene": yaml.safe_dump(scene)},
+                 files=[("files", ("gloss.npz", table.read_bytes()))])
+    assert r.status_code == 202, r.text
+    return wait_plan(api, r.json()["id"])
 
 
 def test_the_stack_runs_a_radius_2_job_on_two_worker_nodes_and_survives_losing_one_and_the_api(stack):
@@ -142,6 +160,7 @@ def test_the_stack_runs_a_radius_2_job_on_two_worker_nodes_and_survives_losing_o
         assert client.returncode == 0, err
         assert out.strip() == job_id
 
+        shipped = plan_with_the_shipped_model(api, stack.root)
         after = api.get(f"/jobs/{job_id}/history").json()
         job = api.get(f"/jobs/{job_id}").json()
         deadline = time.monotonic() + 60
@@ -151,6 +170,9 @@ def test_the_stack_runs_a_radius_2_job_on_two_worker_nodes_and_survives_losing_o
                 break
             time.sleep(1)
 
+    assert shipped["status"] == "DONE", shipped["error"]
+    tried = {r["rung"] for r in shipped["plan"]["materials"][0]["results"]}
+    assert tried == {f"enhanced-ggx@{r.round}:{r.state}" for r in rungs("enhanced-ggx")}, tried
     assert job["status"] in ("STOPPED", "CONVERGED") and job["error"] is None, job
     assert after["rounds"][1]["recovered"] == finished >= 5
     assert served_path(after) == run_alone(stack.root, SPEC), "not what an uninterrupted run reaches"

@@ -27,6 +27,23 @@ def test_a_bundle_folder_and_a_shipped_name_load_the_same_bundle(tmp_path, monke
         assert model.state == "00010000000" and trained.names == ("a", "b")
 
 
+def test_an_installed_package_finds_its_package_data_and_no_stranger_models_folder(tmp_path, monkeypatch):
+    """Installed, ``neuenh`` sits in site-packages: its models are its package data
+    (``neuenh/shipped_models``), never a ``models/`` folder beside it that another distribution put there."""
+    import neuenh.pretrained as pretrained
+
+    site = tmp_path / "site-packages"
+    Bundle.initial("ggx", ["a"]).save(site / "models" / "stranger")
+    (site / "neuenh").mkdir()
+    monkeypatch.setattr(pretrained, "_PACKAGE", site / "neuenh")
+    monkeypatch.delenv("NEUENH_MODELS_DIR", raising=False)
+    assert shipped_models() == {}
+    Bundle.initial("ggx", ["a"]).save(site / "neuenh" / "shipped_models" / "mine")
+    assert shipped_models() == {"mine": site / "neuenh" / "shipped_models" / "mine"}
+    monkeypatch.setenv("NEUENH_MODELS_DIR", str(site / "models"))  # named: found first
+    assert list(shipped_models()) == ["mine", "stranger"]
+
+
 def test_an_unknown_name_lists_what_exists(monkeypatch, tmp_path):
     monkeypatch.setenv("NEUENH_MODELS_DIR", str(tmp_path))
     with pytest.raises(ValueError, match=r"neither an analytical model \(ggx, .*\), a shipped model"):
