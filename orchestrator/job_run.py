@@ -18,7 +18,7 @@ from typing import Callable
 from neuenh.checkpoint import Bundle
 from neuenh.scene.ladder import measure_cost
 from neuenh.search import Outcome, candidate_seed, hamming_ball, initial_state, keep_better_half, select, weight_cost
-from neuenh_service.storage import (ArtifactStore, CandidateRecord, FinishedCandidate, HalvingRecord, JobStatus, JobStore, RoundKind,
+from neuenh_service.storage import (ArtifactStore, CandidateRecord, FinishedCandidate, HalvingRecord, JobRecord, JobStatus, JobStore, RoundKind,
                      RoundRecord, WarmupRecord)
 
 from .dataset import prepare_dataset
@@ -263,7 +263,6 @@ class JobRun:
                 reports.append(report)
                 if report.ok and math.isfinite(self.loss(report)) and (best is None or self.loss(report) < best):
                     best = self.loss(report)
-                self.jobs.append_event(self.job_id, "candidate", {"round": k, "phase": phase, **_candidate_row(report)})
                 self.emit(RUNNING, round=k, done=len(reports), total=len(tasks), best=best, state=report.task.state,
                           message=phase)
         finally:
@@ -298,10 +297,13 @@ class JobRun:
         return reports
 
     def persist(self, k: int, phase: str, report: CandidateReport) -> None:
-        """A finished candidate, durably (its bundle first, content-addressed), and what it cost."""
+        """A finished candidate, durably (its bundle first, content-addressed), then in one store
+        transaction its record, what it cost and its event."""
         key = self.artifacts.put_content(report.bundle) if report.ok else None
-        self.jobs.record_candidate(self.job_id, FinishedCandidate(k, phase, _candidate_record(report, False), key))
-        self.charge(cpu_s=report.wall_s * self.resources.cpus)
+        finished = FinishedCandidate(k, phase, _candidate_record(report, False), key)
+        now = time.monotonic()
+        self.charged(now, self.jobs.record_candidate(self.job_id, finished, wall_s=now - self.charged_at,
+                                                     cpu_s=report.wall_s * self.resources.cpus))
 
     def loss(self, report: CandidateReport) -> float:
         """What selects (``search.score``): the candidate's validation loss, or its fit score on the
@@ -373,11 +375,14 @@ class JobRun:
         if (spent := self.budget_spent()) is not None:
             raise BudgetSpent(spent)
 
-    def charge(self, cpu_s: float = 0.0) -> None:
-        """Add the wall time since the last charge, and ``cpu_s``, to the job's stored usage."""
+    def charge(self) -> None:
+        """Add the wall time since the last charge to the job's stored usage."""
         now = time.monotonic()
-        job = self.jobs.charge(self.job_id, wall_s=now - self.charged_at, cpu_s=cpu_s)
-        self.charged_at, self.used_wall_s, self.used_cpu_s = now, job.used_wall_s, job.used_cpu_s
+        self.charged(now, self.jobs.charge(self.job_id, wall_s=now - self.charged_at))
+
+    def charged(self, at: float, job: JobRecord) -> None:
+        """The job's usage as stored by a charge made at ``at`` (``time.monotonic``)."""
+        self.charged_at, self.used_wall_s, self.used_cpu_s = at, job.used_wall_s, job.used_cpu_s
 
     def budget_spent(self) -> str | None:
         """What of the budget ran out (None while it lasts); the wall time counts live."""
@@ -406,14 +411,6 @@ class JobRun:
 def evaluation_cost_ns(bundle: Bundle) -> float:
     """Nanoseconds per evaluation of a candidate's specialized BRDF on its first training material."""
     return measure_cost(bundle.model.specialize(bundle.materials.as_params(0)))
-
-
-def _candidate_row(r: CandidateReport) -> dict:
-    """A report as JSON (non-finite losses as None)."""
-    finite = lambda x: x if math.isfinite(x) else None  # noqa: E731
-    return {"state": r.task.state, "seed": r.task.seed, "train_loss": finite(r.train_loss),
-            "val_loss": finite(r.val_loss), "fit_score": None if r.fit_score is None else finite(r.fit_score), "epochs": r.epochs, "wall_s": r.wall_s,
-            "node": r.node, "error": r.error}
 
 
 def _candidate_record(r: CandidateReport, pruned: bool) -> CandidateRecord:

@@ -60,6 +60,7 @@ UNFINISHED: frozenset[JobStatus] = frozenset(s for s in JobStatus if not s.termi
 #: Event kinds the store writes itself; the orchestrator may append any other kind.
 EVENT_STATUS = "status"  # payload {"status", "previous", "error"}; also written on creation
 EVENT_ROUND = "round"    # payload {"round", "winner_state", "winner_val_loss", "winner_fit_score", "artifact_key"}
+EVENT_CANDIDATE = "candidate"  # payload ``candidate_payload``: a finished candidate as it was recorded
 
 
 def check_transition(job_id: str, old: JobStatus, new: JobStatus) -> None:
@@ -356,8 +357,10 @@ class JobStore(ABC):
       identical record returns the stored one and writes nothing; a different one raises
       ``ConflictError``. Committed rounds never change.
     * **Finished candidates** (``record_candidate``) are kept per job, round, phase and state as
-      they arrive, before their round commits; recording the same one again is idempotent by
-      content (a different one raises ``ConflictError``). ``finished_candidates`` reads a round's.
+      they arrive, before their round commits. Recording one stores it, charges the usage it cost
+      and appends a ``"candidate"`` event in ONE transaction: all three or none. Recording the same
+      one again is idempotent by content (it writes nothing: no second charge, no second event); a
+      different one raises ``ConflictError``. ``finished_candidates`` reads a round's.
     * **Usage** (``charge``) adds wall and CPU seconds to the job's totals in one write, so what a
       budget counts survives restarts; totals only grow.
     * **Events** are numbered 1, 2, 3, ... per job without gaps, in commit order, also when
@@ -399,8 +402,11 @@ class JobStore(ABC):
         recorded with a terminal status."""
 
     @abstractmethod
-    def record_candidate(self, job_id: str, finished: FinishedCandidate) -> None:
-        """Persist one finished candidate of the job's next round (see the class docstring)."""
+    def record_candidate(self, job_id: str, finished: FinishedCandidate, *, wall_s: float = 0.0,
+                         cpu_s: float = 0.0) -> JobRecord:
+        """Persist one finished candidate of the job's next round, charge ``wall_s`` and ``cpu_s``
+        (as ``charge``) and append its ``"candidate"`` event, atomically (see the class docstring);
+        returns the job with its usage."""
 
     @abstractmethod
     def finished_candidates(self, job_id: str, round_index: int) -> list[FinishedCandidate]:
@@ -465,6 +471,14 @@ def validate_charge(job_id: str, wall_s: float, cpu_s: float) -> tuple[float, fl
     return wall_s, cpu_s
 
 
+def candidate_payload(finished: FinishedCandidate) -> dict[str, Any]:
+    """The ``"candidate"`` event of a finished candidate: where it belongs and how it trained."""
+    c = finished.candidate
+    return {"round": finished.round_index, "phase": finished.phase, "state": c.state, "seed": c.seed,
+            "train_loss": c.train_loss, "val_loss": c.val_loss, "fit_score": c.fit_score, "epochs": c.epochs,
+            "wall_s": c.wall_s, "node": c.node, "error": c.error}
+
+
 def round_payload(record: RoundRecord) -> dict[str, Any]:
     return {"round": record.index, "winner_state": record.winner_state,
             "winner_val_loss": record.winner_val_loss, "winner_fit_score": record.winner_fit_score,
@@ -472,7 +486,7 @@ def round_payload(record: RoundRecord) -> dict[str, Any]:
 
 
 __all__ = [
-    "JobStatus", "TRANSITIONS", "UNFINISHED", "EVENT_STATUS", "EVENT_ROUND", "JobRecord", "JobPage",
+    "JobStatus", "TRANSITIONS", "UNFINISHED", "EVENT_STATUS", "EVENT_ROUND", "EVENT_CANDIDATE", "JobRecord", "JobPage",
     "CandidateRecord", "FinishedCandidate", "RoundRecord", "RoundKind", "WarmupRecord", "HalvingRecord",
     "EventRecord", "JobStore",
     "check_transition", "trained_epochs",

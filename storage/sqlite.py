@@ -27,9 +27,9 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ConflictError, InvalidRecordError, NotFoundError, StorageError
-from .jobs import (EVENT_ROUND, EVENT_STATUS, UNFINISHED, CandidateRecord, EventRecord, FinishedCandidate,
+from .jobs import (EVENT_CANDIDATE, EVENT_ROUND, EVENT_STATUS, UNFINISHED, CandidateRecord, EventRecord, FinishedCandidate,
                    HalvingRecord, JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord, StoreStatistics,
-                   WarmupRecord, caller_idempotency_key, canonical_json, check_transition, round_payload,
+                   WarmupRecord, caller_idempotency_key, candidate_payload, canonical_json, check_transition, round_payload,
                    status_filter, stored_idempotency_key, validate_charge, validate_error)
 from .migrations import migrate
 
@@ -237,19 +237,20 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
         wall_s, cpu_s = validate_charge(job_id, wall_s, cpu_s)
         with self._write(f"charge job {job_id}") as c:
             _require(c, job_id)
-            c.execute("UPDATE jobs SET used_wall_s = used_wall_s + ?, used_cpu_s = used_cpu_s + ? WHERE id = ?",
-                      (wall_s, cpu_s, job_id))
-            return _job(_require(c, job_id))
+            return _charge(c, job_id, wall_s, cpu_s)
 
     # ---------------------------------------------------------------------- finished candidates
 
-    def record_candidate(self, job_id: str, finished: FinishedCandidate) -> None:
+    def record_candidate(self, job_id: str, finished: FinishedCandidate, *, wall_s: float = 0.0,
+                         cpu_s: float = 0.0) -> JobRecord:
         if not isinstance(finished, FinishedCandidate):
             raise TypeError(f"record_candidate takes a FinishedCandidate, got {type(finished).__name__}")
+        wall_s, cpu_s = validate_charge(job_id, wall_s, cpu_s)
         record = canonical_json(dataclasses.asdict(finished.candidate), "finished candidate")
         state, i = finished.candidate.state, finished.round_index
+        now = time.time()
         with self._write(f"record candidate {state} of round {i} of job {job_id}") as c:
-            _require(c, job_id)
+            job = _require(c, job_id)
             stored = c.execute("SELECT record, artifact_key FROM finished_candidates WHERE job_id = ? AND "
                                "round_index = ? AND phase = ? AND state = ?",
                                (job_id, i, finished.phase, state)).fetchone()
@@ -257,12 +258,15 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
                 if (stored["record"], stored["artifact_key"]) != (record, finished.artifact_key):
                     raise ConflictError(f"job {job_id}: candidate {state} ({finished.phase}) of round {i} is "
                                         "already recorded with different content")
-                return
+                return _job(job)
             order = c.execute("SELECT COALESCE(MAX(recorded), 0) + 1 FROM finished_candidates WHERE job_id = ?",
                               (job_id,)).fetchone()[0]
             c.execute("INSERT INTO finished_candidates (job_id, round_index, phase, state, recorded, record, "
                       "artifact_key) VALUES (?, ?, ?, ?, ?, ?, ?)",
                       (job_id, i, finished.phase, state, order, record, finished.artifact_key))
+            charged = _charge(c, job_id, wall_s, cpu_s)
+            _append(c, job_id, now, EVENT_CANDIDATE, candidate_payload(finished))
+            return charged
 
     def finished_candidates(self, job_id: str, round_index: int) -> list[FinishedCandidate]:
         with self._read(f"read finished candidates of job {job_id}") as c:
@@ -375,6 +379,13 @@ def owned_by_key(c: sqlite3.Connection, table: str, stored_key: str, key: str, o
     its owner, or unscoped by a store written before keys were (then only the same owner's)."""
     return c.execute(f"SELECT * FROM {table} WHERE idempotency_key IN (?, ?) AND owner IS ?",
                      (stored_key, key, owner)).fetchone()
+
+
+def _charge(c: sqlite3.Connection, job_id: str, wall_s: float, cpu_s: float) -> JobRecord:
+    """Add validated seconds to the job's usage inside the caller's write transaction."""
+    c.execute("UPDATE jobs SET used_wall_s = used_wall_s + ?, used_cpu_s = used_cpu_s + ? WHERE id = ?",
+              (wall_s, cpu_s, job_id))
+    return _job(_require(c, job_id))
 
 
 def _append(c: sqlite3.Connection, job_id: str, now: float, kind: str, payload: Any) -> int:

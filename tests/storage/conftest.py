@@ -3,8 +3,10 @@
 
 from __future__ import annotations
 
+import sqlite3
 import uuid
 from collections.abc import Callable
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,6 +23,7 @@ class Harness:
 
     opener: Callable[[], object]
     overwrite_raw: Callable[[str, bytes], None] | None = None  # bypass the store (bit rot)
+    refuse_events: Callable[[], AbstractContextManager] | None = None  # appending an event fails inside
     opened: list = field(default_factory=list)
 
     def open(self):
@@ -36,7 +39,21 @@ class Harness:
 
 
 def _sqlite(request, tmp_path: Path) -> Harness:
-    return Harness(lambda: SQLiteJobStore(tmp_path / "jobs.sqlite3"))
+    path = tmp_path / "jobs.sqlite3"
+
+    @contextmanager
+    def refuse_events():
+        """A trigger that aborts every event insert: a write fails after its other statements ran."""
+        with sqlite3.connect(path, isolation_level=None) as conn:
+            conn.execute("CREATE TRIGGER refuse_events BEFORE INSERT ON events "
+                         "BEGIN SELECT RAISE(ABORT, 'events refused by the test'); END")
+        try:
+            yield
+        finally:
+            with sqlite3.connect(path, isolation_level=None) as conn:
+                conn.execute("DROP TRIGGER refuse_events")
+
+    return Harness(lambda: SQLiteJobStore(path), refuse_events=refuse_events)
 
 
 def _local(request, tmp_path: Path) -> Harness:

@@ -11,7 +11,7 @@ import time
 import pytest
 from storage_kit import INITIAL, N_POSITIONS, commit_rounds, flip, hamming_round, running_job
 
-from neuenh_service.storage import (EVENT_ROUND, EVENT_STATUS, TRANSITIONS, UNFINISHED, CandidateRecord,
+from neuenh_service.storage import (EVENT_CANDIDATE, EVENT_ROUND, EVENT_STATUS, TRANSITIONS, UNFINISHED, CandidateRecord,
                      ConflictError, FinishedCandidate, IllegalTransitionError, InvalidRecordError, JobStatus,
                      HalvingRecord, NotFoundError, RoundKind, RoundRecord, StorageError, WarmupRecord)
 
@@ -374,6 +374,37 @@ class TestJobStoreContract:
         assert job_store.finished_candidates(other, 1) == []  # per job
         with pytest.raises(NotFoundError):
             job_store.record_candidate("nope", arrived[0])
+
+    def test_recording_a_candidate_charges_it_and_logs_it_in_one_transaction(self, job_backend):
+        store = job_backend.open()
+        job_id = running_job(store)
+        commit_rounds(store, job_id, 1)
+        candidate = hamming_round(1, store.get_job(job_id).current_state, 2).candidates[3]
+        finished = FinishedCandidate(1, "train", candidate, "sha256/" + "3" * 64)
+        job, events = store.get_job(job_id), store.events(job_id)
+        with job_backend.refuse_events(), pytest.raises(InvalidRecordError, match="nothing was written"):
+            store.record_candidate(job_id, finished, wall_s=2.0, cpu_s=4.0)
+        assert store.finished_candidates(job_id, 1) == []  # none of the three
+        assert store.get_job(job_id) == job and store.events(job_id) == events
+        charged = store.record_candidate(job_id, finished, wall_s=2.0, cpu_s=4.0)
+        assert (charged.used_wall_s, charged.used_cpu_s) == (2.0, 4.0) == (
+            store.get_job(job_id).used_wall_s, store.get_job(job_id).used_cpu_s)
+        assert store.finished_candidates(job_id, 1) == [finished]
+        [event] = store.events(job_id, after_seq=events[-1].seq)
+        assert event.kind == EVENT_CANDIDATE and event.payload == {
+            "round": 1, "phase": "train", "state": candidate.state, "seed": candidate.seed,
+            "train_loss": candidate.train_loss, "val_loss": candidate.val_loss, "fit_score": candidate.fit_score,
+            "epochs": candidate.epochs, "wall_s": candidate.wall_s, "node": candidate.node, "error": None}
+        # Again (a retry): nothing is written, not a second charge nor a second event; and a
+        # different record under the same name changes nothing either.
+        assert store.record_candidate(job_id, finished, wall_s=2.0, cpu_s=4.0) == store.get_job(job_id)
+        with pytest.raises(ConflictError):
+            store.record_candidate(job_id, dataclasses.replace(finished, artifact_key="sha256/" + "9" * 64),
+                                   wall_s=1.0, cpu_s=1.0)
+        with pytest.raises(InvalidRecordError, match="non-negative"):
+            store.record_candidate(job_id, dataclasses.replace(finished, phase="halving"), cpu_s=-1.0)
+        assert (store.get_job(job_id).used_wall_s, store.get_job(job_id).used_cpu_s) == (2.0, 4.0)
+        assert len(store.events(job_id)) == len(events) + 1 and len(store.finished_candidates(job_id, 1)) == 1
 
     def test_a_finished_candidate_has_a_bundle_exactly_when_it_trained(self):
         ok = hamming_round(0, INITIAL, 1).candidates[0]
