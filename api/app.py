@@ -8,9 +8,9 @@
   uvicorn starts, so a second server fails with one line instead of a startup traceback),
 * the ``JobQueue`` (one thread running jobs one at a time through the ``Orchestrator``; it
   resumes unfinished jobs at start),
-* the lock that lets one ``/fit`` run at a time,
-* the ``SQLitePlanStore`` (on the same file) and the ``PlanQueue`` (scene plans, one at a time on a
-  thread of their own; it resumes unfinished plans at start),
+* the lock that lets one ``/fit`` (or plan upload) run at a time (others get 429),
+* the ``SQLitePlanStore`` (on the same file) and the ``PlanQueue`` (scene plans, one at a time, each
+  in a process of its own holding a fair share beside the jobs; it resumes unfinished plans at start),
 
 puts them on ``app.state`` for ``deps.py``, and on shutdown stops the job queue at a safe point (the
 running job is not cancelled: it resumes on the next start) and closes the executor and stores.
@@ -24,13 +24,16 @@ import math
 import signal
 import threading
 from contextlib import asynccontextmanager
+from pathlib import Path
 from typing import Callable
 
 from fastapi import APIRouter, Depends, FastAPI
 
 import neuenh
+from neuenh.scene import SceneError, parse_scene
 from neuenh_service.orchestrator.executor import Executor
-from neuenh_service.storage import ArtifactStore, LocalArtifactStore, OwnerLock, SQLiteJobStore, SQLitePlanStore
+from neuenh_service.storage import (ArtifactStore, LocalArtifactStore, OwnerLock, PlanRecord, SQLiteJobStore,
+                                   SQLitePlanStore)
 
 from . import deps, errors
 from .auth import TokenTable
@@ -39,6 +42,7 @@ from .metrics import ServiceMetrics
 from .routes import cluster, dashboard, docs, fit, health, jobs, metrics, plans
 from .settings import Settings
 from .job_queue import JobQueue
+from .limits import plan_problems
 from .plan_queue import PlanQueue
 from .uploads import PLAN_UPLOADS, PlanUploads
 
@@ -97,7 +101,9 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
         plan_store = SQLitePlanStore(s.data_dir / "jobs.sqlite")
         app.state.plan_uploads = uploads = PlanUploads(s.data_dir / PLAN_UPLOADS, app.state.fit_lock)
         app.state.plans = plan_store
-        app.state.plan_queue = PlanQueue(plan_store, artifacts, on_ended=lambda plan: uploads.release(plan, plan_store))
+        app.state.plan_queue = PlanQueue(plan_store, s, share=job_queue.share,
+                                         admit=lambda plan: _over_limits(plan, s),
+                                         on_ended=lambda plan: uploads.release(plan, plan_store))
         app.state.metrics = ServiceMetrics(store, job_queue, executor)
         job_queue.start()
         swept = uploads.sweep(plan_store)
@@ -140,6 +146,15 @@ def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFa
     app.add_middleware(AuthFirst, tokens=lambda: app.state.tokens)  # before any body is read
     app.add_middleware(HostCheck, settings=lambda: app.state.settings)  # outermost
     return app
+
+
+def _over_limits(plan: PlanRecord, settings: Settings) -> list[str]:
+    """What of a stored plan the service's limits no longer admit (a scene that no longer parses is
+    the planner's to fail, naming the field)."""
+    try:
+        return plan_problems(parse_scene(plan.scene), settings, Path.cwd())
+    except SceneError:
+        return []
 
 
 def _reload_tokens_on_sighup(tokens: TokenTable) -> None:

@@ -1,10 +1,14 @@
 """Dependencies of the routes, as ``Annotated`` aliases. Everything comes from
 ``request.app.state``, which the app's lifespan fills; tests build their own app with
-``create_app(settings, executor_factory=...)`` instead of patching globals."""
+``create_app(settings, executor_factory=...)`` instead of patching globals. The getters are
+``async``: reading ``app.state`` never blocks, so they take no thread of AnyIO's pool (which a
+route like ``/v1/health`` then never waits for)."""
 
 from __future__ import annotations
 
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request, status
@@ -18,32 +22,53 @@ from .job_queue import JobQueue
 from .plan_queue import PlanQueue
 
 
-def get_settings(request: Request) -> Settings:
+async def get_settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def get_jobs(request: Request) -> JobStore:
+async def get_jobs(request: Request) -> JobStore:
     return request.app.state.jobs
 
 
-def get_artifacts(request: Request) -> ArtifactStore:
+async def get_artifacts(request: Request) -> ArtifactStore:
     return request.app.state.artifacts
 
 
-def get_job_queue(request: Request) -> JobQueue:
+async def get_job_queue(request: Request) -> JobQueue:
     return request.app.state.job_queue
 
 
-def get_plans(request: Request) -> PlanStore:
+async def get_plans(request: Request) -> PlanStore:
     return request.app.state.plans
 
 
-def get_plan_queue(request: Request) -> PlanQueue:
+async def get_plan_queue(request: Request) -> PlanQueue:
     return request.app.state.plan_queue
 
 
-def get_fit_lock(request: Request) -> threading.Lock:
+async def get_fit_lock(request: Request) -> threading.Lock:
     return request.app.state.fit_lock
+
+
+# A fit or an upload that finds another one running waits this long, then gets 429 with Retry-After.
+FIT_WAIT_S = 0.5
+FIT_RETRY_AFTER_S = 10
+
+
+@contextmanager
+def fit_slot(lock: threading.Lock) -> Iterator[None]:
+    """Hold the service's one fit slot (fits and plan uploads, one at a time: each costs memory like
+    a fit), or answer 429 with ``Retry-After`` when another request still holds it after a short wait.
+    A request waiting longer would hold one of AnyIO's 40 worker threads, and enough such waiters
+    left none for any other route (``/v1/health`` timed out)."""
+    if not lock.acquire(timeout=FIT_WAIT_S):
+        raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS,
+                            "another fit or measurement upload is running on this service (one at a time); "
+                            f"retry in {FIT_RETRY_AFTER_S} s", headers={"Retry-After": str(FIT_RETRY_AFTER_S)})
+    try:
+        yield
+    finally:
+        lock.release()
 
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]
@@ -100,7 +125,7 @@ def changeable_job(job: VisibleJob, principal: SubmitterDep) -> JobRecord:
 ChangeableJob = Annotated[JobRecord, Depends(changeable_job)]
 
 
-def known_query_only(request: Request) -> None:
+async def known_query_only(request: Request) -> None:
     """Refuse query parameters the route does not declare (422 naming them), so a typo such as
     ``?since=3`` for ``?since_round=3`` is an error rather than silently the whole history."""
     route = request.scope.get("route")
@@ -127,3 +152,13 @@ def visible_plan(plan_id: str, plans: PlanStoreDep, principal: PrincipalDep) -> 
 
 
 VisiblePlan = Annotated[PlanRecord, Depends(visible_plan)]
+
+
+def changeable_plan(plan: VisiblePlan, principal: SubmitterDep) -> PlanRecord:
+    """The plan, if the caller may change it (cancel it): its owner or an admin."""
+    if not principal.may_change(plan.owner):
+        raise HTTPException(status.HTTP_403_FORBIDDEN, f"token {principal.name!r} cannot change plan {plan.id}")
+    return plan
+
+
+ChangeablePlan = Annotated[PlanRecord, Depends(changeable_plan)]

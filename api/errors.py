@@ -1,8 +1,11 @@
 """Every error leaves the service as JSON ``{"detail": ...}``, never as a traceback.
 
 Storage errors map to HTTP statuses (``NotFoundError`` 404, ``ConflictError`` 409,
-``InvalidRecordError``/``InvalidKeyError`` 422); an invalid job spec is 422 with a detail naming
-each field; anything unexpected is 500 with a generic detail, its traceback logged.
+``InvalidRecordError``/``InvalidKeyError`` 422, ``CorruptArtifactError`` 507: a stored artifact —
+checkpoint, cached dataset, plan file — whose bytes no longer match their recorded SHA-256, a status of
+its own so a client can say "restore it from a backup" rather than "the service failed"); an invalid
+job spec is 422 with a detail naming each field; anything unexpected is 500 with a generic detail,
+its traceback logged.
 """
 
 from __future__ import annotations
@@ -34,6 +37,10 @@ def documented(described: dict[int, str]) -> dict[int, dict]:
 # Every /v1 route behind the token can answer these.
 COMMON = documented({401: "missing or invalid bearer token",
                      422: "invalid request: each problem named in detail"})
+# A stored artifact changed since it was written (HTTP 507 "Insufficient Storage": the storage failed).
+DAMAGED_ARTIFACT = status.HTTP_507_INSUFFICIENT_STORAGE
+# Routes that read stored artifacts can answer this.
+DAMAGED = documented({DAMAGED_ARTIFACT: "a stored artifact is damaged (detail names it): restore it from a backup"})
 
 
 def _json(code: int, detail, **extra) -> JSONResponse:
@@ -69,7 +76,7 @@ async def _storage(request: Request, exc: StorageError) -> JSONResponse:
         return _json(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc))
     if isinstance(exc, CorruptArtifactError):  # named, never served: the operator restores it from a backup
         log.error("%s %s: %s", request.method, request.url.path, exc)
-        return _json(status.HTTP_500_INTERNAL_SERVER_ERROR, f"{exc} (restore it from a backup: docs/DEPLOY.md)")
+        return _json(DAMAGED_ARTIFACT, f"{exc} (restore it from a backup: docs/DEPLOY.md)")
     return await _unexpected(request, exc)
 
 

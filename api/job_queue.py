@@ -78,10 +78,10 @@ class JobQueue:
         self.broken: dict[str, str] = {}  # job id -> why it could not be run or updated
         self.jobs = jobs
         self.max_running = max_running
-        share = FairShare(lambda: _capacity(executor))
+        self.share = FairShare(lambda: _capacity(executor))  # the running jobs' (and plans') shares
         self.orchestrator = Orchestrator(jobs, artifacts, executor, on_progress=self._record,
                                          should_stop=self._stopping.is_set, resource_wait_s=resource_wait_s,
-                                         share=share)
+                                         share=self.share)
         self._threads = [threading.Thread(target=self._loop, name=f"neuenh-job-runner-{i}", daemon=True)
                          for i in range(max_running)]
 

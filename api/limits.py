@@ -1,13 +1,15 @@
-"""What one submitted job may ask of this service (``Settings.max_*``). A spec over a limit is
-refused with 422 and a detail naming the field, its value and the setting that bounds it."""
+"""What one submitted job or scene plan may ask of this service (``Settings.max_*``). A spec over a
+limit is refused with 422 and a detail naming the field, its value and the setting that bounds it."""
 
 from __future__ import annotations
 
 from math import comb
 from pathlib import Path
+from typing import Any
 
 from fastapi import HTTPException, status
 
+from neuenh.scene import SceneSpec
 from neuenh_service.orchestrator.executor import ClusterInfo, Resources
 from neuenh_service.orchestrator.spec import JobSpec
 
@@ -78,6 +80,24 @@ def module_weights(spec: JobSpec, hidden: list[int]) -> int:
     return sum(a * b + b for a, b in zip(widths[:-1], widths[1:]))
 
 
+def epoch_settings(value: Any, where: str = "") -> list[tuple[str, int]]:
+    """Every epoch count a spec sets (``search.epochs_per_round``, ``search.warmup_epochs``,
+    ``search.polish_epochs``, ... any field whose name has the word ``epochs``), by dotted path: each is
+    training the service does, so each counts against ``NEUENH_MAX_EPOCHS``."""
+    found = []
+    if isinstance(value, dict):
+        for key, item in value.items():
+            path = f"{where}.{key}" if where else str(key)
+            if "epochs" in str(key).split("_") and isinstance(item, int) and not isinstance(item, bool):
+                found.append((path, item))
+            else:
+                found += epoch_settings(item, path)
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            found += epoch_settings(item, f"{where}.{i}")
+    return found
+
+
 def unsatisfiable(spec: JobSpec, cluster: ClusterInfo) -> list[str]:
     """What a candidate asks that no node of ``cluster`` has: such a job would wait forever
     (RUNNING 0/n, every later job queued behind it). Nothing, while no worker has joined."""
@@ -93,9 +113,17 @@ def check_limits(spec: JobSpec, settings: Settings, cluster: ClusterInfo | None 
     if n > settings.max_candidates_per_round:
         problems.append(f"search.radius: {spec.search.radius} gives up to {n} candidates per round; this "
                         f"service allows {settings.max_candidates_per_round} (NEUENH_MAX_CANDIDATES_PER_ROUND)")
-    if spec.search.epochs_per_round > settings.max_epochs:
-        problems.append(f"search.epochs_per_round: {spec.search.epochs_per_round} exceeds this service's "
-                        f"limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)")
+    settings_used = spec.model_dump(mode="json")
+    if not spec.holds_out():  # no held-out materials: the fit score is never computed
+        settings_used["search"].pop("fit_score")
+    for where, epochs in epoch_settings(settings_used):
+        if epochs > settings.max_epochs:
+            problems.append(f"{where}: {epochs} exceeds this service's limit of {settings.max_epochs} "
+                            "(NEUENH_MAX_EPOCHS)")
+    if spec.resources.cpus_per_candidate < settings.min_cpus_per_candidate:
+        problems.append(f"resources.cpus_per_candidate: {spec.resources.cpus_per_candidate} is below this "
+                        f"service's floor of {settings.min_cpus_per_candidate} (NEUENH_MIN_CPUS_PER_CANDIDATE): "
+                        "every candidate is a worker process of its own, so CPUs split finer only add processes")
     if spec.latent_dim > settings.max_latent_dim:
         problems.append(f"latent_dim: {spec.latent_dim} exceeds this service's limit of "
                         f"{settings.max_latent_dim} (NEUENH_MAX_LATENT_DIM)")
@@ -134,3 +162,68 @@ def check_limits(spec: JobSpec, settings: Settings, cluster: ClusterInfo | None 
         problems += unsatisfiable(spec, cluster)
     if problems:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "job spec over limits: " + "; ".join(problems))
+
+
+# Bytes a measured file holds once read, per byte of the file (measured: an RGL material holds 2.8x
+# its file's size, its warp tables beside its copied fields; tracemalloc over ten loads; headroom).
+BYTES_PER_FILE_BYTE = 4
+
+
+def scene_materials(spec: SceneSpec) -> int:
+    """Materials a scene names, as far as the scene alone says (a capture with a region counts its
+    texels at its stride; one without counts 1 here, and every texel once read: ``PlanRunner``)."""
+    count = 0
+    for entry in spec.materials:
+        region = getattr(entry, "region", None)
+        if region is not None:
+            x0, y0, x1, y1 = region
+            count += max(0, -(-(x1 - x0) // entry.stride)) * max(0, -(-(y1 - y0) // entry.stride))
+        else:
+            count += 1
+    return count
+
+
+def scene_file_bytes(spec: SceneSpec, base: Path) -> int:
+    """The sizes of the measured files a scene reads (each entry its own: one file named twice is
+    read twice); files that do not exist count nothing (the plan fails on them)."""
+    total = 0
+    for entry in spec.materials:
+        path = getattr(entry, "path", None)
+        try:
+            total += (base / path).stat().st_size if path else 0
+        except (OSError, ValueError):
+            pass
+    return total
+
+
+def plan_problems(spec: SceneSpec, settings: Settings, base: Path) -> list[str]:
+    """What in a scene plan exceeds this service's limits, each naming the field and the setting (the
+    same settings as jobs: a plan fits and renders like one)."""
+    fit, problems = spec.fit, []
+    for field in ("samples", "test_samples"):
+        value = getattr(fit, field)
+        if value > settings.max_samples:
+            problems.append(f"fit.{field}: {value} exceeds this service's limit of {settings.max_samples} "
+                            "per material (NEUENH_MAX_SAMPLES)")
+    for where, epochs in epoch_settings(spec.model_dump(mode="json")):
+        if epochs > settings.max_epochs:
+            problems.append(f"{where}: {epochs} exceeds this service's limit of {settings.max_epochs} "
+                            "(NEUENH_MAX_EPOCHS)")
+    materials = scene_materials(spec)
+    if materials > settings.max_materials:
+        problems.append(f"materials: {materials} materials exceed this service's limit of {settings.max_materials} "
+                        "(NEUENH_MAX_MATERIALS)")
+    measurements = materials * (fit.samples + fit.test_samples)
+    if measurements > settings.max_total_samples:
+        problems.append(f"materials: {materials} materials x {fit.samples + fit.test_samples} fit and test samples "
+                        f"= {measurements} measurements exceed this service's limit of {settings.max_total_samples} "
+                        "(NEUENH_MAX_TOTAL_SAMPLES)")
+    if spec.render.size > settings.max_render_size:
+        problems.append(f"render.size: {spec.render.size} exceeds this service's limit of {settings.max_render_size} "
+                        "pixels per side (NEUENH_MAX_RENDER_SIZE)")
+    memory = measurements * BYTES_PER_SAMPLE + scene_file_bytes(spec, base) * BYTES_PER_FILE_BYTE
+    if memory > settings.max_job_memory_bytes:
+        problems.append(f"materials: planning this scene needs about {memory / 1e9:.1f} GB (its files read once per "
+                        f"entry); this service allows {settings.max_job_memory_bytes / 1e9:.1f} GB "
+                        "(NEUENH_MAX_JOB_MEMORY_BYTES)")
+    return problems

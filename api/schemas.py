@@ -8,6 +8,7 @@ import functools
 import json
 
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -266,7 +267,7 @@ class NodePublic(BaseModel):
 
 
 class SlotHolderPublic(BaseModel):
-    job_id: str
+    job_id: str | None = Field(description="null: another owner's job (a submit token sees its own jobs' ids)")
     candidates: int
     cpus: float
     gpus: float
@@ -283,7 +284,8 @@ class ClusterPublic(BaseModel):
     cpus_available: float
     gpus_available: float
     busy_candidates: int = Field(description="candidates training right now")
-    running_jobs: list[str] = Field(description="the jobs the service is running now")
+    running_jobs: list[str] = Field(description="the jobs the service is running now (a submit token: its own)")
+    other_running_jobs: int = Field(0, description="running jobs of other owners, not named to a submit token")
     max_running_jobs: int = Field(description="how many jobs run at once (NEUENH_MAX_RUNNING_JOBS)")
     holders: list[SlotHolderPublic] = Field(description="per running job, its candidates in flight and what "
                                                         "they hold of the cluster")
@@ -342,14 +344,29 @@ class PlanPublic(BaseModel):
 
     @classmethod
     def from_record(cls, p: PlanRecord, files: list[str], base: str = "/v1",
-                    progress: Any = None) -> "PlanPublic":
+                    progress: Any = None, hidden: Path | None = None) -> "PlanPublic":
+        """``hidden``: a folder of the service (where uploads are kept) that the answer names by its
+        last part only, wherever the scene, the plan or the error mention a path inside it."""
         url = f"{base}/plans/{p.id}/files"
-        return cls(id=p.id, name=p.scene.get("name"), status=p.status, terminal=p.terminal, error=p.error,
+        shown = (lambda v: v) if hidden is None else functools.partial(_hide_folder, prefix=f"{hidden}/",
+                                                                       name=f"{hidden.name}/")
+        return cls(id=p.id, name=p.scene.get("name"), status=p.status, terminal=p.terminal, error=shown(p.error),
                    created_at=_time(p.created_at), updated_at=_time(p.updated_at), materials_total=p.materials_total,
                    materials_done=p.materials_done,
                    progress=PlanProgressPublic(message=progress.message, step=progress.step, steps=progress.steps)
                    if progress is not None and not p.terminal else None,
-                   scene=p.scene, plan=p.result, files={name: f"{url}/{name}" for name in files})
+                   scene=shown(p.scene), plan=shown(p.result), files={name: f"{url}/{name}" for name in files})
+
+
+def _hide_folder(value: Any, prefix: str, name: str) -> Any:
+    """``value`` with ``prefix`` replaced by ``name`` in every string it holds."""
+    if isinstance(value, str):
+        return value.replace(prefix, name)
+    if isinstance(value, dict):
+        return {k: _hide_folder(v, prefix, name) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_hide_folder(v, prefix, name) for v in value]
+    return value
 
 
 class PlanList(BaseModel):

@@ -52,7 +52,12 @@ class Settings(BaseSettings):
     # Limits on what one submitted job may ask for (checked on POST /v1/jobs, 422 when exceeded).
     max_candidates_per_round: int = Field(
         64, ge=1, description="upper bound of the Hamming ball size implied by search.radius")
-    max_epochs: int = Field(1000, ge=1, description="largest search.epochs_per_round")
+    max_epochs: int = Field(1000, ge=1, description=(
+        "largest epoch count of any setting: a job's search.epochs_per_round, warmup_epochs, polish_epochs; "
+        "a fit's epochs; a scene plan's fit.epochs"))
+    min_cpus_per_candidate: float = Field(0.25, ge=0.0001, description=(
+        "smallest resources.cpus_per_candidate: every candidate is a Ray worker process (~300 MB), so finer "
+        "splits only multiply processes and memory (Ray itself cannot express less than 0.0001)"))
     max_samples: int = Field(1_000_000, ge=1, description="largest per-material 'samples' of a data source")
     max_total_samples: int = Field(20_000_000, ge=1, description="largest dataset (materials x samples, "
                                                                  "where the spec says both)")
@@ -91,6 +96,13 @@ class Settings(BaseSettings):
     default_gpus_per_candidate: float = Field(
         0.0, ge=0.0, description="resources.gpus_per_candidate of a job whose spec does not set it "
                                  "(a cluster with GPU workers: e.g. 0.25 puts four candidates on a GPU)")
+
+    plan_cpus: int = Field(1, ge=1, description=(
+        "CPU threads a scene plan's process uses; a running plan holds as many of the cluster's fair share"))
+    max_render_size: int = Field(256, ge=8, description="largest render.size (pixels per side) of a scene plan")
+    max_fit_work: int = Field(10_000_000, ge=1, description=(
+        "most measurement-epochs one POST /v1/jobs/{id}/fit may ask: rows uploaded x the fit's epochs "
+        "(its method's default when unset); ~60 us each on a busy 2-core machine, so the default is minutes"))
 
     shutdown_grace_s: float = Field(
         30.0, ge=0.0, description="how long shutdown waits for the running job to reach a safe stop")

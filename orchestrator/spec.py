@@ -149,9 +149,19 @@ class TrainSpec(_Strict):
         return self
 
 
+RAY_RESOURCE_UNIT = 0.0001  # the smallest fraction of a resource Ray can express
+
+
 class ResourcesSpec(_Strict):
-    cpus_per_candidate: float = Field(1.0, gt=0.0)
+    cpus_per_candidate: float = Field(1.0, ge=RAY_RESOURCE_UNIT)
     gpus_per_candidate: float = Field(0.0, ge=0.0)
+
+    @model_validator(mode="after")
+    def _expressible(self) -> "ResourcesSpec":
+        if 0 < self.gpus_per_candidate < RAY_RESOURCE_UNIT:
+            raise ValueError(f"gpus_per_candidate: {self.gpus_per_candidate} is neither 0 nor at least "
+                             f"{RAY_RESOURCE_UNIT}, the smallest fraction Ray can express")
+        return self
 
 
 class BudgetSpec(_Strict):

@@ -90,15 +90,16 @@ def wait_plan(client: httpx.Client, plan_id: str, timeout: float = 180.0) -> dic
         time.sleep(0.2)
 
 
-def wait_for(client: httpx.Client, job_id: str, until=lambda job: job["status"] in TERMINAL,
-             timeout: float = 60.0) -> dict:
+def wait_for(client: httpx.Client, job_id: str, until=lambda job: job["terminal"],
+             timeout: float = 60.0, kind: str = "jobs") -> dict:
+    """The job (or with ``kind="plans"`` the plan) once ``until`` holds: by default, once it ended."""
     deadline = time.monotonic() + timeout
     while True:
-        r = client.get(f"/jobs/{job_id}")
+        r = client.get(f"/{kind}/{job_id}")
         assert r.status_code == 200, r.text
         job = r.json()
         if until(job):
             return job
         if time.monotonic() > deadline:
-            raise AssertionError(f"job {job_id} stuck at {job['status']}")
+            raise AssertionError(f"{kind[:-1]} {job_id} stuck at {job['status']}")
         time.sleep(0.1)

@@ -4,7 +4,9 @@ frozen) and return the fitted per-material parameters and losses.
 Each uploaded file is one material: a table (``.npz`` with ``wi``, ``wo``, ``f_r`` or CSV
 ``wi_x..wo_z,r,g,b[,weight]``; ``neuenh.data.table``), named by its file name. The model is the
 job's last committed bundle, so a running job can be tried before it ends. Fits run one at a time
-(they share the service's CPUs with the candidates being trained).
+(they share the service's CPUs with the candidates being trained): a request that finds another one
+running gets 429 with ``Retry-After`` instead of holding a worker thread while it waits. One fit's
+work — measurements x epochs — is bounded by ``NEUENH_MAX_FIT_WORK``.
 """
 
 from __future__ import annotations
@@ -20,8 +22,8 @@ from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
 from neuenh.fit import FitConfig, fit_materials
 
-from ..deps import ArtifactStoreDep, Authorized, ChangeableJob, FitLockDep, JobStoreDep, SettingsDep
-from ..errors import COMMON, documented
+from ..deps import ArtifactStoreDep, Authorized, ChangeableJob, FitLockDep, JobStoreDep, SettingsDep, fit_slot
+from ..errors import COMMON, DAMAGED, documented
 from ..schemas import FitPublic
 from ..uploads import receive
 
@@ -31,7 +33,8 @@ router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized], res
     400: "a body that is not multipart/form-data",
     404: "no such job, or no committed round yet",
     413: "upload over NEUENH_MAX_UPLOAD_BYTES",
-    422: "a table that cannot be read, or a request over the service's limits"}))
+    422: "a table that cannot be read, or a request over the service's limits",
+    429: "another fit or upload is running: retry after Retry-After seconds"}) | DAMAGED)
 def fit_job(
     request: Request, job: ChangeableJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep, fit_lock: FitLockDep,
     files: Annotated[list[UploadFile], File(description="one measurement table per material (.npz or CSV)")],
@@ -47,12 +50,22 @@ def fit_job(
     if epochs > settings.max_epochs:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"epochs: {epochs} exceeds this service's limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)")
+    if len(files) > settings.max_materials:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"files: {len(files)} materials exceed this service's limit of {settings.max_materials} "
+                            "(NEUENH_MAX_MATERIALS)")
+    config = FitConfig(method=method, epochs=epochs or None)
     bundle = Bundle.from_bytes(artifacts.get(last.artifact_key))
     model = bundle.model
-    with fit_lock:  # reading uploads costs memory like a fit: one at a time too
+    with fit_slot(fit_lock):  # reading uploads costs memory like a fit: one at a time too (else 429)
         samples = _read_uploads(files, settings.max_samples)
-        result = fit_materials(model, samples, FitConfig(method=method, epochs=epochs or None),
-                               trained=bundle.materials)
+        work = len(samples) * config.resolved_epochs
+        if work > settings.max_fit_work:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                f"files: {len(samples)} measurements x {config.resolved_epochs} epochs = {work} "
+                                f"exceed this service's limit of {settings.max_fit_work} per fit "
+                                "(NEUENH_MAX_FIT_WORK); send fewer rows or ask fewer epochs")
+        result = fit_materials(model, samples, config, trained=bundle.materials)
     request.app.state.metrics.fits.inc()
     return FitPublic(job_id=job_id, round=last.index, **result.report(model, method, samples))
 

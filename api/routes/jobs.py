@@ -18,7 +18,7 @@ from ..auth import LOCAL
 from ..deps import (ArtifactStoreDep, Authorized, ChangeableJob, JobQueueDep, JobStoreDep, PrincipalDep,
                     SettingsDep, SubmitterDep, VisibleJob)
 from ..downloads import file_response
-from ..errors import COMMON, documented
+from ..errors import COMMON, DAMAGED, documented
 from ..limits import check_limits
 from ..schemas import HistoryPublic, JobCreate, JobList, JobPublic
 
@@ -26,6 +26,7 @@ router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized], res
 
 _ERRORS = documented({404: "no such job"})
 MAX_EXPORTED = 64  # materials one export request may ask for (the files of each are written and zipped)
+INT64_MAX = 2**63 - 1  # the store's integers are SQLite's: a cursor or round index beyond is a 422
 
 
 @router.post("", status_code=status.HTTP_202_ACCEPTED, response_model=JobPublic,
@@ -61,9 +62,9 @@ def submit_job(spec: JobCreate, response: Response, settings: SettingsDep, job_q
 def list_jobs(jobs: JobStoreDep, job_queue: JobQueueDep, principal: PrincipalDep,
               status_: Annotated[list[JobStatus] | None, Query(alias="status", description="repeat for several")] = None,
               limit: Annotated[int, Query(ge=1, le=500)] = 50,
-              cursor: Annotated[str | None, Query(pattern=r"^[0-9]{1,19}$", description="next_cursor of the previous page")] = None) -> JobList:
+              cursor: Annotated[int | None, Query(ge=0, le=INT64_MAX, description="next_cursor of the previous page")] = None) -> JobList:
     """Jobs, newest first, in pages (a submit token sees its own)."""
-    page = jobs.list_jobs(status=status_ or None, limit=limit, cursor=cursor,
+    page = jobs.list_jobs(status=status_ or None, limit=limit, cursor=None if cursor is None else str(cursor),
                           owner=None if principal.sees_all else principal.name)
     return JobList(jobs=[JobPublic.from_record(j, progress=job_queue.progress(j.id)) for j in page.jobs],
                    next_cursor=page.next_cursor)
@@ -76,7 +77,7 @@ def get_job(job: VisibleJob, job_queue: JobQueueDep) -> JobPublic:
 
 @router.get("/{job_id}/history", response_model=HistoryPublic, responses=_ERRORS)
 def job_history(job: VisibleJob, jobs: JobStoreDep,
-                since_round: Annotated[int, Query(ge=0)] = 0) -> HistoryPublic:
+                since_round: Annotated[int, Query(ge=0, le=INT64_MAX)] = 0) -> HistoryPublic:
     """Committed rounds with index >= ``since_round``, each with every candidate and the winner."""
     job_id = job.id
     rounds = jobs.rounds(job_id, since_round=since_round)
@@ -98,8 +99,9 @@ def cancel_job(job: ChangeableJob, jobs: JobStoreDep) -> JobPublic:
 
 
 @router.get("/{job_id}/export", response_class=Response, responses={
-    **_ERRORS, **documented({422: "a material the model does not hold, or too many",
-                             501: "this service lacks the format's runtime (the neuenh[export] extra)"}),
+    **_ERRORS, **DAMAGED, **documented({422: "a material the model does not hold, too many, or two whose names "
+                                              "become one file name",
+                                        501: "this service lacks the format's runtime (the neuenh[export] extra)"}),
     **file_response("a zip of the exported files (neuenh export --format FORMAT): GLSL, ONNX or the Mitsuba "
                     "plugin's")})
 def export_model(job: VisibleJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep,
@@ -109,7 +111,7 @@ def export_model(job: VisibleJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep
                  ) -> Response:
     """The last committed model's materials in a renderer's own format, as a zip archive (the files
     ``neuenh export MODEL --format FORMAT`` writes; docs/EXPORT.md)."""
-    from neuenh.export import MissingRuntime, export
+    from neuenh.export import ExportError, MissingRuntime, export
 
     bundle = Bundle.from_bytes(artifacts.get(_last_round(job, jobs).artifact_key))
     names = list(bundle.materials.names) if bundle.materials is not None else []
@@ -130,6 +132,8 @@ def export_model(job: VisibleJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep
             export(bundle.model, params, format, out)
         except MissingRuntime as exc:
             raise HTTPException(status.HTTP_501_NOT_IMPLEMENTED, str(exc)) from None
+        except ExportError as exc:  # e.g. two material names that clean up to one file name
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"material: {exc}") from None
         with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
             for path in sorted(out.rglob("*")):
                 if path.is_file():
@@ -150,7 +154,8 @@ def _last_round(job, jobs) -> RoundRecord:
 
 
 @router.get("/{job_id}/model", response_class=Response, responses={
-    **_ERRORS, **file_response("a zip of the bundle: model.json, weights.safetensors, materials.safetensors")})
+    **_ERRORS, **DAMAGED,
+    **file_response("a zip of the bundle: model.json, weights.safetensors, materials.safetensors")})
 def download_model(job: VisibleJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep) -> Response:
     """The last committed bundle as a zip archive (load it with ``Bundle.load`` once extracted)."""
     job_id = job.id

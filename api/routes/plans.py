@@ -5,8 +5,11 @@ The scene is the JSON form of ``scene.yaml``; its files (measured materials, cap
 of the ladder) are paths the service reads, relative to its working directory, and must lie under
 its data roots (``NEUENH_DATA_ROOTS``), as a job's data do. ``POST /v1/plan-uploads`` takes the
 scene with the measured files themselves instead (multipart): a material whose path is an uploaded
-file's name is that file, kept under the data directory by its content's digest. Plans run one at
-a time beside the jobs and survive restarts material by material.
+file's name is that file, kept under the data directory by its content's digest (responses name it
+``uploads/<sha256>``, never by the server's own path). A scene over the service's limits (the jobs'
+``NEUENH_MAX_*`` settings, ``NEUENH_MAX_RENDER_SIZE``) is refused with 422 naming the setting. Plans
+run one at a time beside the jobs, each in a process of its own (``api.plan_queue``), survive
+restarts material by material, and can be cancelled (``POST /v1/plans/{id}/cancel``).
 """
 
 from __future__ import annotations
@@ -14,7 +17,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-import yaml
 from fastapi import APIRouter, Body, File, Form, Header, HTTPException, Response, UploadFile, status
 
 from neuenh.data.errors import DataError
@@ -22,15 +24,17 @@ from neuenh.data.formats import detect_format
 from neuenh.data.measured import load_measured
 from neuenh.data.table import load_table
 from neuenh.scene import SceneError, SceneSpec, parse_scene
-from neuenh.scene.spec import CaptureEntry, FileEntry, RungsEntry
+from neuenh.scene.spec import CaptureEntry, FileEntry, RungsEntry, scene_data
 from neuenh_service.orchestrator.plans import CONTENT_TYPES, PLAN_FILES, plan_file_key
-from neuenh_service.storage import ArtifactStore, PlanRecord, PlanStatus
+from neuenh_service.storage import ArtifactStore, CorruptArtifactError, PlanRecord, PlanStatus
+from neuenh_service.storage.artifacts import sha256
 
 from ..auth import LOCAL
-from ..deps import (ArtifactStoreDep, Authorized, FitLockDep, PlanQueueDep, PlanStoreDep, PrincipalDep,
-                    SettingsDep, SubmitterDep, VisiblePlan)
+from ..deps import (ArtifactStoreDep, Authorized, ChangeablePlan, FitLockDep, PlanQueueDep, PlanStoreDep,
+                    PrincipalDep, SettingsDep, SubmitterDep, VisiblePlan, fit_slot)
 from ..downloads import file_response
-from ..errors import COMMON, documented
+from ..errors import COMMON, DAMAGED, documented
+from ..limits import plan_problems
 from ..schemas import PlanList, PlanPublic
 from ..settings import Settings
 from ..uploads import PLAN_UPLOADS, Received, discard, receive
@@ -54,13 +58,21 @@ def submit_plan(spec: Annotated[SceneSpec, Body(description="a scene (the JSON f
     return _queue(spec, set(), response, plans, plan_queue, settings, principal, idempotency_key)
 
 
+def _parsed(data: object) -> SceneSpec:
+    try:
+        return parse_scene(data, "scene")
+    except SceneError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+
+
 @uploads.post("", status_code=status.HTTP_202_ACCEPTED, response_model=PlanPublic,
              responses={200: {"model": PlanPublic, "description": "the plan already submitted under this Idempotency-Key"},
                         **documented({400: "a body that is not multipart/form-data",
                                       409: "Idempotency-Key reused for another scene",
                                       413: "upload over NEUENH_MAX_UPLOAD_BYTES",
                                       422: "an invalid scene, an unreadable or unnamed upload, or other files "
-                                           "outside the data roots"})})
+                                           "outside the data roots",
+                                      429: "another fit or upload is running: retry after Retry-After seconds"})})
 def submit_plan_with_files(
     response: Response, plans: PlanStoreDep, plan_queue: PlanQueueDep, settings: SettingsDep,
     principal: SubmitterDep, fit_lock: FitLockDep,
@@ -72,25 +84,20 @@ def submit_plan_with_files(
 ) -> PlanPublic:
     """Validate the scene and its files, keep the files, and queue the plan (202)."""
     try:
-        data = yaml.safe_load(scene)
-    except yaml.YAMLError as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            f"scene: not valid YAML or JSON ({str(exc).splitlines()[0]})") from None
-    if not isinstance(data, dict):
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            f"scene: a scene is a mapping, got {type(data).__name__}")
+        data = scene_data(scene, "scene")
+    except SceneError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+    # the scene's own limits before any file is read (the files' sizes count once they are kept)
+    _check_limits(_parsed(data), settings)
     # One at a time: reading uploads costs memory like a fit, and a refused request removes the files
     # it alone kept, which a concurrent request with the same content must not see vanish.
-    with fit_lock:
+    with fit_slot(fit_lock):
         received = receive(files, (settings.data_dir / PLAN_UPLOADS).resolve(),
                            lambda path, name: _check_measured(path, name, settings.max_samples), settings.max_samples)
         try:
             data, uploaded = _with_uploads(data, received)
-            try:
-                spec = parse_scene(data, "scene")
-            except SceneError as exc:
-                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
-            queued = _queue(spec, uploaded, response, plans, plan_queue, settings, principal, idempotency_key)
+            queued = _queue(_parsed(data), uploaded, response, plans, plan_queue, settings, principal,
+                            idempotency_key)
             if response.status_code == status.HTTP_200_OK:  # found under its key: that plan has its files
                 discard(received)
             return queued
@@ -134,12 +141,20 @@ def _with_uploads(data: dict, received: list[Received]) -> tuple[dict, set[str]]
     return ({**data, "materials": materials} if "materials" in data else data), uploaded
 
 
+def _check_limits(spec: SceneSpec, settings: Settings) -> None:
+    problems = plan_problems(spec, settings, Path.cwd())
+    if problems:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "scene over limits: " + "; ".join(problems))
+
+
 def _queue(spec: SceneSpec, uploaded: set[str], response: Response, plans, plan_queue, settings: Settings,
            principal, idempotency_key: str | None) -> PlanPublic:
-    """Check the scene's other files against the data roots, then create (or find) and queue the plan."""
+    """Check the scene's other files against the data roots and the scene against the service's
+    limits, then create (or find) and queue the plan."""
     outside = _outside_data_roots(spec, settings, uploaded)
     if outside:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "; ".join(outside))
+    _check_limits(spec, settings)
     plan, created = plans.create_plan(spec.model_dump(mode="json", exclude_none=True),
                                       owner=None if principal is LOCAL else principal.name,
                                       idempotency_key=idempotency_key)
@@ -148,40 +163,71 @@ def _queue(spec: SceneSpec, uploaded: set[str], response: Response, plans, plan_
     else:
         response.status_code = status.HTTP_200_OK
     response.headers["Location"] = f"/v1/plans/{plan.id}"
-    return PlanPublic.from_record(plan, [], progress=plan_queue.progress(plan.id))
+    return _public(plan, [], plan_queue, settings)
+
+
+def _public(plan: PlanRecord, files: list[str], plan_queue, settings: Settings) -> PlanPublic:
+    """The plan as answered: the service's upload folder named ``uploads/``, never by its path."""
+    return PlanPublic.from_record(plan, files, progress=plan_queue.progress(plan.id),
+                                  hidden=_uploads_folder(settings))
+
+
+def _uploads_folder(settings: Settings) -> Path:
+    return (settings.data_dir / PLAN_UPLOADS).resolve()
 
 
 @router.get("", response_model=PlanList)
-def list_plans(plans: PlanStoreDep, plan_queue: PlanQueueDep, artifacts: ArtifactStoreDep,
+def list_plans(plans: PlanStoreDep, plan_queue: PlanQueueDep, artifacts: ArtifactStoreDep, settings: SettingsDep,
                principal: PrincipalDep) -> PlanList:
     """Plans, newest first (a submit token sees its own)."""
     found = plans.list_plans(owner=None if principal.sees_all else principal.name)
-    return PlanList(plans=[PlanPublic.from_record(p, _files(p, artifacts), progress=plan_queue.progress(p.id))
-                           for p in found])
+    return PlanList(plans=[_public(p, _files(p, artifacts), plan_queue, settings) for p in found])
 
 
 @router.get("/{plan_id}", response_model=PlanPublic, responses=_ERRORS)
-def get_plan(plan: VisiblePlan, plan_queue: PlanQueueDep, artifacts: ArtifactStoreDep) -> PlanPublic:
-    return PlanPublic.from_record(plan, _files(plan, artifacts), progress=plan_queue.progress(plan.id))
+def get_plan(plan: VisiblePlan, plan_queue: PlanQueueDep, artifacts: ArtifactStoreDep,
+             settings: SettingsDep) -> PlanPublic:
+    return _public(plan, _files(plan, artifacts), plan_queue, settings)
+
+
+@router.post("/{plan_id}/cancel", response_model=PlanPublic, responses={
+    **_ERRORS, **documented({403: "a read token, or another owner's plan", 409: "the plan has already ended"})})
+def cancel_plan(plan: ChangeablePlan, plan_queue: PlanQueueDep, settings: SettingsDep) -> PlanPublic:
+    """Cancel a queued or running plan: a running one's process is ended at once. The materials it
+    planned stay recorded; files sent with it are released."""
+    if plan.terminal:
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"plan {plan.id} is already {plan.status.value}; only unfinished plans can be cancelled")
+    return _public(plan_queue.cancel(plan.id), [], plan_queue, settings)  # a lost race (it ended) is 409 too
 
 
 @router.get("/{plan_id}/files/{name}", response_class=Response, responses={
-    **_ERRORS, **file_response("one file of a DONE plan", *CONTENT_TYPES.values())})
-def plan_file(plan: VisiblePlan, name: str, artifacts: ArtifactStoreDep) -> Response:
-    """One of the plan's files: plan.json, plan.md, cost_vs_error.png, contact_sheet.png, bundles.zip."""
+    **_ERRORS, **DAMAGED, **file_response("one file of a DONE plan", *CONTENT_TYPES.values())})
+def plan_file(plan: VisiblePlan, name: str, artifacts: ArtifactStoreDep, settings: SettingsDep) -> Response:
+    """One of the plan's files: plan.json, plan.md, cost_vs_error.png, contact_sheet.png, bundles.zip,
+    checked against the SHA-256 recorded when the plan finished."""
     if name not in PLAN_FILES:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"a plan has no file {name!r}; it has {', '.join(PLAN_FILES)}")
     key = plan_file_key(plan.id, name)
     if plan.status is not PlanStatus.DONE or not artifacts.exists(key):
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"plan {plan.id} has no {name}"
                             + ("" if plan.status is PlanStatus.DONE else f" yet (status {plan.status.value})"))
-    return Response(artifacts.get(key), media_type=CONTENT_TYPES[Path(name).suffix],
+    data = artifacts.get(key)
+    expected = plan.files.get(name)  # plans finished before digests were recorded have none
+    if expected is not None and (actual := sha256(data)) != expected:
+        raise CorruptArtifactError(f"artifact {key!r} is corrupt: its SHA-256 is {actual[:12]}..., plan {plan.id} "
+                                   f"recorded {expected[:12]}...")
+    if Path(name).suffix in (".json", ".md"):  # they quote the scene: name uploads as the responses do
+        data = data.replace(f"{_uploads_folder(settings)}/".encode(), f"{PLAN_UPLOADS}/".encode())
+    return Response(data, media_type=CONTENT_TYPES[Path(name).suffix],
                     headers={"Content-Disposition": f'inline; filename="{name}"'})
 
 
 def _files(plan: PlanRecord, artifacts: ArtifactStore) -> list[str]:
     if plan.status is not PlanStatus.DONE:
         return []
+    if plan.files:
+        return [name for name in PLAN_FILES if name in plan.files]
     return [name for name in PLAN_FILES if artifacts.exists(plan_file_key(plan.id, name))]
 
 

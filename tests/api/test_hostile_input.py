@@ -106,7 +106,7 @@ def test_corrupted_artifacts_are_named_never_used(server):
         for path in checkpoints:  # every content-addressed artifact: the checkpoints and the dataset
             flip_a_byte(path)
         r = c.get(f"/jobs/{job['id']}/model")
-        assert r.status_code == 500 and "is corrupt" in r.json()["detail"] and "sha256/" in r.json()["detail"]
+        assert r.status_code == 507 and "is corrupt" in r.json()["detail"] and "sha256/" in r.json()["detail"]
         # the same recipe again: its cached dataset is corrupt, so the job fails naming it
         again = c.post("/jobs", json=tiny_spec(max_rounds=1).model_dump(mode="json"),
                        headers={"Idempotency-Key": "again"}).json()

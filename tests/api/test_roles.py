@@ -3,8 +3,6 @@ tested as a matrix of role x route; NEUENH_API_TOKEN stays a single admin; SIGHU
 
 from __future__ import annotations
 
-import hashlib
-import json
 import signal
 import time
 
@@ -13,20 +11,8 @@ import pytest
 
 from jobspecs import tiny_spec
 from live_api import running_server, wait_for
+from named_tokens import TOKENS, as_, write_tokens
 from serve_process import ServeProcess
-
-TOKENS = {"ops": ("admin", "t-ops"), "alice": ("submit", "t-alice"), "bob": ("submit", "t-bob"),
-          "wall": ("read", "t-wall")}
-
-
-def write_tokens(path, tokens) -> None:
-    path.write_text(json.dumps([{"name": name, "role": role, "sha256": hashlib.sha256(token.encode()).hexdigest()}
-                                for name, (role, token) in tokens.items()]))
-
-
-def as_(name: str) -> dict:
-    return {"Authorization": f"Bearer {TOKENS[name][1]}"}
-
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
@@ -42,6 +28,8 @@ def server(tmp_path_factory):
         with s.client(headers=as_("ops")) as c:
             for job_id in s.jobs.values():
                 wait_for(c, job_id)
+            for plan_id in s.plans.values():  # they fail: their file is missing
+                wait_for(c, plan_id, kind="plans")
         yield s
 
 
@@ -61,6 +49,7 @@ MATRIX = [
     ("POST", "/jobs", {"wall": 403}),
     ("GET", "/plans/{own_plan}", {"ops": 200, "alice": 200, "wall": 200, "bob": 404}),
     ("GET", "/plans/{own_plan}/files/plan.md", {"bob": 404, "wall": 404, "alice": 404}),  # 404: not DONE
+    ("POST", "/plans/{own_plan}/cancel", {"wall": 403, "bob": 404, "alice": 409, "ops": 409}),  # 409: it ended
     ("POST", "/plans", {"wall": 403}),
     ("POST", "/plan-uploads", {"wall": 403, "alice": 422}),  # 422: no files sent
 ]
