@@ -5,7 +5,7 @@
     neuenh-client jobs [--status RUNNING]       # jobs, newest first (also: list)
     neuenh-client history JOB                   # committed rounds as a table
     neuenh-client watch JOB                     # follow a job until it ends
-    neuenh-client cancel JOB
+    neuenh-client cancel JOB                    # also: cancel --plan PLAN
     neuenh-client download JOB [-o DIR|FILE.zip]
     neuenh-client export JOB --format glsl|onnx|mitsuba [-o DIR] [--material NAME ...]
     neuenh-client fit JOB measurements.npz ...  # fit materials with the job's model, on the service
@@ -15,9 +15,10 @@ The service is ``--url`` or ``$NEUENH_URL`` (default http://127.0.0.1:8000); its
 or ``$NEUENH_API_TOKEN`` (prefer the variable: flags show in ``ps``). ``--json`` prints what the
 service answered, for machines; people get tables and a progress display (on stderr).
 
-Exit codes (DESIGN §4): 0 success, 1 the job failed (or was cancelled) or the service failed,
-2 usage error (a bad spec or table, no such job, a request the service refuses), 3 the service
-cannot be reached or does not accept the token. Every error is one line, never a traceback.
+Exit codes (DESIGN §4): 0 success, 1 the job failed (or was cancelled) or the service failed
+(a damaged stored file: its operator restores it), 2 usage error (a bad spec or table, no such
+job, a request the service refuses), 3 the service cannot be reached, does not accept the token,
+or is busy (429: retry later). Every error is one line, never a traceback.
 """
 
 from __future__ import annotations

@@ -6,8 +6,10 @@ what happened                                  exit  the line says
 =============================================  ====  ==========================================
 connection refused, unknown host, timeout       3    cannot reach URL (reason); how to fix it
 401 (no token, or the wrong one)                3    URL refused the token (detail); the fix
+429 (one fit or upload at a time: busy)         3    the service is busy (detail); retry in N s
 any other 4xx (404 no such job, 409, 422 ...)   2    the service's ``detail``
-5xx                                             1    the service failed (status: detail)
+507 (a stored artifact is damaged)              1    what is damaged (detail); the operator restores it
+other 5xx                                       1    the service failed (status: detail)
 =============================================  ====  ==========================================
 
 The token travels only in the ``Authorization`` header and is never part of a message.
@@ -28,6 +30,7 @@ DOWNLOAD_TIMEOUT_S = 300.0  # a model, an export, a scene's uploaded files
 FIT_TIMEOUT_S = 3600.0  # fitting materials on the service
 
 OK, JOB_FAILED, USAGE, UNREACHABLE = 0, 1, 2, 3
+DAMAGED_ARTIFACT = 507  # the service's answer for a stored artifact whose bytes changed since written
 
 
 class ClientError(Exception):
@@ -109,6 +112,9 @@ class Api:
     def cancel(self, job_id: str) -> dict:
         return self.call("POST", f"/jobs/{job_id}/cancel")
 
+    def cancel_plan(self, plan_id: str) -> dict:
+        return self.call("POST", f"/plans/{plan_id}/cancel")
+
     def model(self, job_id: str, read_timeout: float) -> httpx.Response:
         return self.request("GET", f"/jobs/{job_id}/model", read_timeout=read_timeout)
 
@@ -179,8 +185,15 @@ class Api:
             what = "refused the token" if self.token_sent else "requires a token"
             raise ClientError(f"{self.url} {what} ({detail}); set --token or NEUENH_API_TOKEN",
                               UNREACHABLE, r.status_code)
+        if r.status_code == 429:  # busy now, fine later: like an unreachable service, worth a retry
+            retry = r.headers.get("Retry-After")
+            raise ClientError(f"{self.url} is busy ({detail})" + (f"; retry in {retry} s" if retry else ""),
+                              UNREACHABLE, r.status_code)
         if r.status_code < 500:
             raise ClientError(detail, USAGE, r.status_code)
+        if r.status_code == DAMAGED_ARTIFACT:
+            raise ClientError(f"a file the service stored is damaged and was not used ({detail}); its operator must "
+                              "restore it from a backup, resubmitting will not help", JOB_FAILED, r.status_code)
         raise ClientError(f"the service failed ({r.status_code}: {detail})", JOB_FAILED, r.status_code)
 
     def _unreachable(self, reason: str) -> ClientError:

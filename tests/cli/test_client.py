@@ -427,3 +427,40 @@ def test_plan_uploads_the_scenes_files_to_a_service_that_cannot_read_them(live_s
     (tmp_path / "other" / "gloss.npz").write_bytes((tables / "retro.npz").read_bytes())
     (tables / "twice.yaml").write_text(yaml.safe_dump(twice))
     one_line_error(client("plan", tables / "twice.yaml", "--upload", url=server.url), "share the file name 'gloss.npz'")
+
+
+def test_a_plan_cancelled_a_busy_service_and_a_damaged_file_each_explained(live_server, tmp_path):
+    """Issue 26: plans can be cancelled from the client (cases 2); a busy fit slot (429, case 3) and
+    a damaged stored file (507, case 10) are each one line saying what to do, not "the service failed"."""
+    from scene_files import scene, write_tables
+
+    tables = write_tables(tmp_path)
+    server = live_server(data_roots=[tmp_path], api_token=TOKEN)
+    with server.client(headers={"Authorization": f"Bearer {TOKEN}"}) as c:
+        job = wait_for(c, c.post("/jobs", json=tiny_spec(max_rounds=1).model_dump(mode="json")).json()["id"])
+        runaway = scene(tables, ladder=["nbrdf"], fit={"samples": 300, "test_samples": 200, "epochs": 1000})
+        runaway["materials"] = [{"path": str(tables / "gloss.npz")}]
+        plan = c.post("/plans", json=runaway).json()
+    cancelled = client("cancel", "--plan", plan["id"], url=server.url)
+    assert cancelled.returncode == 0, cancelled.stderr
+    assert cancelled.stdout.startswith(f"plan {plan['id']}: CANCELLED (it keeps its 0 planned material(s)")
+    one_line_error(client("cancel", "--plan", plan["id"], url=server.url), "is already CANCELLED")
+
+    lock = server.app.state.fit_lock
+    assert lock.acquire(timeout=30)  # a fit holds the slot
+    try:
+        busy = client("fit", job["id"], tables / "gloss.npz", url=server.url)
+    finally:
+        lock.release()
+    assert busy.returncode == 3
+    one_line_error(busy, f"{server.url} is busy (another fit or measurement upload is running", "retry in 10 s")
+
+    for path in (server.settings.data_dir / "artifacts" / "sha256").rglob("*"):
+        if path.is_file():  # every checkpoint of the job
+            data = bytearray(path.read_bytes())
+            data[len(data) // 2] ^= 0x01
+            path.write_bytes(bytes(data))
+    damaged = client("download", job["id"], "-o", tmp_path / "m.zip", url=server.url)
+    assert damaged.returncode == 1 and not (tmp_path / "m.zip").exists()
+    one_line_error(damaged, "a file the service stored is damaged and was not used", "is corrupt",
+                   "restore it from a backup, resubmitting will not help")
