@@ -14,7 +14,7 @@
 import { ApiError, getJSON, request, setToken, token } from "./api.js";
 import { lossChart } from "./chart.js";
 import { $, clear, el } from "./dom.js";
-import { fetchPlan, fetchPlans, renderPlan, renderPlans } from "./plans.js";
+import { cancelPlanClicked, fetchPlan, fetchPlans, renderPlan, renderPlans } from "./plans.js";
 import { renderFinal, renderHeader, renderJobs, renderProgress, renderRunning, renderTrail } from "./views.js";
 
 /** @typedef {import("./types.js").Job} Job */
@@ -304,6 +304,18 @@ async function cancel() {
   pollList();
 }
 
+async function cancelPlan() {
+  const id = planSelected();
+  if (!id) return;
+  try {
+    if (!(await cancelPlanClicked(id))) return;
+  } catch (err) {
+    handleError(err);
+  }
+  pollPlan();
+  pollList();
+}
+
 function start() {
   S.needsToken = false;
   $("forget-token").hidden = !token();
@@ -334,6 +346,7 @@ function main() {
   });
   $("download").addEventListener("click", download);
   $("cancel").addEventListener("click", cancel);
+  $("plan-cancel").addEventListener("click", cancelPlan);
   window.addEventListener("hashchange", () => selectFromHash(true));
   selectFromHash(false);
   start();

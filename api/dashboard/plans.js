@@ -1,7 +1,8 @@
 // @ts-check
 /* Scene plans (GET /v1/plans): the list, and for the plan named in the URL hash (#plan=<id>) its
- * progress while it runs, then every material's chosen rung, the scene totals and the
- * cost-against-error plot (fetched with the bearer token and shown from a blob URL). */
+ * progress while it runs (with a button to cancel it: a second click confirms), then every
+ * material's chosen rung, the scene totals and the cost-against-error plot (fetched with the bearer
+ * token and shown from a blob URL). */
 
 import { getJSON, request } from "./api.js";
 import { $, clear, el } from "./dom.js";
@@ -37,6 +38,9 @@ export async function renderPlan(p) {
   if (p.progress) meta.push(`${p.progress.step}/${p.progress.steps} fits: ${p.progress.message}`);
   if (p.error) meta.push(p.error);
   $("plan-meta").textContent = meta.join(" · ");
+  const cancel = $("plan-cancel");
+  cancel.hidden = p.terminal;
+  cancel.textContent = armed === p.id ? "Really cancel?" : "Cancel plan";
   const body = clear(/** @type {HTMLTableElement} */ ($("plan-table")).tBodies[0]);
   const result = p.plan;
   $("plan-result").hidden = !result;
@@ -65,6 +69,27 @@ export async function renderPlan(p) {
     img.src = plotUrl;
     img.dataset.plan = p.id;
   }
+}
+
+/** The plan a first click on "Cancel plan" armed (a second click within 4 s cancels it).
+ * @type {string | null} */
+let armed = null;
+
+/** A click on "Cancel plan" of plan ``id``: the first arms it, the second cancels the plan; true
+ * when the plan was cancelled (the caller then polls it). Errors propagate (the caller shows them).
+ * @param {string} id @returns {Promise<boolean>} */
+export async function cancelPlanClicked(id) {
+  if (armed !== id) {
+    armed = id;
+    $("plan-cancel").textContent = "Really cancel?";
+    setTimeout(() => {
+      if (armed === id) { armed = null; $("plan-cancel").textContent = "Cancel plan"; }
+    }, 4000);
+    return false;
+  }
+  armed = null;
+  await request(`/plans/${encodeURIComponent(id)}/cancel`, { method: "POST" });
+  return true;
 }
 
 /** @returns {Promise<Plan[]>} */

@@ -570,3 +570,26 @@ def test_a_plan_shows_its_materials_totals_and_plot(page, tmp_path):
         assert rows == ["ggx", "NBRDF (per material)"]
         assert "frame cost" in page.text_content("#plan-totals")
         page.wait_for_function("document.querySelector('#plan-plot').naturalWidth > 100")
+
+
+def test_cancel_button_cancels_a_running_plan(page, tmp_path):
+    """Issue 26, case 2: a runaway plan (NBRDF for the most epochs allowed) is cancelled from its
+    view with two clicks; the plan is CANCELLED on the service and the button goes."""
+    from scene_files import scene, write_tables
+
+    tables = write_tables(tmp_path)
+    data = scene(tables, ladder=["nbrdf"], fit={"samples": 300, "test_samples": 200, "epochs": 1000})
+    data["materials"] = [{"path": str(tables / "gloss.npz")}]
+    with running_server(tmp_path / "data", data_roots=[tables], api_token="t0k") as server:
+        with server.client(headers={"Authorization": "Bearer t0k"}) as c:
+            plan_id = c.post("/plans", json=data).json()["id"]
+            page.goto(f"{server.url}/#plan={plan_id}")
+            page.fill("#token", "t0k")
+            page.click("#token-submit")
+            page.locator("#plan-cancel").wait_for()
+            page.click("#plan-cancel")
+            assert page.locator("#plan-cancel").inner_text() == "Really cancel?"  # a second click confirms
+            page.click("#plan-cancel")
+            page.wait_for_function("document.getElementById('plan-meta').textContent.startsWith('CANCELLED')")
+            assert c.get(f"/plans/{plan_id}").json()["status"] == "CANCELLED"
+            assert page.locator("#plan-cancel").is_hidden()
