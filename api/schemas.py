@@ -215,7 +215,7 @@ class RoundPublic(BaseModel):
                    started_at=_time(r.started_at), finished_at=_time(r.finished_at),
                    wall_s=r.finished_at - r.started_at,
                    candidates=[CandidatePublic.from_record(c, r, naming) for c in r.candidates],
-                   extra=r.extra)
+                   extra={**r.extra, **({"stop_when": r.stop_reason} if r.stop_reason else {})})  # as before the column
 
 
 def _score(spec: Any) -> str:

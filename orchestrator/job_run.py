@@ -18,7 +18,7 @@ from typing import Callable
 from neuenh.checkpoint import Bundle
 from neuenh.scene.ladder import measure_cost
 from neuenh.search import Outcome, candidate_seed, hamming_ball, initial_state, keep_better_half, select, weight_cost
-from neuenh_service.storage import (ArtifactStore, CandidateRecord, FinishedCandidate, HalvingRecord, JobRecord, JobStatus, JobStore, RoundKind,
+from neuenh_service.storage import (ArtifactStore, CandidateRecord, EventKind, FinishedCandidate, HalvingRecord, JobRecord, JobStatus, JobStore, RoundKind,
                      RoundRecord, WarmupRecord)
 
 from .dataset import prepare_dataset
@@ -111,7 +111,7 @@ class JobRun:
         else:
             k, state = last.index + 1, self.parse(last.winner_state)
             parent = self.artifacts.get(last.artifact_key)
-            self.stop_reason = last.extra.get("stop_when")
+            self.stop_reason = last.stop_reason
             finished = last.converged or self.stop_reason is not None
         while not finished and k < self.spec.search.max_rounds:
             self.check_cancel()
@@ -121,7 +121,7 @@ class JobRun:
             finished = winner.task.state == self.format(state)
             stop = None if finished else self.good_enough(state, winner, result.reports)
             self.commit(k, state, winner, result.reports, started, warmup=warmup if k == 0 else None,
-                        halving=result.halving, pruned=result.pruned, extra={"stop_when": stop} if stop else None)
+                        halving=result.halving, pruned=result.pruned, stop_reason=stop)
             self.charge()
             if stop:
                 self.stop_reason, finished = stop, True
@@ -145,13 +145,13 @@ class JobRun:
         if started >= MAX_PREPARE_ATTEMPTS:
             raise RuntimeError(f"preparing the dataset started {started} times and never finished (the "
                                "service died while preparing it, e.g. out of memory); not retried")
-        self.jobs.append_event(self.job_id, "preparing", {})
+        self.jobs.append_event(self.job_id, EventKind.PREPARING, {})
         try:
             data, data_key = prepare_dataset(self.spec, self.artifacts, check=self.check_cancel)
         except Interrupted:
-            self.jobs.append_event(self.job_id, "preparation_interrupted", {})
+            self.jobs.append_event(self.job_id, EventKind.PREPARATION_INTERRUPTED, {})
             raise
-        self.jobs.append_event(self.job_id, "dataset", {"key": data_key, "materials": len(data.names),
+        self.jobs.append_event(self.job_id, EventKind.DATASET, {"key": data_key, "materials": len(data.names),
                                                         "train": len(data.train), "val": len(data.val),
                                                         "bytes": data.nbytes})
         self.names = data.names
@@ -174,9 +174,9 @@ class JobRun:
         """Preparations started since the last one that finished or was interrupted cleanly."""
         count = 0
         for event in self.jobs.events(self.job_id):
-            if event.kind == "preparing":
+            if event.kind == EventKind.PREPARING:
                 count += 1
-            elif event.kind in ("dataset", "preparation_interrupted"):
+            elif event.kind in (EventKind.DATASET, EventKind.PREPARATION_INTERRUPTED):
                 count = 0
         return count
 
@@ -196,7 +196,7 @@ class JobRun:
         states = hamming_ball(state, self.spec.search.radius, self.digits, self.constraints)
         epochs = self.spec.search.epochs_per_round
         tasks = [CandidateTask(self.format(s), candidate_seed(self.spec.train.seed, k, s), epochs) for s in states]
-        self.jobs.append_event(self.job_id, "round_started", {"round": k, "state": self.format(state),
+        self.jobs.append_event(self.job_id, EventKind.ROUND_STARTED, {"round": k, "state": self.format(state),
                                                               "candidates": len(tasks)})
         halving, pruned = None, frozenset()
         if self.spec.search.prune == "halving" and len(tasks) > 2:
@@ -325,11 +325,11 @@ class JobRun:
             return weight_cost(neural_weights(self.spec, report.task.state))
         if self.costs_ns is None:  # measured before a restart: the same numbers, so the same choices
             self.costs_ns = {e.payload["state"]: e.payload["ns"] for e in self.jobs.events(self.job_id)
-                             if e.kind == "cost"}
+                             if e.kind == EventKind.COST}
         state = report.task.state
         if state not in self.costs_ns:
             self.costs_ns[state] = evaluation_cost_ns(Bundle.from_bytes(report.bundle))
-            self.jobs.append_event(self.job_id, "cost", {"state": state, "ns": self.costs_ns[state]})
+            self.jobs.append_event(self.job_id, EventKind.COST, {"state": state, "ns": self.costs_ns[state]})
         return self.costs_ns[state] / 100.0
 
     def good_enough(self, state, winner: CandidateReport, reports: list[CandidateReport]) -> str | None:
@@ -350,7 +350,7 @@ class JobRun:
     def commit(self, k: int, state, winner: CandidateReport, reports: list[CandidateReport], started: float, *,
                kind: RoundKind = RoundKind.SEARCH, outcome: JobStatus | None = None,
                warmup: WarmupRecord | None = None, halving: HalvingRecord | None = None,
-               pruned: frozenset[str] = frozenset(), extra: dict | None = None) -> None:
+               pruned: frozenset[str] = frozenset(), stop_reason: str | None = None) -> None:
         """Round ``k``'s winner checkpoint, durably, then the round itself in one transaction. The
         checkpoint is content-addressed: the round record holds its SHA-256 (the key), and every
         read re-hashes it, so a changed byte is an error naming it, never a silently wrong model."""
@@ -360,7 +360,7 @@ class JobRun:
             candidates=tuple(_candidate_record(r, r.task.state in pruned) for r in reports),
             started_at=started, finished_at=time.time(), artifact_key=key,
             kind=kind, outcome=outcome, warmup=warmup, halving=halving, recovered=self.recovered.get(k, 0),
-            extra=extra or {},
+            stop_reason=stop_reason,
         ))
 
     # -- cancellation, budget and progress ---------------------------------------------------------

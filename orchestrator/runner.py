@@ -29,7 +29,7 @@ from typing import Callable
 
 from neuenh.data.samples import TrainingData
 from neuenh.train import CandidateResult, train_candidate
-from neuenh_service.storage import ArtifactStore, JobStatus, JobStore
+from neuenh_service.storage import ArtifactStore, EventKind, JobStatus, JobStore
 
 from .executor import Executor
 from .job_run import BudgetSpent, Cancelled, Interrupted, JobRun
@@ -93,7 +93,7 @@ class Orchestrator:
             run.emit(self.jobs.get_job(job_id).status, message="interrupted")
         except BudgetSpent as spent:
             log.info("job %s: budget spent (%s); stopped at its last committed round", job_id, spent)
-            self.jobs.append_event(job_id, "budget_spent", {"detail": str(spent)})
+            self.jobs.append_event(job_id, EventKind.BUDGET_SPENT, {"detail": str(spent)})
             self.jobs.set_status(job_id, JobStatus.STOPPED, reason="budget")
             run.emit(JobStatus.STOPPED, message=f"budget: {spent}")
         except Exception as exc:  # any failure ends the job FAILED with its reason, never silently

@@ -11,7 +11,7 @@ Imports only the standard library (``neuenh`` ← ``storage`` ← ``orchestrator
 from .artifacts import ArtifactStore, checkpoint_key, content_digest, content_key, validate_key
 from .errors import (ConflictError, CorruptArtifactError, IllegalTransitionError, InvalidKeyError,
                      InvalidRecordError, NotFoundError, SchemaVersionError, StorageError)
-from .jobs import (EVENT_CANDIDATE, EVENT_ROUND, EVENT_STATUS, TRANSITIONS, UNFINISHED, CandidateRecord, EventRecord,
+from .jobs import (TRANSITIONS, UNFINISHED, CandidateRecord, EventKind, EventRecord,
                    FinishedCandidate, HalvingRecord, JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord,
                    StoreStatistics, WarmupRecord, start_val_loss, trained_epochs)
 from .local import LocalArtifactStore
@@ -23,8 +23,7 @@ from .sqlite_plans import SQLitePlanStore
 __all__ = [
     "ArtifactStore", "LocalArtifactStore", "S3ArtifactStore", "checkpoint_key", "content_digest", "content_key",
     "validate_key",
-    "JobStore", "SQLiteJobStore", "JobStatus", "TRANSITIONS", "UNFINISHED", "EVENT_STATUS",
-    "EVENT_ROUND", "EVENT_CANDIDATE", "JobRecord", "StoreStatistics", "JobPage", "RoundRecord", "RoundKind", "WarmupRecord", "HalvingRecord",
+    "JobStore", "SQLiteJobStore", "JobStatus", "TRANSITIONS", "UNFINISHED", "EventKind", "JobRecord", "StoreStatistics", "JobPage", "RoundRecord", "RoundKind", "WarmupRecord", "HalvingRecord",
     "CandidateRecord", "FinishedCandidate", "EventRecord", "start_val_loss", "trained_epochs",
     "StorageError", "NotFoundError", "ConflictError", "IllegalTransitionError", "InvalidRecordError",
     "SchemaVersionError", "InvalidKeyError", "CorruptArtifactError",

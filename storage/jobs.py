@@ -57,10 +57,22 @@ TRANSITIONS: Mapping[JobStatus, frozenset[JobStatus]] = {
 
 UNFINISHED: frozenset[JobStatus] = frozenset(s for s in JobStatus if not s.terminal)
 
-#: Event kinds the store writes itself; the orchestrator may append any other kind.
-EVENT_STATUS = "status"  # payload {"status", "previous", "error"}; also written on creation
-EVENT_ROUND = "round"    # payload {"round", "winner_state", "winner_val_loss", "winner_fit_score", "artifact_key"}
-EVENT_CANDIDATE = "candidate"  # payload ``candidate_payload``: a finished candidate as it was recorded
+class EventKind(enum.StrEnum):
+    """What an event of a job's log says. The store writes the first three itself; the orchestrator
+    appends the others (``append_event`` also takes any other non-empty name, read back as a str)."""
+
+    STATUS = "status"        # {"status", "previous", "error"[, "reason"]}; also written on creation
+    ROUND = "round"          # ``round_payload``: a round committed
+    CANDIDATE = "candidate"  # ``candidate_payload``: a finished candidate recorded
+    PREPARING = "preparing"  # {}: a preparation of the dataset started
+    PREPARATION_INTERRUPTED = "preparation_interrupted"  # {}: it stopped cleanly (cancel, shutdown)
+    DATASET = "dataset"      # {"key", "materials", "train", "val", "bytes"}: it finished
+    ROUND_STARTED = "round_started"  # {"round", "state", "candidates"}
+    COST = "cost"            # {"state", "ns"}: a state's evaluation cost measured (search.cost "time")
+    BUDGET_SPENT = "budget_spent"  # {"detail"}: what of the budget ran out
+
+
+_EVENT_KINDS = frozenset(k.value for k in EventKind)
 
 
 def check_transition(job_id: str, old: JobStatus, new: JobStatus) -> None:
@@ -237,6 +249,7 @@ class RoundRecord:
     warmup: WarmupRecord | None = None    # round 0 of a search that warmed up first
     halving: HalvingRecord | None = None  # a round pruned by successive halving
     recovered: int = 0                    # candidates trained before a restart and read back, not re-run
+    stop_reason: str | None = None        # why search.stop_when ended the search after this round
     extra: dict[str, Any] = field(default_factory=dict)  # free-form
 
     def __post_init__(self) -> None:
@@ -254,6 +267,10 @@ class RoundRecord:
         if (self.kind is RoundKind.POLISH) != (self.outcome is not None):
             raise InvalidRecordError(f"round {self.index}: a polish round, and only a polish round, records "
                                      f"the search's outcome")
+        if self.stop_reason is not None and (self.kind is not RoundKind.SEARCH or not isinstance(
+                self.stop_reason, str) or not self.stop_reason):
+            raise InvalidRecordError(f"round {self.index}: a stop reason is a non-empty string on a search round, "
+                                     f"got {self.stop_reason!r} on a {self.kind.value} round")
         if not self.candidates:
             raise InvalidRecordError(f"round {self.index} has no candidates")
         winner = self.winner  # raises if absent
@@ -329,8 +346,12 @@ class EventRecord:
     job_id: str
     seq: int      # 1, 2, 3, ... per job, without gaps
     time: float
-    kind: str
+    kind: EventKind | str  # an EventKind, or another name a caller appended
     payload: dict[str, Any]
+
+    def __post_init__(self) -> None:
+        if self.kind in _EVENT_KINDS:
+            object.__setattr__(self, "kind", EventKind(self.kind))
 
 
 # ------------------------------------------------------------------------------------ contract
@@ -349,16 +370,16 @@ class JobStore(ABC):
       CANCELLED | FAILED, and QUEUED/PREPARING -> CANCELLED | FAILED). ``set_status`` checks the
       edge and writes atomically, so of two racing changes (cancel vs. converge) exactly one wins
       and the other gets ``IllegalTransitionError``. An ``error`` reason is only accepted with a
-      terminal status. Every change (and the creation) appends a ``"status"`` event.
+      terminal status. Every change (and the creation) appends a ``STATUS`` event.
     * **Rounds.** ``commit_round`` writes the round, all its candidates, the job's
-      ``last_round``/``current_state`` and a ``"round"`` event in ONE transaction: a reader sees a
+      ``last_round``/``current_state`` and a ``ROUND`` event in ONE transaction: a reader sees a
       round complete or not at all. Rounds are committed in order (index = ``job.next_round``) and
       only while the job is RUNNING. Re-committing a stored index is idempotent by content: the
       identical record returns the stored one and writes nothing; a different one raises
       ``ConflictError``. Committed rounds never change.
     * **Finished candidates** (``record_candidate``) are kept per job, round, phase and state as
       they arrive, before their round commits. Recording one stores it, charges the usage it cost
-      and appends a ``"candidate"`` event in ONE transaction: all three or none. Recording the same
+      and appends a ``CANDIDATE`` event in ONE transaction: all three or none. Recording the same
       one again is idempotent by content (it writes nothing: no second charge, no second event); a
       different one raises ``ConflictError``. ``finished_candidates`` reads a round's.
     * **Usage** (``charge``) adds wall and CPU seconds to the job's totals in one write, so what a
@@ -405,7 +426,7 @@ class JobStore(ABC):
     def record_candidate(self, job_id: str, finished: FinishedCandidate, *, wall_s: float = 0.0,
                          cpu_s: float = 0.0) -> JobRecord:
         """Persist one finished candidate of the job's next round, charge ``wall_s`` and ``cpu_s``
-        (as ``charge``) and append its ``"candidate"`` event, atomically (see the class docstring);
+        (as ``charge``) and append its ``CANDIDATE`` event, atomically (see the class docstring);
         returns the job with its usage."""
 
     @abstractmethod
@@ -430,7 +451,7 @@ class JobStore(ABC):
         """The last committed round, or None before the first commit."""
 
     @abstractmethod
-    def append_event(self, job_id: str, kind: str,
+    def append_event(self, job_id: str, kind: EventKind | str,
                      payload: Mapping[str, Any] | None = None) -> EventRecord:
         """Append an event to the job's log; returns it with its ``seq`` and ``time``."""
 
@@ -472,7 +493,7 @@ def validate_charge(job_id: str, wall_s: float, cpu_s: float) -> tuple[float, fl
 
 
 def candidate_payload(finished: FinishedCandidate) -> dict[str, Any]:
-    """The ``"candidate"`` event of a finished candidate: where it belongs and how it trained."""
+    """The ``CANDIDATE`` event of a finished candidate: where it belongs and how it trained."""
     c = finished.candidate
     return {"round": finished.round_index, "phase": finished.phase, "state": c.state, "seed": c.seed,
             "train_loss": c.train_loss, "val_loss": c.val_loss, "fit_score": c.fit_score, "epochs": c.epochs,
@@ -486,7 +507,7 @@ def round_payload(record: RoundRecord) -> dict[str, Any]:
 
 
 __all__ = [
-    "JobStatus", "TRANSITIONS", "UNFINISHED", "EVENT_STATUS", "EVENT_ROUND", "EVENT_CANDIDATE", "JobRecord", "JobPage",
+    "JobStatus", "TRANSITIONS", "UNFINISHED", "EventKind", "JobRecord", "JobPage",
     "CandidateRecord", "FinishedCandidate", "RoundRecord", "RoundKind", "WarmupRecord", "HalvingRecord",
     "EventRecord", "JobStore",
     "check_transition", "trained_epochs",

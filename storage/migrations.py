@@ -149,6 +149,12 @@ MIGRATIONS: tuple[Migration, ...] = (
     Migration(8, "each DONE plan's stored files with their SHA-256, checked when read back", (
         "ALTER TABLE plans ADD COLUMN files TEXT",  # canonical JSON {name: sha256}; NULL before this version
     )),
+    Migration(9, "why search.stop_when ended a search, a column of its last search round, out of extra", (
+        "ALTER TABLE rounds ADD COLUMN stop_reason TEXT",  # NULL: stop_when did not end the search here
+        # Stores written before this version kept it as the key stop_when of the round's extra JSON.
+        """UPDATE rounds SET stop_reason = json_extract(extra, '$.stop_when'), extra = json_remove(extra, '$.stop_when')
+           WHERE json_type(extra, '$.stop_when') = 'text'""",
+    )),
 )
 
 SCHEMA_VERSION = MIGRATIONS[-1].version

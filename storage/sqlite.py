@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ConflictError, InvalidRecordError, NotFoundError, StorageError
-from .jobs import (EVENT_CANDIDATE, EVENT_ROUND, EVENT_STATUS, UNFINISHED, CandidateRecord, EventRecord, FinishedCandidate,
+from .jobs import (UNFINISHED, CandidateRecord, EventKind, EventRecord, FinishedCandidate,
                    HalvingRecord, JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord, StoreStatistics,
                    WarmupRecord, caller_idempotency_key, candidate_payload, canonical_json, check_transition, round_payload,
                    status_filter, stored_idempotency_key, validate_charge, validate_error)
@@ -161,7 +161,7 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
             c.execute("INSERT INTO jobs (id, spec, status, created_at, updated_at, idempotency_key, owner) "
                       "VALUES (?, ?, ?, ?, ?, ?, ?)",
                       (job_id, spec_json, JobStatus.QUEUED.value, now, now, stored_key, owner))
-            _append(c, job_id, now, EVENT_STATUS,
+            _append(c, job_id, now, EventKind.STATUS,
                     {"status": JobStatus.QUEUED.value, "previous": None, "error": None})
         return JobRecord(id=job_id, spec=json.loads(spec_json), status=JobStatus.QUEUED,
                          created_at=now, updated_at=now, idempotency_key=idempotency_key, owner=owner), True
@@ -228,7 +228,7 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
             check_transition(job_id, old, status)
             c.execute("UPDATE jobs SET status = ?, error = ?, reason = ?, updated_at = ? WHERE id = ?",
                       (status.value, error, reason, now, job_id))
-            _append(c, job_id, now, EVENT_STATUS,
+            _append(c, job_id, now, EventKind.STATUS,
                     {"status": status.value, "previous": old.value, "error": error,
                      **({"reason": reason} if reason is not None else {})})
             return _job(_require(c, job_id))
@@ -265,7 +265,7 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
                       "artifact_key) VALUES (?, ?, ?, ?, ?, ?, ?)",
                       (job_id, i, finished.phase, state, order, record, finished.artifact_key))
             charged = _charge(c, job_id, wall_s, cpu_s)
-            _append(c, job_id, now, EVENT_CANDIDATE, candidate_payload(finished))
+            _append(c, job_id, now, EventKind.CANDIDATE, candidate_payload(finished))
             return charged
 
     def finished_candidates(self, job_id: str, round_index: int) -> list[FinishedCandidate]:
@@ -301,12 +301,12 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
                                     f"current state is {job.current_state}")
             c.execute("INSERT INTO rounds (job_id, round_index, parent_state, winner_state, "
                       "winner_val_loss, started_at, finished_at, artifact_key, kind, outcome, warmup, "
-                      "halving, recovered, extra) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                      "halving, recovered, stop_reason, extra) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                       (job_id, i, record.parent_state, record.winner_state, record.winner_val_loss,
                        record.started_at, record.finished_at, record.artifact_key, record.kind.value,
                        record.outcome.value if record.outcome else None,
                        _json_or_null(record.warmup, "round warmup"), _json_or_null(record.halving, "round halving"),
-                       record.recovered, canonical_json(record.extra, "round extra")))
+                       record.recovered, record.stop_reason, canonical_json(record.extra, "round extra")))
             for position, cand in enumerate(record.candidates):
                 c.execute("INSERT INTO candidates (job_id, round_index, position, state, train_loss, "
                           "val_loss, epochs, wall_s, node, error, seed, pruned, extra, fit_score) "
@@ -316,7 +316,7 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
                            canonical_json(cand.extra, "candidate extra"), cand.fit_score))
             c.execute("UPDATE jobs SET last_round = ?, current_state = ?, updated_at = ? WHERE id = ?",
                       (i, record.winner_state, now, job_id))
-            _append(c, job_id, now, EVENT_ROUND, round_payload(record))
+            _append(c, job_id, now, EventKind.ROUND, round_payload(record))
         return record
 
     def rounds(self, job_id: str, *, since_round: int = 0, until_round: int | None = None) -> list[RoundRecord]:
@@ -334,7 +334,7 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
 
     # --------------------------------------------------------------------------------- events
 
-    def append_event(self, job_id: str, kind: str,
+    def append_event(self, job_id: str, kind: EventKind | str,
                      payload: Mapping[str, Any] | None = None) -> EventRecord:
         if not isinstance(kind, str) or not kind:
             raise InvalidRecordError("an event kind must be a non-empty string")
@@ -417,7 +417,7 @@ def _load_rounds(c: sqlite3.Connection, job_id: str, since: int,
                         outcome=JobStatus(r["outcome"]) if r["outcome"] else None,
                         warmup=WarmupRecord(**json.loads(r["warmup"])) if r["warmup"] else None,
                         halving=HalvingRecord(**json.loads(r["halving"])) if r["halving"] else None,
-                        recovered=r["recovered"], extra=json.loads(r["extra"]))
+                        recovered=r["recovered"], stop_reason=r["stop_reason"], extra=json.loads(r["extra"]))
             for r in rounds]
 
 

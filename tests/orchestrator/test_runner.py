@@ -440,10 +440,10 @@ def test_stop_when_ends_the_search_once_good_enough_and_says_why(orchestrator, s
     if rounds[0].converged:
         pytest.skip("round 0's stay candidate won: nothing to stop")
     assert len(rounds) == 1 and job.status == JobStatus.STOPPED and job.reason == "stop_when"
-    assert rounds[0].extra["stop_when"].startswith("gain ") and "< gain_below 99 %" in rounds[0].extra["stop_when"]
+    assert rounds[0].stop_reason.startswith("gain ") and "< gain_below 99 %" in rounds[0].stop_reason
     loose = tiny_spec(max_rounds=5, stop_when={"val_loss_below": 10.0})
     job = orchestrator.run(orchestrator.submit(loose)[0].id)
-    assert job.reason == "stop_when" and "<= val_loss_below 10" in jobs.rounds(job.id)[0].extra["stop_when"]
+    assert job.reason == "stop_when" and "<= val_loss_below 10" in jobs.rounds(job.id)[0].stop_reason
 
 
 def test_a_time_cost_is_measured_once_per_state_and_kept_for_a_resume(orchestrator, stores):

@@ -11,8 +11,8 @@ import time
 import pytest
 from storage_kit import INITIAL, N_POSITIONS, commit_rounds, flip, hamming_round, running_job
 
-from neuenh_service.storage import (EVENT_CANDIDATE, EVENT_ROUND, EVENT_STATUS, TRANSITIONS, UNFINISHED, CandidateRecord,
-                     ConflictError, FinishedCandidate, IllegalTransitionError, InvalidRecordError, JobStatus,
+from neuenh_service.storage import (TRANSITIONS, UNFINISHED, CandidateRecord,
+                     ConflictError, EventKind, FinishedCandidate, IllegalTransitionError, InvalidRecordError, JobStatus,
                      HalvingRecord, NotFoundError, RoundKind, RoundRecord, StorageError, WarmupRecord)
 
 S = JobStatus
@@ -186,7 +186,7 @@ class TestJobStoreContract:
         assert job.status is new and job.error == error and job.updated_at >= before.updated_at
         assert job_store.get_job(job_id) == job
         event = job_store.events(job_id)[-1]
-        assert (event.kind, event.payload) == (EVENT_STATUS, {"status": new.value, "previous": old.value,
+        assert (event.kind, event.payload) == (EventKind.STATUS, {"status": new.value, "previous": old.value,
                                                               "error": error})
 
     @pytest.mark.parametrize("old,new", ILLEGAL, ids=[f"{a}->{b}" for a, b in ILLEGAL])
@@ -251,7 +251,7 @@ class TestJobStoreContract:
         job = job_store.get_job(job_id)
         assert (job.last_round, job.current_state, job.next_round) == (0, flip(INITIAL, 3), 1)
         event = job_store.events(job_id)[-1]
-        assert event.kind == EVENT_ROUND
+        assert event.kind == EventKind.ROUND
         assert event.payload == {"round": 0, "winner_state": flip(INITIAL, 3), "winner_val_loss": 0.1,
                                  "winner_fit_score": record.winner_fit_score, "artifact_key": record.artifact_key}
 
@@ -324,10 +324,13 @@ class TestJobStoreContract:
             warmup=WarmupRecord(epochs=5, train_loss=0.4, val_loss=math.nan, wall_s=2.0, node="n"),
             halving=HalvingRecord(first_epochs=1, early_val_loss={c.state: 0.5 for c in base.candidates}))
         job_store.commit_round(job_id, first)
-        polish = dataclasses.replace(hamming_round(1, first.winner_state, None), kind=RoundKind.POLISH,
+        second = dataclasses.replace(hamming_round(1, first.winner_state, 2), stop_reason="gain 0.5 % < 1 %")
+        job_store.commit_round(job_id, second)
+        polish = dataclasses.replace(hamming_round(2, second.winner_state, None), kind=RoundKind.POLISH,
                                      outcome=S.STOPPED)
         job_store.commit_round(job_id, polish)
-        assert job_store.rounds(job_id) == [first, polish]
+        assert job_store.rounds(job_id) == [first, second, polish]
+        assert [r.stop_reason for r in job_store.rounds(job_id)] == [None, "gain 0.5 % < 1 %", None]
         stored = job_store.rounds(job_id)[0]
         assert stored.warmup.val_loss is None and stored.candidates[3].pruned and not stored.candidates[2].pruned
         assert job_store.last_round(job_id).outcome is S.STOPPED
@@ -391,7 +394,7 @@ class TestJobStoreContract:
             store.get_job(job_id).used_wall_s, store.get_job(job_id).used_cpu_s)
         assert store.finished_candidates(job_id, 1) == [finished]
         [event] = store.events(job_id, after_seq=events[-1].seq)
-        assert event.kind == EVENT_CANDIDATE and event.payload == {
+        assert event.kind == EventKind.CANDIDATE and event.payload == {
             "round": 1, "phase": "train", "state": candidate.state, "seed": candidate.seed,
             "train_loss": candidate.train_loss, "val_loss": candidate.val_loss, "fit_score": candidate.fit_score,
             "epochs": candidate.epochs, "wall_s": candidate.wall_s, "node": candidate.node, "error": None}
@@ -446,6 +449,14 @@ class TestJobStoreContract:
         assert job_store.events(job_id)[-1].payload["reason"] == "budget"
 
     # ----------------------------------------------------------------------------- events
+
+    def test_event_kinds_read_back_typed(self, job_store):
+        job_id = job_in(job_store, S.QUEUED)
+        job_store.append_event(job_id, EventKind.COST, {"state": "00000", "ns": 3.5})
+        job_store.append_event(job_id, "note")  # a name of the caller's own
+        created, cost, note = job_store.events(job_id)
+        assert (created.kind, cost.kind, note.kind) == (EventKind.STATUS, EventKind.COST, "note")
+        assert type(cost.kind) is EventKind and type(note.kind) is str
 
     def test_events_since_seq(self, job_store):
         job_id = job_in(job_store, S.QUEUED)  # event 1: created
@@ -503,6 +514,13 @@ class TestRecords:
                            for c in good.candidates)
         with pytest.raises(InvalidRecordError, match="no finite validation loss"):
             dataclasses.replace(good, candidates=nan_winner)
+
+    @pytest.mark.parametrize("kind,reason", [(RoundKind.SEARCH, ""), (RoundKind.SEARCH, 3),
+                                             (RoundKind.POLISH, "gain 0.1 %")])
+    def test_a_stop_reason_is_text_on_a_search_round(self, kind, reason):
+        outcome = S.STOPPED if kind is RoundKind.POLISH else None
+        with pytest.raises(InvalidRecordError, match="stop reason"):
+            dataclasses.replace(hamming_round(0, INITIAL, 1), kind=kind, outcome=outcome, stop_reason=reason)
 
     def test_candidate_fields_are_normalised(self):
         c = CandidateRecord(state="01", train_loss=1, val_loss=math.inf, epochs=3.0, wall_s=2,

@@ -31,6 +31,7 @@ RELEASED = {
     6: "04e0a1fe",
     7: "07880a86",
     8: "14b1d2e0",
+    9: "bfff151f",
 }
 
 
@@ -129,6 +130,31 @@ def test_upgrades_a_version_2_database_moving_round_kinds_out_of_extra(tmp_path)
         (RoundKind.POLISH, JobStatus.CONVERGED, {}, None)
     assert not polish.converged  # its winner is its parent, yet the search did not converge there
     assert trained_epochs([first, polish]) == 4 + 3 + 2
+
+
+def test_upgrades_a_version_8_database_moving_the_stop_reason_out_of_extra(tmp_path):
+    """Before version 9 why search.stop_when ended a search was the key stop_when of its last search
+    round's extra; a store written then reads it as the round's stop_reason, the other keys kept."""
+    path = tmp_path / "v8.db"
+    with raw(path) as conn:
+        conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
+        conn.execute("INSERT INTO schema_version VALUES (8)")
+        for m in MIGRATIONS[:8]:
+            for statement in m.statements:
+                conn.execute(statement)
+        conn.execute("INSERT INTO jobs (id, spec, status, created_at, updated_at, last_round, current_state, reason) "
+                     "VALUES ('old', '{}', 'STOPPED', 1.0, 2.0, 1, '11', 'stop_when')")
+        for i, (parent, winner, extra) in enumerate([("00", "01", '{"radius":1}'),
+                                                     ("01", "11", '{"radius":1,"stop_when":"gain 0.5 %"}')]):
+            conn.execute("INSERT INTO rounds (job_id, round_index, parent_state, winner_state, winner_val_loss, "
+                         "started_at, finished_at, extra) VALUES ('old', ?, ?, ?, 0.2, 1.0, 2.0, ?)",
+                         (i, parent, winner, extra))
+            conn.execute("INSERT INTO candidates (job_id, round_index, position, state, val_loss, epochs, wall_s) "
+                         "VALUES ('old', ?, 0, ?, 0.2, 3, 1.0)", (i, winner))
+    with SQLiteJobStore(path) as store:
+        first, last = store.rounds("old")
+    assert (first.stop_reason, first.extra) == (None, {"radius": 1})
+    assert (last.stop_reason, last.extra) == ("gain 0.5 %", {"radius": 1})
 
 
 def test_a_failed_migration_changes_nothing(tmp_path):
