@@ -4,6 +4,7 @@ mid-job and the restart: ``test_shared_cluster.py``.)"""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -20,8 +21,18 @@ def alive(pids: set[int]) -> set[int]:
             open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0] != "Z"}
 
 
+GRACE_S = 20  # NEUENH_SHUTDOWN_GRACE_S: a shutdown that waited on a running plan would take all of it
+
+
 def test_serve_runs_jobs_on_ray_owns_its_store_and_shuts_down_cleanly(tmp_path):
-    server = ServeProcess(tmp_path / "data").wait_ready()
+    """Also issue 26, case 2: SIGTERM with a runaway plan running took 33 s (the grace ran out on the
+    plan's thread) and left Ray's agents running; the plan's process is ended at once now."""
+    from scene_files import scene, write_tables
+
+    (tmp_path / "tables").mkdir()
+    tables = write_tables(tmp_path / "tables")
+    server = ServeProcess(tmp_path / "data", env={"NEUENH_DATA_ROOTS": json.dumps([str(tables)]),
+                                                  "NEUENH_SHUTDOWN_GRACE_S": str(GRACE_S)}).wait_ready()
     try:
         with server.client() as c:
             cluster = c.get("/cluster").json()
@@ -41,13 +52,21 @@ def test_serve_runs_jobs_on_ray_owns_its_store_and_shuts_down_cleanly(tmp_path):
             [line] = refused.stderr.strip().splitlines()
             assert f"in use by neuenh serve (pid {server.proc.pid}" in line and "Traceback" not in refused.stderr
 
-        ray_processes = server.children()
+        with server.client() as c:
+            runaway = scene(tables, ladder=["nbrdf"], fit={"samples": 300, "test_samples": 200, "epochs": 1000})
+            runaway["materials"] = [{"path": str(tables / "gloss.npz")}]
+            plan_id = c.post("/plans", json=runaway).json()["id"]
+            wait_for(c, plan_id, until=lambda plan: plan["status"] == "RUNNING", timeout=120, kind="plans")
+
+        ray_processes = server.children()  # and the plan's process
         assert ray_processes, "an embedded Ray runs child processes"
     finally:
+        started = time.monotonic()
         code = server.stop(signal.SIGTERM)
+    assert time.monotonic() - started < GRACE_S, server.output  # nothing waited out the grace
     assert code in (0, -signal.SIGTERM), server.output  # uvicorn re-raises the signal once shut down
     assert "Traceback" not in server.output
     deadline = time.monotonic() + 20
     while alive(ray_processes) and time.monotonic() < deadline:
         time.sleep(0.2)
-    assert not alive(ray_processes), "Ray processes outlived the service"
+    assert not alive(ray_processes), "Ray processes (or the plan's) outlived the service"
