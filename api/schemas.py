@@ -311,8 +311,7 @@ class FitPublic(BaseModel):
     round: int = Field(description="the committed round whose model was used")
     model: str
     state: str
-    method: str
-    epochs: int
+    protocol: dict = Field(description="the fit protocol and its budget (neuenh.fit)")
     wall_s: float
     materials: list[FittedMaterial]
 

@@ -43,7 +43,7 @@ from neuenh.checkpoint import Bundle  # noqa: E402
 from neuenh.data.samples import sample_materials  # noqa: E402
 from neuenh.data.directions import sample_directions, to_rusinkiewicz  # noqa: E402
 from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo  # noqa: E402
-from neuenh.fit import FitConfig, FitResult, fit_materials  # noqa: E402
+from neuenh.fit import FitOptions, FitResult, PaperRMSProp, fit_materials  # noqa: E402
 from neuenh.materials import MaterialParams  # noqa: E402
 from neuenh.models import get_model  # noqa: E402
 from neuenh.train import TrainConfig, train_candidate  # noqa: E402
@@ -239,8 +239,12 @@ def fit_comparison(models: dict, targets: dict, n: int, trace_every: int, paper_
                 probe = Background()
                 probe.start()
                 # one start: this compares the two optimisers, not the multi-start of neuenh.fit
-                fit = fit_materials(model, samples, FitConfig(method=method, epochs=epochs, starts="paper"),
-                                    trace_every=trace_every)
+                if method == "paper":
+                    fit = PaperRMSProp(epochs=epochs).fit(model, samples, trace_every=trace_every)
+                else:  # traced by its end point
+                    options = FitOptions(capacity="latent", starts="paper", epochs=epochs, lbfgs_iterations=epochs)
+                    fit = fit_materials(model, samples, options.protocol_for(model))
+                    fit.trace = [(fit.wall_s, fit.loss)]
                 load = probe.stop()
                 if method not in fits or load < background[method]:
                     fits[method], background[method] = fit, load
@@ -252,8 +256,8 @@ def fit_comparison(models: dict, targets: dict, n: int, trace_every: int, paper_
         fast_t = time_to_loss(fast.trace, paper.trace[-1][1])
         rows.append({
             "model": model_name, "target": target_name, "samples": len(samples),
-            "paper_loss": paper.loss, "paper_s": paper.wall_s, "paper_epochs": paper.epochs,
-            "fast_loss": fast.loss, "fast_s": fast.wall_s, "fast_epochs": fast.epochs,
+            "paper_loss": paper.loss, "paper_s": paper.wall_s, "paper_epochs": paper_epochs,
+            "fast_loss": fast.loss, "fast_s": fast.wall_s, "fast_epochs": fast_epochs,
             "fast_to_paper_loss_s": fast_t, "ratio": paper_t / fast_t if fast_t == fast_t else math.nan,
             "paper_trace": paper.trace, "fast_trace": fast.trace,
             "background": max(background.values()),

@@ -61,7 +61,7 @@ def heldout_materials(record: dict) -> list:
 
 
 def measure(model, trained, encoder, material, n_fit: int, n_test: int, near_mirror: float) -> dict:
-    from neuenh.fit import FitConfig, fit_materials, fit_starts
+    from neuenh.fit import LatentAdam, fit_materials
     from neuenh.materials import MaterialTable
     from neuenh.study.heldout import draw_fit_test, heldout_log_l1
 
@@ -71,17 +71,16 @@ def measure(model, trained, encoder, material, n_fit: int, n_test: int, near_mir
     encoded = encoder.encode(fit)
     row["encoder_s"] = time.perf_counter() - start
     (row["encoder_alone"],) = heldout_log_l1(model, encoded, test)
-    today = fit_materials(model, fit, FitConfig(), trained=trained)
+    today = fit_materials(model, fit, LatentAdam(), trained=trained)
     (row["today"],) = heldout_log_l1(model, today.materials, test)
     row["today_fit_loss"], row["today_s"] = today.losses[0], today.wall_s
     for epochs in SHORT:
-        (result,) = fit_starts(model, fit, [encoder.encode(fit)], FitConfig(epochs=epochs))
+        result = LatentAdam(epochs=epochs).fit(model, fit, start=encoder.encode(fit))
         (row[f"encoder+{epochs}"],) = heldout_log_l1(model, result.materials, test)
         row[f"encoder+{epochs}_fit_loss"], row[f"encoder+{epochs}_s"] = result.losses[0], result.wall_s
-    (traced,) = fit_starts(model, fit, [encoder.encode(fit)], FitConfig(epochs=FULL), trace_every=1)
-    reached = [k for k, (_, loss) in enumerate(traced.trace) if loss <= today.losses[0]]
-    row["epochs_to_today"] = reached[0] + 1 if reached else None
-    row["encoder+300_fit_loss"] = traced.losses[0]
+    reached = [epochs for epochs in SHORT if row[f"encoder+{epochs}_fit_loss"] <= today.losses[0]]
+    row["epochs_to_today"] = reached[0] if reached else None  # the shortest of SHORT that reached it
+    row["encoder+300_fit_loss"] = LatentAdam(epochs=FULL).fit(model, fit, start=encoder.encode(fit)).losses[0]
     # the spread of end points: each start fitted alone (stacked rows of one run)
     paper = MaterialTable(model.specs, fit.names, model.latent_dim)
     starts = [paper]
@@ -91,7 +90,7 @@ def measure(model, trained, encoder, material, n_fit: int, n_test: int, near_mir
         starts.append(mean)
     g = torch.Generator().manual_seed(1)
     halves = [encoder.encode(fit.subset(torch.randperm(len(fit), generator=g)[: len(fit) // 2])) for _ in range(3)]
-    ends = [r.losses[0] for r in fit_starts(model, fit, starts + halves, FitConfig(epochs=FULL))]
+    ends = [LatentAdam(epochs=FULL).fit(model, fit, start=s).losses[0] for s in starts + halves]
     today_ends, encoder_ends = ends[: len(starts)], ends[len(starts):]
     row["spread_today_starts"] = (max(today_ends) - min(today_ends)) / min(today_ends)
     row["spread_encoder_starts"] = (max(encoder_ends) - min(encoder_ends)) / min(encoder_ends)

@@ -46,7 +46,7 @@ def fitted_materials(material: str) -> dict[str, tuple]:
     out = {}
     for label, model, training in (("enhanced GGX", enhanced, trained), ("plain GGX", get_model("ggx"), None)):
         result = fit_materials(model, fit, trained=training)
-        out[label] = (model, result.materials.as_params(0))
+        out[label] = result.material_model(model, 0)
     return out
 
 

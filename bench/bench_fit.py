@@ -5,7 +5,7 @@ plain GGX at 10,000, in this checkout and (``--before-rev``) in an older one, in
                               [--write docs/BENCHMARKS.md]
 
 Per material of ``../shared/data/rgl`` (skipped with a message when absent), the fit samples of the
-study (``neuenh.study.heldout.draw_fit_test``, seed 0) are fitted with the default ``FitConfig`` of
+study (``neuenh.study.heldout.draw_fit_test``, seed 0) are fitted with the default protocol of
 the checkout it runs in, one torch thread; the wall time of ``fit_materials`` and its fit loss are
 recorded. It uses only the public fit API, so the same file runs unchanged in an older checkout:
 ``--before-rev`` exports that revision of the repository (``git archive``) to a temporary folder,
@@ -42,7 +42,7 @@ def run(rgl: Path, spec: str) -> dict:
     """{case: {material: (fit loss, seconds)}} for every case of CASES; ``spec`` names the enhanced
     model (``neuenh.pretrained.load_model``)."""
     from neuenh.data import load_measured
-    from neuenh.fit import FitConfig, fit_materials
+    from neuenh.fit import fit_materials
     from neuenh.models import get_model
     from neuenh.pretrained import load_model
     from neuenh.study.heldout import draw_fit_test
@@ -55,7 +55,7 @@ def run(rgl: Path, spec: str) -> dict:
         for label, n in CASES:
             fit, _, _ = draw_fit_test(material, n, 1, 0)
             model, table = models[label]
-            result = fit_materials(model, fit, FitConfig(), seed=0, trained=table)
+            result = fit_materials(model, fit, seed=0, trained=table)  # the default protocol
             out[f"{label}, {n}"][material.name] = (result.losses[0], result.wall_s)
             print(f"{label:13s} {n:6d} {material.name:28s} loss {result.losses[0]:.5f} {result.wall_s:6.2f} s",
                   flush=True)
@@ -65,7 +65,7 @@ def run(rgl: Path, spec: str) -> dict:
 def markdown_section(env: dict, now: dict, before: dict | None, command: str, model: str) -> str:
     lines = [SECTION, "", f"Command: `{command}`  ", machine_line(env) + "  ", f"Enhanced model: {model}", "",
              "Per case, the median over the 8 RGL materials of the wall time of `fit_materials` (default "
-             "`FitConfig`, one thread) and the per-material fit loss. *Before*: the same file run in the "
+             "protocol, one thread) and the per-material fit loss. *Before*: the same file run in the "
              "checkout `--before-rev` names, run first in the same run.", ""]
     if before:
         lines += ["| case | median s before | median s now | × faster | loss now / before: median | worst | "

@@ -378,14 +378,14 @@ def run_slice(args) -> int:
     report = {"file": str(args.file), "material": material.name, "view": args.view, "output": str(args.output)}
     if model is not None:
         from neuenh.data.samples import sample_materials
-        from neuenh.fit import FitConfig, fit_materials
+        from neuenh.fit import FitOptions, fit_materials
 
         samples = sample_materials([material], args.fit_samples, args.seed)
-        result = fit_materials(model, samples, FitConfig(method="fast", epochs=args.epochs), seed=args.seed,
-                                trained=trained)
-        params = result.materials.as_params(0)
+        result = fit_materials(model, samples, FitOptions(epochs=args.epochs).protocol_for(model), seed=args.seed,
+                               trained=trained)
+        own, params = result.material_model(model, 0)
         with torch.no_grad():
-            predicted = _luminance(model.evaluate(wi.float(), wo.float(), params), wi, wo, n)
+            predicted = _luminance(own.evaluate(wi.float(), wo.float(), params), wi, wo, n)
         label = model.name if model.state.strip("0") == "" else f"{model.name} {model.state}"
         panels.append((f"{label} fit (log-L1 {result.losses[0]:.4f})", predicted))
         report.update({"model": model.name, "state": model.state, "fit_loss": result.losses[0],

@@ -1,11 +1,16 @@
 """``neuenh fit``: fit measured materials with an analytical model or a trained bundle.
 
-    neuenh fit --model ggx measurements.npz [more.csv ...] [--method fast|paper] [--json] [-o DIR]
-               [--test held_out.npz [more_held_out.csv ...]] [--predictions out.npz]
+    neuenh fit --model ggx measurements.npz [more.csv ...] [--capacity auto|latent|...] [--method fast|paper]
+               [--json] [-o DIR] [--test held_out.npz [more_held_out.csv ...]] [--predictions out.npz]
 
 Each table is one material (``.npz`` with ``wi``, ``wo``, ``f_r``, or CSV; see neuenh.data.table). The
-module weights of a bundle stay frozen; only per-material parameters are optimised. ``-o DIR``
-writes a bundle of the model with the fitted materials.
+module weights of a bundle stay frozen; only per-material parameters are optimised (neuenh.fit). A
+model with modules fits each material at the capacity ``--capacity`` names: ``latent`` (default),
+its latent code and analytical parameters; ``auto`` chooses per material, by cross-validation on
+its own measurements, between the analytical model, the latent code, and per-material corrections
+of module weights (last layer, low rank). The capacity and the material's parameter count are
+reported. ``-o DIR`` writes a bundle of the
+model with the fitted materials.
 
 ``--test`` takes one held-out table per fitted table, in the same order: the i-th held-out table is
 measured with the parameters fitted to the i-th table, whatever its file name (the material keeps
@@ -31,7 +36,7 @@ from neuenh.checkpoint import Bundle
 from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
 from neuenh.study.heldout import heldout_log_l1, predict_f_r, write_predictions
-from neuenh.fit import FitConfig, fit_materials
+from neuenh.fit import CAPACITIES, FitOptions, fit_materials
 from neuenh.models import available_models
 from neuenh.pretrained import load_model, shipped_models
 
@@ -49,11 +54,16 @@ def add_parser(commands) -> None:
                    help="an enhanced model's starting points: analytical (default) fits the analytical "
                         "model first and starts from it; paper: the range means and latent 0.5")
     p.add_argument("--method", choices=("fast", "paper"), default="fast",
-                   help="fast (default): a plain model by L-BFGS, an enhanced one by Adam with cosine "
-                        "decay, every start in one batch; paper: RMSProp lr 1e-3, 1000 epochs")
+                   help="fast (default): a plain model by L-BFGS, a model with modules at --capacity; paper: "
+                        "RMSProp lr 1e-3, 1000 epochs, latent capacity")
+    p.add_argument("--capacity", choices=("auto", *CAPACITIES), default="latent",
+                   help="a model with modules: latent (default); auto chooses per material by cross-validation; "
+                        "or fit exactly one capacity")
     p.add_argument("--epochs", type=int, default=None,
-                   help="override the method's epoch count (a plain model's fast fit: L-BFGS iterations "
-                        "per surrogate phase)")
+                   help="epochs of the first-order fits (Adam, RMSProp; default each protocol's own); a plain "
+                        "model's L-BFGS iterations per phase unless --lbfgs-iterations")
+    p.add_argument("--lbfgs-iterations", type=int, default=None,
+                   help="a plain model's L-BFGS iterations per surrogate phase (default 300)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: all)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("-o", "--output", type=Path, help="write a bundle with the fitted materials here")
@@ -76,21 +86,26 @@ def run(args) -> int:
     test = None
     if args.test:
         test = Samples.concat([read_table(t, name=samples.names[i]) for i, t in enumerate(args.test)])
-    result = fit_materials(model, samples, FitConfig(method=args.method, epochs=args.epochs, starts=args.starts),
-                           trained=trained)
-    report = result.report(model, args.method, samples)
+    options = FitOptions(method=args.method, capacity=args.capacity, epochs=args.epochs,
+                         lbfgs_iterations=args.lbfgs_iterations, starts=args.starts)
+    result = fit_materials(model, samples, options.protocol_for(model), trained=trained)
+    report = result.report(model, samples)
     metrics: dict = {"fit_loss": result.losses}
     if test is not None:
-        heldout = heldout_log_l1(model, result.materials, test)
+        heldout = heldout_log_l1(model, result, test)
         counts = torch.bincount(test.material, minlength=len(test.names)).tolist()
         for entry, loss, count, path in zip(report["materials"], heldout, counts, args.test):
             entry.update(heldout_log_l1=loss, heldout_samples=count, heldout_table=str(path))
         metrics["heldout_log_l1"] = heldout
     if args.predictions:
-        write_predictions(args.predictions, test, predict_f_r(model, result.materials, test))
+        write_predictions(args.predictions, test, predict_f_r(model, result, test))
         report["predictions"] = str(args.predictions)
     if args.output:
-        provenance = {"fitted_from": [str(t) for t in args.tables], "fit_method": args.method,
+        analytical = [n for i, n in enumerate(samples.names) if model.has_modules and result.capacity(i) == "analytical"]
+        if analytical:  # the bundle's model would evaluate them with its modules
+            raise ValueError(f"-o: {', '.join(analytical)} fitted best at the analytical capacity, which a bundle of "
+                             f"this model cannot hold; fit with --capacity latent, or --model with the analytical model")
+        provenance = {"fitted_from": [str(t) for t in args.tables], "fit_protocol": result.protocol,
                       "fitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
         if args.test:
             provenance["heldout_tables"] = [str(t) for t in args.test]

@@ -20,9 +20,11 @@ def fit_report(report: dict) -> str:
     """A fit's report (``neuenh fit --json``'s, or ``POST /v1/jobs/{id}/fit``'s answer): a line for
     the fit, then one per material with its loss, its parameter count and capacity, and its analytical
     parameters (the latent code and corrections left out)."""
-    lbfgs = report["method"] == "fast" and set(report["state"]) == {"0"}  # a plain model's fast fit
-    lines = [f"{report['model']} (state {report['state']}), {report['method']} fit, "
-             f"{report['epochs']} {'L-BFGS iterations' if lbfgs else 'epochs'} in {report['wall_s']:.1f} s"]
+    protocol = report["protocol"]  # the protocol's name and budgets (neuenh.fit)
+    budget = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in protocol.items()
+                       if k != "name" and isinstance(v, int) and not isinstance(v, bool))
+    lines = [f"{report['model']} (state {report['state']}), {protocol['name']} fit ({budget}) "
+             f"in {report['wall_s']:.1f} s"]
     for m in report["materials"]:
         p = m["params"]
         scalars = "  ".join(f"{k}={_values(v)}" for k, v in p.items())

@@ -21,7 +21,7 @@ import torch
 from neuenh.checkpoint import Bundle
 from neuenh.data.samples import sample_materials
 from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
-from neuenh.fit import fit_materials, per_material_loss
+from neuenh.fit import fit_materials
 from neuenh.train import TrainConfig, train_candidate
 from neuenh.data.samples import TrainingData
 
@@ -62,7 +62,7 @@ def main() -> None:
     held = {}
     for label, model in models.items():
         fitted = fit_materials(model, test_train)
-        held[label] = per_material_loss(model, fitted.materials, test_held)
+        held[label] = fitted.losses_on(model, test_held)
         print(f"  {label}: fitted in {fitted.wall_s:.1f} s")
     print(f"  {'material':24s} {'plain GGX':>10s} {'enhanced':>10s}")
     for i, name in enumerate(test_train.names):

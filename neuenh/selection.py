@@ -28,7 +28,7 @@ import torch
 
 from .checkpoint import Bundle
 from .data.samples import Samples, TrainingData
-from .fit import FitConfig, fit_materials, per_material_loss
+from .fit import FitOptions, fit_materials, per_material_loss
 from .graph import BRDFModel
 from .materials import MaterialTable
 from .train import CandidateResult, FitScoreConfig, TrainConfig, train_candidate
@@ -65,7 +65,8 @@ def fit_score(model: BRDFModel, holdout: Samples, config: FitScoreConfig = FitSc
     candidate's training materials, whose mean latent code is a start of each fit."""
     start = time.perf_counter()
     fit, test = split_materials(holdout, config.fit_samples, config.test_samples, config.seed)
-    result = fit_materials(model, fit, FitConfig(epochs=config.epochs), seed=config.seed, trained=trained)
+    protocol = FitOptions(capacity="latent", epochs=config.epochs, lbfgs_iterations=config.epochs).protocol_for(model)
+    result = fit_materials(model, fit, protocol, seed=config.seed, trained=trained)
     losses = per_material_loss(model, result.materials, test)
     return FitScore(float(sum(losses) / len(losses)), tuple(losses), time.perf_counter() - start)
 

@@ -20,7 +20,7 @@ from fastapi import APIRouter, File, Form, HTTPException, Request, UploadFile, s
 from neuenh.checkpoint import Bundle
 from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
-from neuenh.fit import FitConfig, fit_materials
+from neuenh.fit import CAPACITIES, FitOptions, fit_materials
 
 from ..deps import ArtifactStoreDep, Authorized, ChangeableJob, FitLockDep, JobStoreDep, SettingsDep, fit_slot
 from ..errors import COMMON, DAMAGED, documented
@@ -39,35 +39,46 @@ def fit_job(
     request: Request, job: ChangeableJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep, fit_lock: FitLockDep,
     files: Annotated[list[UploadFile], File(description="one measurement table per material (.npz or CSV)")],
     method: Annotated[Literal["fast", "paper"], Form()] = "fast",
-    epochs: Annotated[int, Form(ge=0, description="0: the method's default, 300 (fast) or 1000 (paper); "
-                                                  "a plain model's fast fit counts L-BFGS iterations per phase")] = 0,
+    capacity: Annotated[str, Form(description="a model with modules: latent (default), auto (chosen per material "
+                                              "by cross-validation) or one of " + ", ".join(CAPACITIES))] = "latent",
+    epochs: Annotated[int, Form(ge=0, description="Adam or RMSProp epochs (a plain model's fast fit: L-BFGS "
+                                                  "iterations per phase); 0: the protocol's own (latent 300, "
+                                                  "paper 1000, plain 300)")] = 0,
+    lbfgs_iterations: Annotated[int, Form(ge=0, description="a plain model's L-BFGS iterations per phase; 0: its "
+                                                            "own (300)")] = 0,
 ) -> FitPublic:
     job_id = job.id
     last = jobs.last_round(job_id)
     if last is None or last.artifact_key is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"job {job_id} has no committed round yet "
                                                        f"(status {job.status.value}); nothing to fit with")
-    if epochs > settings.max_epochs:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            f"epochs: {epochs} exceeds this service's limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)")
+    for name, value in (("epochs", epochs), ("lbfgs_iterations", lbfgs_iterations)):
+        if value > settings.max_epochs:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{name}: {value} exceeds this service's "
+                                                                       f"limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)")
     if len(files) > settings.max_materials:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"files: {len(files)} materials exceed this service's limit of {settings.max_materials} "
                             "(NEUENH_MAX_MATERIALS)")
-    config = FitConfig(method=method, epochs=epochs or None)
+    try:
+        options = FitOptions(method=method, capacity=capacity, epochs=epochs or None,
+                             lbfgs_iterations=lbfgs_iterations or None)
+    except ValueError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
     bundle = Bundle.from_bytes(artifacts.get(last.artifact_key))
     model = bundle.model
     with fit_slot(fit_lock):  # reading uploads costs memory like a fit: one at a time too (else 429)
         samples = _read_uploads(files, settings.max_samples)
-        work = len(samples) * config.resolved_epochs
+        protocol = options.protocol_for(model)
+        work = len(samples) * protocol.passes
         if work > settings.max_fit_work:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                f"files: {len(samples)} measurements x {config.resolved_epochs} epochs = {work} "
-                                f"exceed this service's limit of {settings.max_fit_work} per fit "
+                                f"files: {len(samples)} measurements x {protocol.passes} passes of the {protocol.name} "
+                                f"fit = {work} exceed this service's limit of {settings.max_fit_work} per fit "
                                 "(NEUENH_MAX_FIT_WORK); send fewer rows or ask fewer epochs")
-        result = fit_materials(model, samples, config, trained=bundle.materials)
+        result = fit_materials(model, samples, protocol, trained=bundle.materials)
     request.app.state.metrics.fits.inc()
-    return FitPublic(job_id=job_id, round=last.index, **result.report(model, method, samples))
+    return FitPublic(job_id=job_id, round=last.index, **result.report(model, samples))
 
 
 def _read_uploads(files: list[UploadFile], max_samples: int) -> Samples:

@@ -17,8 +17,12 @@ def add_parser(commands: Commands) -> None:
     p.add_argument("tables", nargs="+", type=Path, metavar="MEASUREMENTS",
                    help="one table per material (.npz with wi, wo, f_r, or CSV wi_x..wo_z,r,g,b)")
     p.add_argument("--method", choices=("fast", "paper"), default="fast",
-                   help="fast (default): Adam with cosine decay; paper: RMSProp lr 1e-3, 1000 epochs")
-    p.add_argument("--epochs", type=int, help="override the method's epoch count")
+                   help="fast (default): the capacity's fit; paper: RMSProp lr 1e-3, 1000 epochs")
+    p.add_argument("--capacity", default="latent",
+                   help="a model with modules: latent (default), auto (chosen per material by cross-validation), "
+                        "analytical, last-layer, low-rank or full")
+    p.add_argument("--epochs", type=int, help="Adam or RMSProp epochs (default: the protocol's own)")
+    p.add_argument("--lbfgs-iterations", type=int, help="a plain model's L-BFGS iterations per phase")
     json_arg(p)
 
 
@@ -27,7 +31,9 @@ def run(args, api: Api) -> int:
 
     for table in args.tables:  # a bad table is a usage error before anything is uploaded
         load_table(table)
-    data = {"method": args.method, **({"epochs": str(args.epochs)} if args.epochs is not None else {})}
+    data = {"method": args.method, "capacity": args.capacity,
+            **{k: str(v) for k, v in (("epochs", args.epochs), ("lbfgs_iterations", args.lbfgs_iterations))
+               if v is not None}}
     handles = [open(t, "rb") for t in args.tables]
     try:
         files = [("files", (t.name, h, "application/octet-stream")) for t, h in zip(args.tables, handles)]

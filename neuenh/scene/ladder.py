@@ -25,7 +25,7 @@ import torch
 
 from ..data.directions import sample_directions
 from ..data.samples import Samples
-from ..fit import FitConfig, fit_materials
+from ..fit import FitOptions, fit_materials, model_for
 from ..graph import BRDFModel
 from ..materials import MaterialParams, MaterialTable
 from ..train import log_l1
@@ -65,7 +65,7 @@ class Rung(ABC):
     shared_weights: int
 
     @abstractmethod
-    def fit(self, samples: Samples, config: FitConfig, seed: int) -> list[FittedRung]:
+    def fit(self, samples: Samples, options: FitOptions, seed: int) -> list[FittedRung]:
         """Every material of ``samples`` fitted, in ``samples.names`` order."""
 
     @abstractmethod
@@ -85,33 +85,35 @@ class GraphRung(Rung):
             self.trained = MaterialTable(model.specs, ["mean"], model.latent_dim,
                                          latent=latent_mean.reshape(1, -1).float())
 
-    def fit(self, samples: Samples, config: FitConfig, seed: int) -> list[FittedRung]:
+    def fit(self, samples: Samples, options: FitOptions, seed: int) -> list[FittedRung]:
         model = self.model
-        result = fit_materials(model, samples, config, seed=seed, trained=self.trained)
+        result = fit_materials(model, samples, options.protocol_for(model), seed=seed, trained=self.trained)
         out = []
         for i in range(len(samples.names)):
-            params = model.used_params(result.materials.as_params(i))
+            own, params = result.material_model(model, i)  # its capacity's model and record
 
             @torch.no_grad()
-            def predict(wi, wo, params=params):
-                return model.unclipped(wi, wo, params)
+            def predict(wi, wo, own=own, params=params):
+                return own.unclipped(wi, wo, params)
 
-            out.append(FittedRung(model.specialize(params), predict, params.to_json(), params.n_params,
+            out.append(FittedRung(own.specialize(params), predict, params.to_json(), params.n_params,
                                   result.losses[i]))
         return out
 
     def brdf_of(self, params):
-        return self.model.specialize(MaterialParams.from_json(params))
+        params = MaterialParams.from_json(params)
+        own = model_for(self.model, params)  # a material fitted at the analytical capacity: its model
+        return own.specialize(own.used_params(params))
 
 
 class NBRDFRung(Rung):
     label, key, model_name, state, shared_weights = "NBRDF (per material)", "nbrdf", "nbrdf", None, 0
 
-    def fit(self, samples: Samples, config: FitConfig, seed: int) -> list[FittedRung]:
-        """Adam, ``NBRDFConfig``'s defaults (300 epochs) unless ``config.epochs`` says otherwise."""
+    def fit(self, samples: Samples, options: FitOptions, seed: int) -> list[FittedRung]:
+        """Adam, ``NBRDFConfig``'s defaults (300 epochs) unless ``options.epochs`` says otherwise."""
         from ..study.nbrdf_fit import NBRDFConfig, fit_nbrdf
 
-        result = fit_nbrdf(samples, NBRDFConfig(epochs=config.epochs) if config.epochs else NBRDFConfig(), seed=seed)
+        result = fit_nbrdf(samples, NBRDFConfig(epochs=options.epochs) if options.epochs else NBRDFConfig(), seed=seed)
         out = []
         for net, loss in zip(result.networks, result.losses):
             params = {name: [float(x) for x in p.detach().reshape(-1)] for name, p in net.state_dict().items()}

@@ -29,7 +29,7 @@ from typing import Any, Callable, Mapping, Sequence
 import torch
 
 from ..data.samples import Samples
-from ..fit import FitConfig
+from ..fit import FitOptions
 from ..study.comparison import RenderSetup
 from ..study.heldout import draw_fit_test
 from .ladder import FittedRung, Rung, build_ladder, measure_cost
@@ -213,7 +213,7 @@ def plan_scene(spec: SceneSpec, base: Path, *, done: Mapping[str, MaterialPlan] 
         done.pop(name)
     todo = [m for m in materials if m.name not in done]
     setup = RenderSetup(spec.render.size, spec.render.samples_per_axis, spec.render.seed, spec.render.scene)
-    config = FitConfig(epochs=spec.fit.epochs)
+    options = spec.fit.options()
     costs: dict[str, float] = {}
     steps, step = math.ceil(len(todo) / chunk) * len(rungs), 0
     for lo in range(0, len(todo), chunk):
@@ -223,7 +223,7 @@ def plan_scene(spec: SceneSpec, base: Path, *, done: Mapping[str, MaterialPlan] 
         truths = [_truth(m, setup) for m in group] if spec.tolerance.renders else [None] * len(group)
         results: list[list[RungResult]] = [[] for _ in group]
         for rung in rungs:
-            fitted = rung.fit(fit, config, seed=spec.fit.seed)
+            fitted = rung.fit(fit, options, seed=spec.fit.seed)
             if rung.key not in costs:
                 costs[rung.key] = measure_cost(fitted[0].brdf)
             for i, (f, (_, test), truth) in enumerate(zip(fitted, sets, truths)):
@@ -237,7 +237,7 @@ def plan_scene(spec: SceneSpec, base: Path, *, done: Mapping[str, MaterialPlan] 
             if on_material:
                 on_material(plan)
     if not costs:  # everything came from ``done``: measure the costs on the first material again
-        costs = _remeasure(rungs, materials[0], spec, config)
+        costs = _remeasure(rungs, materials[0], spec, options)
     info = [{"key": r.key, "label": r.label, "model": r.model_name, "state": r.state,
              "alternatives": bool(getattr(getattr(r, "model", None), "has_alternatives", False)),
              "shared_weights": r.shared_weights, "cost_ns": costs[r.key],
@@ -289,6 +289,6 @@ def _measure(key: str, fitted: FittedRung, test: Samples, truth, setup, metric: 
     return result
 
 
-def _remeasure(rungs, material: SceneMaterial, spec: SceneSpec, config) -> dict[str, float]:
+def _remeasure(rungs, material: SceneMaterial, spec: SceneSpec, options: FitOptions) -> dict[str, float]:
     fit, _ = _draw(material, spec)
-    return {r.key: measure_cost(r.fit(fit, config, seed=spec.fit.seed)[0].brdf) for r in rungs}
+    return {r.key: measure_cost(r.fit(fit, options, seed=spec.fit.seed)[0].brdf) for r in rungs}

@@ -108,9 +108,18 @@ class FitSpec(_Strict):
     near_mirror: float = Field(0.5, ge=0.0, le=1.0, description=(
         "share of a continuous material's pairs drawn near the mirror direction, where highlights are"))
     epochs: int | None = Field(None, ge=1, description=(
-        "every rung's fit: its iterations or epochs (default each fit's own: L-BFGS 150 per phase, Adam 300, "
-        "NBRDF 300)"))
+        "epochs of every rung's first-order fit: Adam (an enhanced model, 300 by default), NBRDF's (300); "
+        "a plain analytical rung's L-BFGS takes lbfgs_iterations"))
+    lbfgs_iterations: int | None = Field(None, ge=1, description=(
+        "a plain analytical rung's L-BFGS iterations per surrogate phase (300 by default)"))
     seed: int = Field(0, ge=0, lt=2**32)
+
+    def options(self):
+        """The fit options of every rung (``neuenh.fit.FitOptions``): a rung with modules is fitted at
+        the latent capacity, the one its cost and its place on the ladder stand for."""
+        from ..fit import FitOptions
+
+        return FitOptions(capacity="latent", epochs=self.epochs, lbfgs_iterations=self.lbfgs_iterations)
 
 
 class RenderSpec(_Strict):

@@ -6,9 +6,10 @@ the renderer sees: clipped at 0, zero below either horizon), and its costs — p
 material, weights, fit time. Two kinds cover every model of the comparison:
 
 * :class:`GraphContender` — a ``BRDFModel`` in some state with its module weights frozen, fitted
-  with ``fit.fit_materials``: the analytical models (GGX, Cook-Torrance, Ward), the enhanced GGX,
-  the residual MLPs appended to GGX (``models.ggx_residual``) and the all-positions-neural state.
-  Parameters per material: the analytical ones plus the latent code if a module reads it.
+  by a fit protocol (``fit.FitOptions``): the analytical models (GGX, Cook-Torrance, Ward), the
+  enhanced GGX (at an adaptive capacity, or the latent code alone), the residual MLPs appended to
+  GGX (``models.ggx_residual``) and the all-positions-neural state. Parameters per material: the
+  analytical ones, the latent code if a module reads it, and the corrections the fit chose.
 * :class:`NBRDFContender` — a network fitted from scratch per material (``nbrdf_fit``); its 675
   weights are per material, so they count as parameters per material, and it has no shared weights.
 * :class:`EncodedContender` — a model whose parameters its encoder (``neuenh.encoder``) predicts
@@ -26,7 +27,7 @@ import torch
 
 from ..data.samples import Samples
 from ..encoder import MaterialEncoder
-from ..fit import FitConfig, fit_materials, per_material_loss
+from ..fit import FitOptions, fit_materials, per_material_loss
 from ..graph import BRDFModel
 from ..materials import MaterialTable
 from .nbrdf_fit import NBRDFConfig, fit_nbrdf
@@ -47,6 +48,7 @@ class FittedMaterial:
     fit_s: float
     params_per_material: int
     shared_weights: int
+    capacity: str | None = None  # the fit's capacity (a model with modules)
 
 
 class Contender(ABC):
@@ -69,14 +71,16 @@ def _one_material(samples: Samples) -> None:
 
 class GraphContender(Contender):
     def __init__(self, name: str, label: str, family: str, model: BRDFModel,
-                 trained: MaterialTable | None = None, config: FitConfig = FitConfig()):
+                 trained: MaterialTable | None = None, options: FitOptions = FitOptions()):
         self.name, self.label, self.family = name, label, family
-        self.model, self.trained, self.config = model, trained, config
+        self.model, self.trained, self.options = model, trained, options
 
     def fit(self, samples: Samples, seed: int = 0) -> FittedMaterial:
         _one_material(samples)
-        result = fit_materials(self.model, samples, self.config, seed=seed, trained=self.trained)
-        return _fitted(self.name, self.model, result.materials, result.losses[0], result.wall_s)
+        result = fit_materials(self.model, samples, self.options.protocol_for(self.model), seed=seed,
+                               trained=self.trained)
+        model, params = result.material_model(self.model, 0)  # its capacity's model and record
+        return _fitted(self.name, model, params, result.losses[0], result.wall_s, self.model.n_weights())
 
 
 class EncodedContender(Contender):
@@ -92,19 +96,19 @@ class EncodedContender(Contender):
         materials = self.encoder.encode(samples)
         wall_s = time.perf_counter() - start
         (loss,) = per_material_loss(self.model, materials, samples)
-        return _fitted(self.name, self.model, materials, loss, wall_s)
+        return _fitted(self.name, self.model, self.model.used_params(materials.as_params(0)), loss, wall_s,
+                       self.model.n_weights())
 
 
-def _fitted(name: str, model: BRDFModel, materials: MaterialTable, fit_loss: float, fit_s: float) -> FittedMaterial:
-    """``model`` with the first material of ``materials`` as a contender's result."""
-    params = model.used_params(materials.as_params(0))
+def _fitted(name: str, model: BRDFModel, params, fit_loss: float, fit_s: float, shared_weights: int) -> FittedMaterial:
+    """``model`` with one material's record (``BRDFModel.used_params``) as a contender's result."""
 
     @torch.no_grad()
     def predict(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
         return model.unclipped(wi, wo, params)
 
     brdf = model.specialize(params)  # equals model.evaluate(wi, wo, params), faster
-    return FittedMaterial(name, predict, brdf, fit_loss, fit_s, params.n_params, model.n_weights())
+    return FittedMaterial(name, predict, brdf, fit_loss, fit_s, params.n_params, shared_weights, params.capacity)
 
 
 class NBRDFContender(Contender):

@@ -31,7 +31,7 @@ import torch
 
 from ..data.samples import Samples
 from ..data.directions import sample_directions
-from ..fit import FitConfig, fit_materials, per_material_loss
+from ..fit import FitOptions, FitResult, fit_materials, per_material_loss
 from ..graph import BRDFModel
 from ..materials import MaterialTable
 
@@ -46,30 +46,36 @@ def _check_names(materials: MaterialTable, samples: Samples) -> None:
                          f"{list(materials.names)}; they must be the same, in the same order")
 
 
-def heldout_log_l1(model: BRDFModel, materials: MaterialTable, samples: Samples) -> list[float]:
+def heldout_log_l1(model: BRDFModel, fitted: FitResult | MaterialTable, samples: Samples) -> list[float]:
     """Mean log-L1 of each material (``materials.names`` order) over its held-out ``samples``.
 
     Exactly ``fit.per_material_loss`` — the training loss ``train.log_l1`` on the raw model output,
     float64 accumulation, NaN for a material without samples — after checking that ``samples``
-    names the same materials in the same order (its material indices index ``materials``). The
-    samples must not have been used to fit ``materials``; that is the caller's responsibility.
+    names the same materials in the same order (its material indices index ``materials``); a
+    ``FitResult`` is measured at each material's own capacity and corrections. The samples must
+    not have been used to fit them; that is the caller's responsibility.
     """
-    _check_names(materials, samples)
-    return per_material_loss(model, materials, samples)
+    if isinstance(fitted, FitResult):
+        _check_names(fitted.materials, samples)
+        return fitted.losses_on(model, samples)
+    _check_names(fitted, samples)
+    return per_material_loss(model, fitted, samples)
 
 
 @torch.no_grad()
-def predict_f_r(model: BRDFModel, materials: MaterialTable, samples: Samples) -> torch.Tensor:
+def predict_f_r(model: BRDFModel, fitted: FitResult | MaterialTable, samples: Samples) -> torch.Tensor:
     """The fitted model's ``f_r`` (n, 3), without the cosine, at every row of ``samples``, each
     with its material's fitted parameters: what ``model.evaluate(wi, wo, materials.as_params(i))``
     returns, computed by each material's specialized evaluator (``BRDFModel.specialize``). (The
     loss sees the value before clipping at zero; the two differ only where an enhanced model's
     module predicts a negative value.)"""
+    materials = fitted.materials if isinstance(fitted, FitResult) else fitted
     _check_names(materials, samples)
     out = torch.zeros(len(samples), 3)
     for i in torch.unique(samples.material).tolist():
         rows = torch.nonzero(samples.material == i).squeeze(1)
-        out[rows] = model.specialize(materials.as_params(i))(samples.wi[rows], samples.wo[rows]).float()
+        own, params = fitted.material_model(model, i) if isinstance(fitted, FitResult) else (model, materials.as_params(i))
+        out[rows] = own.specialize(params)(samples.wi[rows], samples.wo[rows]).float()
     return out
 
 
@@ -149,24 +155,25 @@ def draw_fit_test(material, n_fit: int, n_test: int | None, seed: int,
 
 
 def fit_and_evaluate(model: BRDFModel, material, n_fit: int, n_test: int | None = None, seed: int = 0,
-                     config: FitConfig = FitConfig(), trained: MaterialTable | None = None) -> dict:
-    """Fit one measured material with ``model`` (module weights frozen; ``trained``: its training
-    materials, see ``fit.fit_materials``) on ``n_fit`` samples and measure it on ``n_test`` others
-    (see :func:`draw_fit_test`). Returns plain data::
+                     options: FitOptions = FitOptions(), trained: MaterialTable | None = None) -> dict:
+    """Fit one measured material with ``model`` (module weights frozen; ``options`` name the fit
+    protocol, ``fit.FitOptions``; ``trained``: its training materials, see ``fit.fit_materials``)
+    on ``n_fit`` samples and measure it on ``n_test`` others (see :func:`draw_fit_test`). Returns
+    plain data::
 
-        {"name", "model", "state", "split", "seed", "n_fit", "n_test", "epochs",
+        {"name", "model", "state", "split", "seed", "n_fit", "n_test", "protocol",
          "fit_loss",        # mean log-L1 on the fit set after fitting
          "heldout_log_l1",  # mean log-L1 on the test set
          "fit_s",           # wall time of the fit (drawing and evaluation excluded)
          "params"}          # fitted parameters, as in ``neuenh fit --json``
     """
     fit, test, split = draw_fit_test(material, n_fit, n_test, seed)
-    result = fit_materials(model, fit, config, seed=seed, trained=trained)
-    (heldout,) = heldout_log_l1(model, result.materials, test)
-    (entry,) = result.report(model, config.method, fit)["materials"]
+    result = fit_materials(model, fit, options.protocol_for(model), seed=seed, trained=trained)
+    (heldout,) = heldout_log_l1(model, result, test)
+    (entry,) = result.report(model, fit)["materials"]
     return {
         "name": material.name, "model": model.name, "state": model.state, "split": split, "seed": seed,
-        "n_fit": len(fit), "n_test": len(test), "epochs": result.epochs,
+        "n_fit": len(fit), "n_test": len(test), "protocol": result.protocol,
         "fit_loss": result.losses[0], "heldout_log_l1": heldout, "fit_s": result.wall_s,
         "params": entry["params"],
     }

@@ -114,13 +114,13 @@ def run_study(settings: StudySettings) -> StudySummary:
 def _contenders(s: StudySettings) -> list:
     """Every model of ``contender_infos()``, in its order, ready to be fitted per material."""
     from ..checkpoint import Bundle
-    from ..fit import FitConfig
+    from ..fit import FitOptions
     from ..models import get_model
     from ..pretrained import bundle_path, load_model
     from .contenders import EncodedContender, GraphContender, NBRDFContender
     from .nbrdf_fit import NBRDFConfig
 
-    fit = FitConfig(epochs=s.fit_epochs, starts=s.fit_starts)
+    fit = FitOptions(epochs=s.fit_epochs, starts=s.fit_starts)
     path = bundle_path(s.model)
     encoder = Bundle.load(path).encoder if path else None
     out = []

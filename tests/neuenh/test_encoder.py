@@ -14,7 +14,7 @@ from neuenh.data.samples import Samples, sample_materials
 from neuenh.data.synthetic import synthetic_ggx
 from neuenh.encoder import EncoderConfig, MaterialEncoder
 from neuenh.encoder_training import EncoderTrainConfig, FixedSets, MeasurementPools, start_losses, train_encoder
-from neuenh.fit import FitConfig, fit_materials
+from neuenh.fit import LatentAdam, fit_materials
 from neuenh.materials import MaterialTable
 from neuenh.models import get_model
 
@@ -67,11 +67,8 @@ def test_an_encoded_start_fits_at_least_as_well(trained):
     model, encoder, held = trained
     measured = FixedSets.of(held.subset(range(4)), (100,), queries=1, seed=4).measured
     start = encoder.encode(measured)
-    config = FitConfig(epochs=8)
-    from neuenh.fit import fit_starts
-
-    from_encoder, from_paper = fit_starts(model, measured, [start, MaterialTable(model.specs, measured.names, 27)],
-                                          config)
+    from_encoder = LatentAdam(epochs=8).fit(model, measured, start=start)
+    from_paper = LatentAdam(epochs=8).fit(model, measured, start=MaterialTable(model.specs, measured.names, 27))
     assert from_encoder.loss <= from_paper.loss
 
 
@@ -187,7 +184,7 @@ def test_a_bundle_without_an_encoder_loads_and_fits_as_before(trained, tmp_path)
     loaded = Bundle.load(tmp_path)
     assert loaded.encoder is None and "encoder" not in loaded.describe()
     samples = _sets([200])
-    result = fit_materials(loaded.model, samples, FitConfig(epochs=5))
+    result = fit_materials(loaded.model, samples, LatentAdam(epochs=5))
     assert math.isfinite(result.loss)
 
 

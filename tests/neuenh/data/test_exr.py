@@ -166,13 +166,13 @@ def test_parameter_exr_without_the_header_is_grouped_by_channel_name(tmp_path):
 
 
 def test_fitted_texels_written_back_as_images(tmp_path, rendered):
-    from neuenh.fit import FitConfig, fit_materials
+    from neuenh.fit import PlainLBFGS, fit_materials
 
     folder, _, _ = rendered
     capture = read_capture(folder / "float")
     materials = capture.materials(region=(0, 0, 4, 4), stride=2)
     model = get_model("ggx")
-    result = fit_materials(model, sample_materials(materials, IMAGES, 0), FitConfig(epochs=5))
+    result = fit_materials(model, sample_materials(materials, IMAGES, 0), PlainLBFGS(iterations=5))
     images = parameter_images(result.materials, [m.metadata["grid"] for m in materials], (2, 2))
     write_parameter_exr(tmp_path / "fit.exr", images, metadata={"model": "ggx"})
     back = read_parameter_exr(tmp_path / "fit.exr")

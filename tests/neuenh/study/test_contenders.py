@@ -6,7 +6,7 @@ import torch
 from neuenh.study.contenders import GraphContender, NBRDFContender
 from neuenh.data.samples import sample_materials
 from neuenh.data.synthetic import synthetic_ggx
-from neuenh.fit import FitConfig
+from neuenh.fit import FitOptions
 from neuenh.models import get_model
 from neuenh.modules import ModuleConfig
 from neuenh.study.nbrdf_fit import NBRDFConfig
@@ -20,12 +20,12 @@ def ggx_material():
 
 
 CONTENDERS = {
-    "ggx": lambda: GraphContender("ggx", "GGX", "analytical", get_model("ggx"), config=FitConfig(epochs=150)),
+    "ggx": lambda: GraphContender("ggx", "GGX", "analytical", get_model("ggx"), options=FitOptions(epochs=150, lbfgs_iterations=150)),
     "enhanced": lambda: GraphContender("enh", "enhanced", "enhanced", get_model("ggx", state="00010000000", seed=2),
-                                       config=FitConfig(epochs=150)),
+                                       options=FitOptions(epochs=150, lbfgs_iterations=150)),
     "residual": lambda: GraphContender("res", "residual", "residual", get_model(
         "ggx_residual", state="0000001000000", module_config=ModuleConfig(choices=((32, 64, 64, 16),)), seed=2),
-        config=FitConfig(epochs=150)),
+        options=FitOptions(epochs=150, lbfgs_iterations=150)),
     "nbrdf": lambda: NBRDFContender(NBRDFConfig(epochs=40)),
 }
 PER_MATERIAL = {"ggx": 12, "enhanced": 39, "residual": 39, "nbrdf": 675}

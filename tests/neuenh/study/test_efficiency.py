@@ -6,7 +6,7 @@ import math
 import pytest
 
 from neuenh.data.synthetic import synthetic_ggx
-from neuenh.fit import FitConfig
+from neuenh.fit import FitOptions
 from neuenh.models import get_model
 from neuenh.study.contenders import GraphContender, NBRDFContender
 from neuenh.study.efficiency import CurvePoint, crossover, measure_curve, medians, wins
@@ -15,7 +15,7 @@ from neuenh.study.nbrdf_fit import NBRDFConfig
 
 def test_a_curve_fits_every_contender_at_every_size_under_both_protocols():
     [material] = synthetic_ggx(1, seed=5, noise_sigma=0.0)
-    contenders = [GraphContender("ggx", "GGX", "analytical", get_model("ggx"), config=FitConfig(epochs=60)),
+    contenders = [GraphContender("ggx", "GGX", "analytical", get_model("ggx"), options=FitOptions(lbfgs_iterations=60)),
                   NBRDFContender(NBRDFConfig(epochs=60))]
     points = measure_curve(material, contenders, sizes=(50, 400), n_test=600)
     assert [(p.protocol, p.n_fit, p.contender) for p in points] == [

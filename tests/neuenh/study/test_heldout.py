@@ -14,7 +14,7 @@ from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
 from neuenh.study.heldout import (draw_fit_test, fit_and_evaluate, heldout_log_l1, predict_f_r, split_rows,
                              write_predictions)
-from neuenh.fit import SURROGATE_EPS, FitConfig, fit_materials
+from neuenh.fit import FitOptions, PlainLBFGS, fit_materials
 from neuenh.materials import MaterialTable
 from neuenh.models import get_model
 
@@ -41,7 +41,7 @@ def measured() -> TableMaterial:
 def fitted(measured):
     model = get_model("ggx")
     fit, test, split = draw_fit_test(measured, N_FIT, N_TEST, seed=1)
-    result = fit_materials(model, fit, FitConfig(epochs=EPOCHS), seed=1)
+    result = fit_materials(model, fit, PlainLBFGS(iterations=EPOCHS), seed=1)
     return model, fit, test, split, result
 
 
@@ -126,11 +126,11 @@ def test_write_predictions_is_atomic_and_reads_back_as_a_table(fitted, tmp_path)
 
 def test_fit_and_evaluate_a_table(measured, fitted):
     model, _, test, _, result = fitted
-    out = fit_and_evaluate(get_model("ggx"), measured, N_FIT, N_TEST, seed=1, config=FitConfig(epochs=EPOCHS))
+    out = fit_and_evaluate(get_model("ggx"), measured, N_FIT, N_TEST, seed=1, options=FitOptions(lbfgs_iterations=EPOCHS))
     assert out["split"] == "disjoint rows" and (out["n_fit"], out["n_test"]) == (N_FIT, N_TEST)
     assert out["heldout_log_l1"] < HELDOUT_BOUND and out["fit_loss"] < HELDOUT_BOUND and out["fit_s"] > 0
-    # a plain model's fast fit reports the L-BFGS iterations it ran, at most EPOCHS per surrogate phase
-    assert set(out["params"]) == set(TRUE) and 0 < out["epochs"] <= len(SURROGATE_EPS) * EPOCHS
+    # a plain model's fast fit names its protocol and budget
+    assert set(out["params"]) == set(TRUE) and out["protocol"] == PlainLBFGS(iterations=EPOCHS).describe()
     # the same split, seed and config as the step-by-step fixture: the same numbers
     assert out["fit_loss"] == result.losses[0]
     assert out["heldout_log_l1"] == heldout_log_l1(model, result.materials, test)[0]
@@ -140,7 +140,7 @@ def test_fit_and_evaluate_a_table(measured, fitted):
 @pytest.mark.skipif(not RGL.is_dir(), reason=f"the RGL materials are not present at {RGL}")
 def test_fit_and_evaluate_an_rgl_material():
     material = load_measured(RGL / "paper_white_rgb.bsdf")
-    out = fit_and_evaluate(get_model("ggx"), material, 5000, 5000, seed=0, config=FitConfig(epochs=20))
+    out = fit_and_evaluate(get_model("ggx"), material, 5000, 5000, seed=0, options=FitOptions(lbfgs_iterations=20))
     assert out["split"] == "independent draws" and out["n_test"] == 5000
     assert math.isfinite(out["heldout_log_l1"]) and math.isfinite(out["fit_loss"])
     assert out["heldout_log_l1"] < 1.0  # a fitted GGX, whatever its quality, is far from log-scale nonsense

@@ -1,0 +1,37 @@
+"""Fit new materials with a trained model: module weights frozen, per-material parameters free.
+
+``fit_materials(model, samples, protocol)`` runs a fit protocol (``protocols``: the paper's RMSProp,
+plain L-BFGS, the latent fit, the adaptive-capacity fit) on every material of ``samples`` at once.
+The pieces: ``layout`` (the rows of a fit side by side), ``kernel`` (every row's loss and gradient
+through the frozen modules, with per-row corrections), ``optim`` (row-wise Adam and L-BFGS),
+``capacity`` (corrections and the cross-validated choice of capacity).
+"""
+
+from __future__ import annotations
+
+from ..data.samples import Samples
+from ..graph import BRDFModel
+from ..materials import MaterialTable
+from .capacity import CAPACITIES, Adaptive
+from .kernel import frozen
+from .optim import SURROGATE_EPS
+from .options import FitOptions
+from .protocols import FitProtocol, LatentAdam, PaperRMSProp, PlainLBFGS
+from .result import FitResult, model_for, per_material_loss
+
+__all__ = ["Adaptive", "CAPACITIES", "FitOptions", "FitProtocol", "FitResult", "LatentAdam", "PaperRMSProp",
+           "PlainLBFGS", "SURROGATE_EPS", "default_protocol", "fit_materials", "frozen", "model_for", "per_material_loss"]
+
+
+def default_protocol(model: BRDFModel) -> FitProtocol:
+    """``PlainLBFGS`` for a model without modules, the adaptive-capacity fit for one with."""
+    return FitOptions().protocol_for(model)
+
+
+def fit_materials(model: BRDFModel, samples: Samples, protocol: FitProtocol | None = None, *,
+                  start: MaterialTable | None = None, trained: MaterialTable | None = None,
+                  seed: int = 0) -> FitResult:
+    """Fit every material of ``samples`` with ``model`` frozen by ``protocol`` (default:
+    ``default_protocol(model)``); ``start`` and ``trained`` as ``FitProtocol.fit`` takes them."""
+    protocol = protocol or default_protocol(model)
+    return protocol.fit(model, samples, start=start, trained=trained, seed=seed)

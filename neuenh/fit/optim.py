@@ -1,0 +1,168 @@
+"""Row-wise optimisers over a ``kernel.RowKernel``: every row an independent problem, one batch.
+
+* ``adam_rows`` — Adam (Kingma & Ba 2015, Alg. 1; PyTorch's constants) with a cosine learning
+  rate from ``lr`` to ``lr * final_ratio``, full batch or minibatches along the slots, optionally
+  narrowing competing starts to each group's best (successive halving; Jamieson & Talwalkar 2016)
+  and keeping, per row, the parameters where its validation loss was lowest (early stopping).
+* ``lbfgs_rows`` — row-wise L-BFGS (``neuenh.lbfgs``) on a Charbonnier surrogate of the loss, each
+  phase with a smaller eps (``SURROGATE_EPS``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+from ..lbfgs import minimize_rows
+from .kernel import RowKernel, RowLosses
+from .layout import RowLayout
+
+# Adam's constants (Kingma & Ba 2015, Alg. 1; PyTorch's defaults).
+ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8
+# The fast fit's L-BFGS minimises a Charbonnier surrogate of the log-L1, sqrt(r^2 + eps^2) - eps per
+# channel: smooth, so curvature pairs are meaningful, and within eps of |r| everywhere. Each phase
+# starts from the last one's result with a smaller eps (the second is below the residuals that
+# matter). The losses a fit reports are always the true log-L1.
+SURROGATE_EPS = (1e-2, 1e-3)
+
+
+@dataclass(frozen=True)
+class Adam:
+    """A row-wise Adam run: ``epochs`` passes over every row's slots, in minibatches of
+    ``batch_slots`` slots per row (None: full batch, one step per epoch), learning rate ``lr``
+    decaying by a cosine to ``lr * final_ratio``."""
+
+    epochs: int
+    lr: float
+    final_ratio: float = 1e-3
+    batch_slots: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.epochs < 0 or self.lr <= 0 or not 0 < self.final_ratio <= 1 or (
+                self.batch_slots is not None and self.batch_slots < 1):
+            raise ValueError(f"invalid Adam run {self}")
+
+
+@dataclass
+class AdamResult:
+    x: torch.Tensor  # (rows, dim) the end point, or the best-validation point (``keep_best``)
+    rows: torch.Tensor  # (rows,) which input rows these are (narrowing drops some)
+    train: torch.Tensor  # (rows,) mean fit loss at ``x`` (exact, full layout)
+    val: torch.Tensor  # (rows,) mean validation loss at ``x`` (NaN: none)
+    epochs: int
+    val_history: list[torch.Tensor] = field(default_factory=list)  # per epoch (rows,), when recorded
+
+
+def adam_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, run: Adam, *,
+              free: torch.Tensor | None = None, prior_strength: torch.Tensor | None = None,
+              groups: torch.Tensor | None = None, narrow_at: float = 0.25, keep_best: bool = False,
+              record_val: bool = False, seed: int = 0) -> AdamResult:
+    """Adam over every row of ``x`` (rows, dim) on ``layout`` (module doc).
+
+    ``free`` (dim,) or (rows, dim) bool: the columns that move (default all). ``groups`` (rows,): rows with the
+    same id are starts of one problem; after ``narrow_at`` of the epochs each group keeps its row of
+    lowest fit loss (with its moments) and the others are dropped. ``keep_best``: each row returns
+    the parameters at which its validation loss was lowest (rows without validation slots: the
+    end point). ``record_val``: keep every epoch's validation losses (``val_history``)."""
+    x = x.detach().float().clone()
+    rows = torch.arange(len(x))
+    moment1, moment2 = torch.zeros_like(x), torch.zeros_like(x)
+    narrow = int(narrow_at * run.epochs) if groups is not None else -1
+    generator = torch.Generator().manual_seed(seed)
+    best_val = torch.full((len(x),), math.inf, dtype=torch.float64)
+    best_x = x.clone()
+    history: list[torch.Tensor] = []
+    step = 0
+    for epoch in range(run.epochs):
+        if epoch == narrow:
+            keep = _best_of_groups(kernel, x, layout, groups, prior_strength)
+            x, moment1, moment2, rows = x[keep], moment1[keep], moment2[keep], rows[keep]
+            best_val, best_x = best_val[keep], best_x[keep]
+            layout = layout.select(keep)
+            prior_strength = None if prior_strength is None else prior_strength[keep]
+            free = free[keep] if free is not None and free.ndim == 2 else free
+            groups = None
+        rate = run.lr * (run.final_ratio + (1 - run.final_ratio) * 0.5 * (1 + math.cos(math.pi * epoch / run.epochs)))
+        val_sum = torch.zeros(len(x), dtype=torch.float64)
+        x_start = x
+        for batch in layout.minibatches(run.batch_slots or layout.slots, generator):
+            losses = kernel(x, batch, prior_strength=prior_strength)
+            if keep_best or record_val:
+                val_sum += torch.nan_to_num(losses.val) * batch.val.sum(1).double()
+            grad = losses.grad if free is None else losses.grad * free
+            step += 1
+            moment1.mul_(ADAM_BETAS[0]).add_(grad, alpha=1 - ADAM_BETAS[0])
+            moment2.mul_(ADAM_BETAS[1]).addcmul_(grad, grad, value=1 - ADAM_BETAS[1])
+            denom = (moment2 / (1 - ADAM_BETAS[1] ** step)).sqrt_().add_(ADAM_EPS)
+            x = x - (rate / (1 - ADAM_BETAS[0] ** step)) * moment1 / denom
+        if keep_best or record_val:
+            # the validation loss of the epoch's points before their steps (a minibatch's own)
+            weight = layout.val.sum(1).double()
+            val = torch.where(weight > 0, val_sum / weight.clamp_min(1e-12), torch.nan)
+            if record_val:
+                history.append(val)
+            if keep_best:
+                better = val < best_val
+                best_val = torch.where(better, val, best_val)
+                best_x = torch.where(better[:, None], x_start, best_x)
+    final = kernel(x, layout, grad=False, prior_strength=prior_strength)
+    if keep_best:
+        has_val = layout.val.sum(1) > 0
+        better = has_val & (final.val < best_val)
+        best_x = torch.where(better[:, None] | ~has_val[:, None], x, best_x)
+        x = best_x
+        final = kernel(x, layout, grad=False, prior_strength=prior_strength)
+    return AdamResult(x, rows, final.train, final.val, run.epochs, history)
+
+
+def _best_of_groups(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, groups: torch.Tensor,
+                    prior_strength: torch.Tensor | None) -> torch.Tensor:
+    """The index of each group's row with the lowest fit objective, groups in order of first appearance."""
+    objective = kernel(x, layout, grad=False, prior_strength=prior_strength).objective
+    keep = []
+    for g in dict.fromkeys(groups.tolist()):
+        members = torch.nonzero(groups == g).squeeze(1)
+        keep.append(int(members[objective[members].argmin()]))
+    return torch.tensor(keep, dtype=torch.long)
+
+
+def lbfgs_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, max_iter: int) -> tuple[torch.Tensor, int]:
+    """Row-wise L-BFGS of every row of ``x`` on ``layout``, one phase per ``SURROGATE_EPS``.
+    Returns the end points and the iterations the slowest row ran."""
+    x = x.detach().double()
+    iterations = 0
+    for eps in SURROGATE_EPS:
+        def objective(point: torch.Tensor, wanted: torch.Tensor, eps: float = eps):
+            if bool(wanted.all()):
+                losses = kernel(point, layout, surrogate_eps=eps)
+                return losses.objective, losses.grad.double()
+            index = torch.nonzero(wanted).squeeze(1)  # only the rows still backtracking
+            losses = kernel(point[index], layout.select(index), surrogate_eps=eps)
+            objective = torch.zeros(len(point), dtype=torch.float64)
+            grad = torch.zeros_like(point)
+            objective[index], grad[index] = losses.objective, losses.grad.double()
+            return objective, grad
+
+        result = minimize_rows(objective, x, max_iter=max_iter)
+        x = result.x
+        iterations += int(result.iterations.max())
+    return x.float(), iterations
+
+
+def evaluate_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, batch_slots: int = 50_000) -> RowLosses:
+    """Exact losses of every row (no gradient), in slot chunks so memory stays bounded."""
+    if layout.slots <= batch_slots:
+        return kernel(x, layout, grad=False)
+    train_sum = torch.zeros(len(x), dtype=torch.float64)
+    val_sum = torch.zeros(len(x), dtype=torch.float64)
+    for lo in range(0, layout.slots, batch_slots):
+        part = layout.chunk(lo, min(lo + batch_slots, layout.slots))
+        losses = kernel(x, part, grad=False)
+        train_sum += torch.nan_to_num(losses.train) * part.train.sum(1).double()
+        val_sum += torch.nan_to_num(losses.val) * part.val.sum(1).double()
+    train_w, val_w = layout.train.sum(1).double(), layout.val.sum(1).double()
+    train = train_sum / train_w.clamp_min(1e-12)
+    val = torch.where(val_w > 0, val_sum / val_w.clamp_min(1e-12), torch.nan)
+    return RowLosses(train, val, train, None)

@@ -1,0 +1,69 @@
+"""What a user asks of a fit, and the protocol that does it for a given model.
+
+``FitOptions`` is the one place where options — from ``neuenh fit``, ``POST /v1/jobs/{id}/fit``, a
+scene's ``fit:`` or the report — become a protocol object (``protocol_for(model)``); the protocols
+themselves own their budgets. Budgets have one meaning each: ``epochs`` counts epochs of a
+first-order method (Adam, RMSProp; NBRDF's fit reads it too), ``lbfgs_iterations`` counts L-BFGS
+iterations per surrogate phase (plain models; ``epochs`` when it is not given, a plain fit's only
+budget).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from ..graph import BRDFModel
+from .capacity import CAPACITIES, Adaptive
+from .protocols import FitProtocol, LatentAdam, PaperRMSProp, PlainLBFGS
+
+METHODS = ("fast", "paper")
+CAPACITY_CHOICES = ("auto", *CAPACITIES)
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """``method``: ``fast`` (default) or ``paper`` (the paper's RMSProp protocol, latent capacity).
+    ``capacity`` (models with modules, fast method): ``auto`` chooses per material by
+    cross-validation (``capacity.Adaptive``), a capacity name fits that capacity only.
+    ``epochs``/``lbfgs_iterations``: budgets (module doc), None for each protocol's own."""
+
+    method: str = "fast"
+    capacity: str = "latent"  # "auto" once bundles, plans and exports carry corrections
+    epochs: int | None = None
+    lbfgs_iterations: int | None = None
+    starts: str = "analytical"
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"fit method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.capacity not in CAPACITY_CHOICES:
+            raise ValueError(f"capacity must be one of {', '.join(CAPACITY_CHOICES)}, got {self.capacity!r}")
+        if self.starts not in ("analytical", "paper"):
+            raise ValueError(f"fit starts must be 'analytical' or 'paper', got {self.starts!r}")
+        for name in ("epochs", "lbfgs_iterations"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"{name} must be at least 1, got {value}")
+
+    def protocol_for(self, model: BRDFModel) -> FitProtocol:
+        """The protocol these options name for ``model``."""
+        if self.method == "paper":
+            return PaperRMSProp(**_given(epochs=self.epochs))
+        if not model.has_modules:
+            # a plain model's only budget: --epochs stands for it unless lbfgs_iterations is given
+            return PlainLBFGS(**_given(iterations=self.lbfgs_iterations or self.epochs))
+        if self.capacity == "latent":
+            return LatentAdam(**_given(epochs=self.epochs), starts=self.starts)
+        capacities = {} if self.capacity == "auto" else {"capacities": (self.capacity,)}
+        budget = {} if self.epochs is None else {"latent_epochs": self.epochs,
+                                                 "correction_epochs": max(1, self.epochs // 2)}
+        return Adaptive(**capacities, **_given(lbfgs_iterations=self.lbfgs_iterations), **budget,
+                        latent_starts=self.starts)
+
+    def replace(self, **changes) -> "FitOptions":
+        return dataclasses.replace(self, **changes)
+
+
+def _given(**budgets) -> dict:
+    return {k: v for k, v in budgets.items() if v is not None}

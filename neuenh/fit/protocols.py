@@ -1,0 +1,296 @@
+"""Fit protocols: how the per-material parameters of a frozen model are fitted to measurements.
+
+A protocol is a small object with its own budget (Optuna-style policies): ``fit(model, samples,
+start=..., trained=..., seed=...) -> FitResult``. The contract every protocol keeps:
+
+* the model's module weights are not changed (they take no gradient during the fit and their
+  ``requires_grad`` flags are restored);
+* every material of ``samples`` is fitted on its own samples only, independently of the others
+  fitted beside it (a material's result does not depend on which materials share the batch);
+* ``start``: a ``MaterialTable`` of the same materials (names in ``samples.names`` order) to start
+  from — e.g. an encoder's output; a protocol then starts there instead of its own starts;
+  ``trained``: the model's training materials (a bundle's ``materials``), whose mean latent code
+  is one of an enhanced model's own starts;
+* ``FitResult.losses`` are the mean log-L1 (``train.log_l1``) of the returned parameters on each
+  material's samples, and ``FitResult.protocol`` names the protocol and its budget.
+
+The protocols:
+
+* ``PaperRMSProp`` — the paper's Sec. 5.1: RMSProp (alpha 0.9), lr 1e-3, ``epochs`` epochs of
+  minibatches of ``batch_size`` samples, from the paper's start (range means, latent 0.5).
+* ``PlainLBFGS`` — for analytical models: row-wise L-BFGS on a Charbonnier surrogate
+  (``optim.lbfgs_rows``), at most ``iterations`` per surrogate phase; a second start (where
+  ``warmup_epochs`` Adam epochs took the paper's start) when the first end point is suspect.
+* ``LatentAdam`` — an enhanced model's latent code and analytical parameters by row-wise Adam
+  (``epochs``, lr ``lr`` with cosine decay), from several starts stacked as rows of one batch and
+  narrowed to each material's best after a quarter of the epochs (module doc of ``latent``).
+* ``Adaptive`` (``neuenh.fit.capacity``) — beyond the latent code, per-material corrections of
+  module weights under a prior, capacity and prior strength chosen per material by
+  cross-validation on the fit data.
+
+``default_protocol(model)``: ``PlainLBFGS`` for a model without modules, ``Adaptive`` for one with.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+
+from ..data.samples import Samples
+from ..graph import BRDFModel
+from ..materials import LATENT_INIT, MaterialTable
+from ..train import log_l1, predict
+from .kernel import RowKernel, RowLosses, RowSpace, frozen
+from .layout import layout_rows, padded
+from .optim import SURROGATE_EPS, Adam, adam_rows, evaluate_rows, lbfgs_rows
+from .result import FitResult, per_material_loss
+
+
+class FitProtocol(ABC):
+    """How materials are fitted with a frozen model: the contract is the module doc's."""
+
+    name: ClassVar[str]
+
+    @abstractmethod
+    def fit(self, model: BRDFModel, samples: Samples, *, start: MaterialTable | None = None,
+            trained: MaterialTable | None = None, seed: int = 0) -> FitResult:
+        """Fit every material of ``samples`` (module doc)."""
+
+    def describe(self) -> dict:
+        """The protocol's name and budget, as plain data (fit reports, provenance)."""
+        return {"name": self.name, **dataclasses.asdict(self)}
+
+    @property
+    @abstractmethod
+    def passes(self) -> int:
+        """About how many passes over each material's samples the fit makes at most (what a
+        service's work limit multiplies by the sample count)."""
+
+
+def _check(model: BRDFModel, samples: Samples, start: MaterialTable | None) -> None:
+    if len(samples) == 0:
+        raise ValueError("no samples to fit")
+    if start is not None and (tuple(start.names) != tuple(samples.names) or start.specs.names != model.specs.names
+                              or start.latent_dim != model.latent_dim):
+        raise ValueError(f"the start's materials {list(start.names)} and parameters must be the fit's "
+                         f"({list(samples.names)}, {list(model.specs.names)}, latent {model.latent_dim})")
+
+
+def paper_start(model: BRDFModel, names) -> MaterialTable:
+    """The paper's start: every analytical parameter at the mean of its range, latent 0.5."""
+    return MaterialTable(model.specs, names, model.latent_dim)
+
+
+class Rows:
+    """A fit's samples, padded per material (``layout.padded``), and the layouts of its rows."""
+
+    def __init__(self, samples: Samples, seed: int = 0):
+        self.names = samples.names
+        self.wi, self.wo, self.f_r, self.valid = padded(samples, seed)
+
+    @property
+    def materials(self) -> int:
+        return len(self.names)
+
+    def as_problems(self, material: torch.Tensor, train: torch.Tensor) -> "Rows":
+        """Rows whose i-th "material" is material ``material[i]`` seen through the slots ``train[i]``
+        (e.g. every cross-validation fold of every material as a problem of its own)."""
+        out = Rows.__new__(Rows)
+        out.names = tuple(self.names[i] for i in material.tolist())
+        out.wi, out.wo, out.f_r = self.wi[material], self.wo[material], self.f_r[material]
+        out.valid = train & self.valid[material]
+        return out
+
+    def layout(self, material: torch.Tensor, train: torch.Tensor | None = None, val: torch.Tensor | None = None):
+        """Rows fitting ``material`` (rows,), on all of each material's samples unless ``train``
+        (rows, slots) says otherwise, validated on ``val`` (default none)."""
+        train = self.valid[material] if train is None else train
+        val = torch.zeros_like(train) if val is None else val
+        return layout_rows(self.wi, self.wo, self.f_r, material, train, val)
+
+
+def _table(model: BRDFModel, space: RowSpace, x: torch.Tensor, names, latent: torch.Tensor | None = None) -> MaterialTable:
+    table = MaterialTable(model.specs, names, model.latent_dim, latent=latent)
+    return space.to_table(x, table)
+
+
+@dataclass(frozen=True)
+class PaperRMSProp(FitProtocol):
+    """The paper's protocol (Sec. 5.1): RMSProp (alpha 0.9), ``lr``, ``epochs`` epochs of shuffled
+    minibatches of ``batch_size`` samples, from the paper's start (or ``start``)."""
+
+    name: ClassVar[str] = "paper"
+    epochs: int = 1000
+    lr: float = 1e-3
+    batch_size: int = 100_000
+
+    def __post_init__(self) -> None:
+        if self.epochs < 1 or self.lr <= 0 or self.batch_size < 1:
+            raise ValueError(f"invalid paper protocol {self}")
+
+    @property
+    def passes(self) -> int:
+        return self.epochs
+
+    def fit(self, model, samples, *, start=None, trained=None, seed=0, trace_every: int = 0) -> FitResult:
+        _check(model, samples, start)
+        start_time = time.perf_counter()
+        materials = paper_start(model, samples.names) if start is None else _copy(start)
+        optimizer = torch.optim.RMSprop(list(materials.parameters()), lr=self.lr, alpha=0.9)
+        generator = torch.Generator().manual_seed(seed)
+        trace: list[tuple[float, float]] = []
+        full_batch = len(samples) <= self.batch_size
+        with frozen(model):
+            for epoch in range(self.epochs):
+                order = slice(None) if full_batch else torch.randperm(len(samples), generator=generator)
+                for lo in range(0, len(samples), self.batch_size):
+                    index = order if full_batch else order[lo : lo + self.batch_size]
+                    loss = log_l1(predict(model, materials, samples, index), samples.f_r[index], samples.wi[index]).mean()
+                    optimizer.zero_grad(set_to_none=True)
+                    loss.backward()
+                    optimizer.step()
+                if trace_every and (epoch % trace_every == 0 or epoch == self.epochs - 1):
+                    trace.append((time.perf_counter() - start_time, float(sum(per_material_loss(model, materials, samples)))
+                                  / len(samples.names)))
+            losses = per_material_loss(model, materials, samples)
+        materials.requires_grad_(False)
+        return FitResult(materials, losses, time.perf_counter() - start_time, self.describe(), trace=trace)
+
+
+def _copy(table: MaterialTable) -> MaterialTable:
+    return MaterialTable(table.specs, table.names, table.latent_dim,
+                         {k: v.detach().clone() for k, v in table.raw.items()}, table.latent.detach().clone())
+
+
+@dataclass(frozen=True)
+class PlainLBFGS(FitProtocol):
+    """Row-wise L-BFGS (at most ``iterations`` per surrogate phase) from the paper's start (or
+    ``start``); a material whose end point is suspect (``suspect``) is fitted again from where
+    ``warmup_epochs`` Adam epochs (lr ``warmup_lr``) took the paper's start, and keeps the lower
+    loss. Meant for analytical models (an enhanced model's landscape is rough for L-BFGS)."""
+
+    name: ClassVar[str] = "plain"
+    iterations: int = 300
+    warmup_epochs: int = 100
+    warmup_lr: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1 or self.warmup_epochs < 0 or self.warmup_lr <= 0:
+            raise ValueError(f"invalid plain protocol {self}")
+
+    @property
+    def passes(self) -> int:  # the warm-up, then two starts through every surrogate phase
+        return self.warmup_epochs + 2 * len(SURROGATE_EPS) * self.iterations
+
+    def fit(self, model, samples, *, start=None, trained=None, seed=0) -> FitResult:
+        _check(model, samples, start)
+        start_time = time.perf_counter()
+        rows = Rows(samples, seed)
+        space = RowSpace(model)
+        first = space.from_table(paper_start(model, samples.names) if start is None else start)
+        with frozen(model):
+            x, scored = self.fit_rows(RowKernel(model, space), first, rows.layout(torch.arange(rows.materials)))
+        table = _table(model, space, x, samples.names)
+        return FitResult(table, scored.train.tolist(), time.perf_counter() - start_time, self.describe())
+
+    def fit_rows(self, kernel: RowKernel, first: torch.Tensor, layout) -> tuple[torch.Tensor, "RowLosses"]:
+        """Every row of ``layout`` from ``first`` (rows, dim) and from its Adam warm-up, each row
+        keeping the end point of lower fit loss: (rows, dim) and their losses."""
+        warmed = adam_rows(kernel, first, layout, Adam(self.warmup_epochs, self.warmup_lr)).x
+        r = layout.rows
+        both = layout.select(torch.arange(r).repeat(2))
+        x, _ = lbfgs_rows(kernel, torch.cat([first, warmed]), both, self.iterations)
+        scored = evaluate_rows(kernel, x, both)
+        best = scored.train.reshape(2, r).argmin(0)
+        pick = lambda t: t.reshape(2, r, *t.shape[1:])[best, torch.arange(r)]
+        return pick(x), RowLosses(pick(scored.train), pick(scored.val), pick(scored.objective), None)
+
+
+@dataclass(frozen=True)
+class LatentAdam(FitProtocol):
+    """An enhanced model's latent code and analytical parameters by row-wise Adam: ``epochs``
+    full-batch epochs, lr ``lr`` decaying by a cosine to 1e-3 of it.
+
+    Starts (``starts="analytical"``, beyond the paper; or ``start`` alone when given): the modules
+    were trained on materials whose analytical parameters had been fitted first, so the paper's
+    start can leave a new material in a poor basin. The analytical model of the same graph is fitted
+    first (Adam, the same budget); the enhanced model is made to imitate that fit (all its
+    parameters fitted to the analytical fit's predictions at the same directions, a third of the
+    epochs), from latent 0.5 and from the training materials' mean code when ``trained`` is given.
+    Each imitation and the paper's start then start the fit to the measurements, stacked as rows of
+    one batch; after a quarter of the epochs each material keeps its lowest-loss start.
+    ``starts="paper"``: the paper's start alone."""
+
+    name: ClassVar[str] = "latent"
+    epochs: int = 300
+    lr: float = 0.05
+    starts: str = "analytical"
+
+    def __post_init__(self) -> None:
+        if self.epochs < 1 or self.lr <= 0 or self.starts not in ("analytical", "paper"):
+            raise ValueError(f"invalid latent protocol {self} (starts: 'analytical' or 'paper')")
+
+    @property
+    def passes(self) -> int:  # analytical starts: the analytical fit, two imitations, three starts
+        return self.epochs if self.starts == "paper" else self.epochs + 2 * (self.epochs // 3) + 3 * self.epochs
+
+    def fit(self, model, samples, *, start=None, trained=None, seed=0) -> FitResult:
+        _check(model, samples, start)
+        start_time = time.perf_counter()
+        rows = Rows(samples, seed)
+        with frozen(model):
+            x, losses = self.fit_rows(model, rows, start, trained, seed)
+        space = RowSpace(model)
+        table = _table(model, space, x, samples.names)
+        return FitResult(table, losses.tolist(), time.perf_counter() - start_time, self.describe())
+
+    def starts_of(self, model: BRDFModel, rows: Rows, trained: MaterialTable | None, seed: int,
+                  train: torch.Tensor | None = None) -> list[torch.Tensor]:
+        """The starting rows (m, dim) of every material (class doc); ``train`` (m, slots): the
+        samples each material's analytical fit and imitations may see (default all)."""
+        m = rows.materials
+        space = RowSpace(model)
+        paper = space.from_table(paper_start(model, rows.names))
+        if self.starts == "paper" or not model.has_modules:
+            return [paper]
+        analytical = model.enhance(model.analytical_state(), seed)
+        a_space = RowSpace(analytical)
+        a_kernel = RowKernel(analytical, a_space)
+        layout = rows.layout(torch.arange(m), train)
+        base = adam_rows(a_kernel, a_space.from_table(paper_start(analytical, rows.names)), layout,
+                         Adam(self.epochs, self.lr)).x
+        with torch.no_grad():
+            values, _ = a_space.values(base)
+            imitated_f = analytical.forward_indexed(layout.wi, layout.wo, values, None, layout.row_of_sample).clamp_min(0.0)
+        latents = [torch.full((m, model.latent_dim), LATENT_INIT)]
+        if trained is not None and model.uses_latent and len(trained):
+            latents.append(trained.latent.detach().mean(0, keepdim=True).expand(m, -1))
+        k = len(latents)
+        like = torch.cat([torch.cat([base, latent], 1) if space.latent else base for latent in latents])
+        imitate = rows.layout(torch.arange(m).repeat(k), None if train is None else train.repeat(k, 1)).with_targets(
+            imitated_f.reshape(m, -1, 3).repeat(k, 1, 1))
+        imitated = adam_rows(RowKernel(model, space), like, imitate, Adam(max(1, self.epochs // 3), self.lr)).x
+        return [paper, *imitated.reshape(k, m, -1)]
+
+    def fit_rows(self, model: BRDFModel, rows: Rows, start: MaterialTable | None, trained: MaterialTable | None,
+                 seed: int, train: torch.Tensor | None = None, val: torch.Tensor | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(m, dim) fitted rows and their (m,) fit losses; ``train``/``val`` (m, slots) restrict each
+        material's fit to some of its samples (cross-validation folds)."""
+        m = rows.materials
+        space = RowSpace(model)
+        starts = [space.from_table(start)] if start is not None else self.starts_of(model, rows, trained, seed, train)
+        k = len(starts)
+        material = torch.arange(m).repeat(k)
+        layout = rows.layout(material, None if train is None else train.repeat(k, 1),
+                             None if val is None else val.repeat(k, 1))
+        kernel = RowKernel(model, space)
+        result = adam_rows(kernel, torch.cat(starts), layout, Adam(self.epochs, self.lr),
+                           groups=material if k > 1 else None)
+        return result.x, result.train
+

@@ -1,0 +1,101 @@
+"""What a fit returns (``FitResult``) and the per-material loss of fitted parameters."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+from ..data.samples import Samples
+from ..graph import BRDFModel
+from ..materials import MaterialParams, MaterialTable
+from ..train import log_l1, predict
+
+
+@dataclass
+class FitResult:
+    """Every material of a fit: its record in ``materials`` (analytical values, latent code and —
+    set by a fit that frees them — corrections, capacity and correction count: ``as_params(i)``),
+    its mean log-L1 on the fitted samples (``losses``), the protocol that fitted it (``protocol``:
+    its name and budgets) and the wall time. ``details``: what the protocol decided per material
+    (e.g. cross-validation scores)."""
+
+    materials: MaterialTable
+    losses: list[float]
+    wall_s: float
+    protocol: dict
+    details: list[dict] = field(default_factory=list)
+    trace: list[tuple[float, float]] = field(default_factory=list)  # (seconds, mean loss), when traced
+
+    def capacity(self, i: int) -> str:
+        """Material ``i``'s capacity (``fit.capacity``): ``latent`` unless the fit recorded another."""
+        return self.materials.fits[i][1] or "latent"
+
+    def material_model(self, model: BRDFModel, i: int) -> tuple[BRDFModel, MaterialParams]:
+        """Material ``i`` as the model that evaluates it and the record that model reads
+        (``evaluate``, ``unclipped``, ``specialize``): the analytical state's model for capacity
+        ``analytical``, else ``model`` (the record's corrections are added to its module weights)."""
+        own = model_for(model, self.materials.as_params(i))
+        return own, own.used_params(self.materials.as_params(i))
+
+    @property
+    def at_own_capacity(self) -> bool:
+        """Whether some material needs more than ``model`` and its table row (corrections or the
+        analytical state): then only ``material_model`` evaluates it."""
+        return any(self.capacity(i) == "analytical" or self.materials.fits[i][0] for i in range(len(self.materials)))
+
+    @property
+    def loss(self) -> float:
+        return float(sum(self.losses) / len(self.losses))
+
+    def report(self, model: BRDFModel, samples: Samples) -> dict:
+        """The fit as plain data (``neuenh fit --json`` and ``POST /v1/jobs/{id}/fit``): per material
+        its loss, sample count and record as its capacity's model reads it (``MaterialParams.to_json``:
+        parameters, latent code, corrections, capacity, parameter count)."""
+        counts = torch.bincount(samples.material, minlength=len(self.materials)).tolist()
+        return {"model": model.name, "state": model.state, "protocol": self.protocol,
+                "wall_s": round(self.wall_s, 3),
+                "materials": [{"name": name, "loss": self.losses[i], "samples": counts[i],
+                               **self.material_model(model, i)[1].to_json(digits=6)}
+                              for i, name in enumerate(self.materials.names)]}
+
+    def losses_on(self, model: BRDFModel, samples: Samples) -> list[float]:
+        """Each material's mean log-L1 over ``samples`` (same materials, same order), at its own
+        capacity and corrections (``material_model``)."""
+        if not self.at_own_capacity:
+            return per_material_loss(model, self.materials, samples)
+        return [float(log_l1(f_r, rows.f_r, rows.wi).double().mean()) if len(rows) else math.nan
+                for f_r, rows in zip(self.predictions(model, samples), map(samples.of_material, range(len(samples.names))))]
+
+    @torch.no_grad()
+    def predictions(self, model: BRDFModel, samples: Samples) -> list[torch.Tensor]:
+        """Each material's unclipped prediction (what the loss sees) at its own samples' directions."""
+        out = []
+        for i in range(len(samples.names)):
+            own, params = self.material_model(model, i)
+            rows = samples.of_material(i)
+            out.append(own.unclipped(rows.wi, rows.wo, params) if len(rows) else rows.f_r)
+        return out
+
+
+def model_for(model: BRDFModel, params: MaterialParams) -> BRDFModel:
+    """The model that evaluates a material fitted with ``model``: the analytical state's (modules
+    back to their terms) for a record of capacity ``analytical``, else ``model`` itself."""
+    if params.capacity == "analytical" and model.has_modules:
+        return model.enhance(model.analytical_state(), 0)
+    return model
+
+
+@torch.no_grad()
+def per_material_loss(model: BRDFModel, materials: MaterialTable, samples: Samples) -> list[float]:
+    """Mean log-L1 of each material over its samples (NaN for a material with none), every
+    material read from its table row (no corrections)."""
+    sums = torch.zeros(len(samples.names), dtype=torch.float64)
+    counts = torch.zeros(len(samples.names), dtype=torch.float64)
+    for lo in range(0, len(samples), 200_000):
+        index = slice(lo, lo + 200_000)
+        loss = log_l1(predict(model, materials, samples, index), samples.f_r[index], samples.wi[index])
+        sums.index_add_(0, samples.material[index], loss.double())
+        counts.index_add_(0, samples.material[index], torch.ones_like(loss, dtype=torch.float64))
+    return [float(s / c) if c else math.nan for s, c in zip(sums, counts)]
