@@ -45,16 +45,16 @@ N_TEST = 10_000
 NEAR_MIRROR = 0.5
 
 
-def materials(count: int) -> list:
+def materials(count: int, weights: Path) -> list:
     import numpy as np
 
     from neuenh.data.nbrdf import nbrdf_material
 
-    names = sorted(np.load(NBRDF_WEIGHTS)["names"].tolist())
-    return [nbrdf_material(str(NBRDF_WEIGHTS), name) for name in names[::12][:count]]
+    names = sorted(np.load(weights)["names"].tolist())
+    return [nbrdf_material(str(weights), name) for name in names[::12][:count]]
 
 
-def run(spec: str, count: int, sizes: list[int], default_only: bool) -> dict:
+def run(spec: str, weights: Path, count: int, sizes: list[int], default_only: bool) -> dict:
     """{case: {material: (held-out log-L1, seconds)}}."""
     from neuenh.fit import fit_materials
     from neuenh.models import get_model
@@ -70,7 +70,7 @@ def run(spec: str, count: int, sizes: list[int], default_only: bool) -> dict:
         out.setdefault(case, {})[name] = (heldout, seconds)
         print(f"{case:28s} {name:24s} held-out {heldout:.5f} {seconds:6.2f} s", flush=True)
 
-    for material in materials(count):
+    for material in materials(count, weights):
         for n in sizes:
             fit, test, _ = draw_fit_test(material, n, N_TEST, 0, near_mirror=NEAR_MIRROR)
             for label, (model, table) in models.items():
@@ -104,7 +104,7 @@ def run_before(rev: str, args: argparse.Namespace) -> dict:
         (checkout / "bench" / Path(__file__).name).write_text(Path(__file__).read_text())
         out = Path(tmp) / "before.json"
         subprocess.run([sys.executable, str(checkout / "bench" / Path(__file__).name), "--model", str(args.model),
-                        "--materials", str(args.materials), "--sizes", *map(str, args.sizes), "--default-only",
+                        "--materials", str(args.materials), "--nbrdf", str(args.nbrdf.resolve()), "--sizes", *map(str, args.sizes), "--default-only",
                         "--json", str(out), "--max-wait", "0"], check=True)
         return json.loads(out.read_text())
 
@@ -147,13 +147,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--before-rev", metavar="REV", help="also run this revision's default fit first")
     parser.add_argument("--materials", type=int, default=6, help="how many NBRDF stand-ins (default 6)")
     parser.add_argument("--sizes", type=int, nargs="+", default=[3000, 10000], help="fit sizes")
+    parser.add_argument("--nbrdf", type=Path, default=NBRDF_WEIGHTS, help=f"the NBRDF weights (default {NBRDF_WEIGHTS})")
     parser.add_argument("--default-only", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--json", type=Path, help="write the raw numbers here")
     parser.add_argument("--write", metavar="PATH", help="write/replace this section of PATH (docs/BENCHMARKS.md)")
     parser.add_argument("--max-wait", type=float, default=300.0)
     args = parser.parse_args(argv)
-    if not NBRDF_WEIGHTS.is_file():
-        print(f"skipped: {NBRDF_WEIGHTS} is absent (the NBRDF stand-ins of ../shared)")
+    if not args.nbrdf.is_file():
+        print(f"skipped: {args.nbrdf} is absent (the NBRDF stand-ins of ../shared)")
         return 0
     if Path(args.model).is_dir():
         args.model = str(Path(args.model).resolve())  # the older checkout runs elsewhere
@@ -161,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
     wait_quiet(args.max_wait, 0.3)
     env = machine()
     before = run_before(args.before_rev, args) if args.before_rev else None
-    now = run(args.model, args.materials, args.sizes, args.default_only)
+    now = run(args.model, args.nbrdf, args.materials, args.sizes, args.default_only)
     if args.json:
         args.json.write_text(json.dumps({"now": now, "before": before} if not args.default_only else now, indent=1))
     if args.default_only:

@@ -35,7 +35,7 @@ from ..graph import BRDFModel
 from ..materials import MaterialTable
 from .kernel import LayerCorrection, RowKernel, RowLosses, RowSpace, frozen
 from .layout import fold_masks
-from .optim import Adam, adam_rows, evaluate_rows, lbfgs_rows
+from .optim import Adam, adam_rows, evaluate_rows
 from .protocols import FitProtocol, LatentAdam, PlainLBFGS, Rows, _check, paper_start
 from .result import FitResult
 
@@ -140,9 +140,7 @@ class Adaptive(FitProtocol):
             losses.append(float(chosen.fit[i]))
             details.append({"prior": chosen.prior, "cv": {c.label: float(c.cv[i]) for c in candidates}})
         table.requires_grad_(False)
-        result = FitResult(table, losses, time.perf_counter() - start_time, self.describe(), details)
-        result.candidates = candidates
-        return result
+        return FitResult(table, losses, time.perf_counter() - start_time, self.describe(), details)
 
     def candidates(self, model: BRDFModel, samples, *, start: MaterialTable | None = None,
                    trained: MaterialTable | None = None, seed: int = 0) -> list[Candidate]:

@@ -45,6 +45,28 @@ def test_fit_with_a_bundle_directory(table, tmp_path):
     assert (material["capacity"], material["params_per_material"], material["corrections"]) == ("latent", 39, {})
 
 
+def test_capacity_auto_reports_each_materials_choice_and_a_bundle_refuses_the_analytical_one(tmp_path):
+    """``--capacity auto`` on a GGX material with an untrained model: the analytical capacity wins
+    the cross-validation (the random modules fit nothing better), the report says so with its
+    count; ``-o`` cannot store that material in the model's bundle and says what to do instead."""
+    from neuenh.models import get_model
+
+    (material,) = synthetic_ggx(1, seed=8, noise_sigma=0.0)
+    small = write_table(tmp_path / "steel.npz", *material.samples(150, seed=0))
+    Bundle(get_model("ggx", state=PAPER_STATE, seed=0)).save(tmp_path / "enh")
+    args = ("fit", "--model", tmp_path / "enh", small, "--capacity", "auto", "--epochs", "4",
+            "--lbfgs-iterations", "20", "--json")
+    out = neuenh(*args)
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    (fitted,) = report["materials"]
+    assert report["protocol"]["name"] == "adaptive"
+    assert (fitted["capacity"], fitted["latent"], fitted["params_per_material"]) == ("analytical", None, 12)
+    refused = neuenh(*args, "-o", tmp_path / "b")
+    assert refused.returncode == 2 and "--capacity latent" in refused.stderr and "Traceback" not in refused.stderr
+    assert not (tmp_path / "b").exists()
+
+
 SHIPPED = Path(__file__).resolve().parents[2] / "models" / "enhanced-ggx" / "model.json"
 
 
