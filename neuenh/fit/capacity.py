@@ -107,11 +107,8 @@ class Adaptive(FitProtocol):
             raise ValueError(f"invalid adaptive protocol {self}")
 
     @property
-    def passes(self) -> int:  # every candidate on every fold and on all the samples
-        corrections = sum(c not in ("analytical", "latent") for c, _ in self.grid)
-        return (self.folds + 1) * (PlainLBFGS(self.lbfgs_iterations).passes
-                                   + LatentAdam(self.latent_epochs, starts=self.latent_starts).passes
-                                   + corrections * self.correction_epochs)
+    def budget_epochs(self) -> int:  # every fold's fit and the fit to all the samples
+        return (self.folds + 1) * self.latent_epochs
 
     @property
     def grid(self) -> list[tuple[str, float | None]]:

@@ -47,7 +47,7 @@ from ..materials import LATENT_INIT, MaterialTable
 from ..train import log_l1, predict
 from .kernel import RowKernel, RowLosses, RowSpace, frozen
 from .layout import layout_rows, padded
-from .optim import SURROGATE_EPS, Adam, adam_rows, evaluate_rows, lbfgs_rows
+from .optim import Adam, adam_rows, evaluate_rows, lbfgs_rows
 from .result import FitResult, per_material_loss
 
 
@@ -67,9 +67,11 @@ class FitProtocol(ABC):
 
     @property
     @abstractmethod
-    def passes(self) -> int:
-        """About how many passes over each material's samples the fit makes at most (what a
-        service's work limit multiplies by the sample count)."""
+    def budget_epochs(self) -> int:
+        """The fit's budget as epochs over each material's samples, counted as the protocol counts
+        them (RMSProp or Adam epochs, L-BFGS iterations per phase; an adaptive fit, its latent
+        epochs on every fold and on all the samples): what a service's work limit multiplies by the
+        rows uploaded."""
 
 
 def _check(model: BRDFModel, samples: Samples, start: MaterialTable | None) -> None:
@@ -134,7 +136,7 @@ class PaperRMSProp(FitProtocol):
             raise ValueError(f"invalid paper protocol {self}")
 
     @property
-    def passes(self) -> int:
+    def budget_epochs(self) -> int:
         return self.epochs
 
     def fit(self, model, samples, *, start=None, trained=None, seed=0, trace_every: int = 0) -> FitResult:
@@ -184,8 +186,8 @@ class PlainLBFGS(FitProtocol):
             raise ValueError(f"invalid plain protocol {self}")
 
     @property
-    def passes(self) -> int:  # the warm-up, then two starts through every surrogate phase
-        return self.warmup_epochs + 2 * len(SURROGATE_EPS) * self.iterations
+    def budget_epochs(self) -> int:
+        return self.iterations
 
     def fit(self, model, samples, *, start=None, trained=None, seed=0) -> FitResult:
         _check(model, samples, start)
@@ -236,8 +238,8 @@ class LatentAdam(FitProtocol):
             raise ValueError(f"invalid latent protocol {self} (starts: 'analytical' or 'paper')")
 
     @property
-    def passes(self) -> int:  # analytical starts: the analytical fit, two imitations, three starts
-        return self.epochs if self.starts == "paper" else self.epochs + 2 * (self.epochs // 3) + 3 * self.epochs
+    def budget_epochs(self) -> int:
+        return self.epochs
 
     def fit(self, model, samples, *, start=None, trained=None, seed=0) -> FitResult:
         _check(model, samples, start)

@@ -214,6 +214,9 @@ def test_options_name_one_protocol_with_its_own_budget():
     assert isinstance(adaptive, Adaptive) and "analytical" in adaptive.capacities
     assert FitOptions(capacity="last-layer").protocol_for(enhanced).capacities == ("last-layer",)
     assert PaperRMSProp() == PaperRMSProp(epochs=1000, lr=1e-3)
+    # the budget a service's work limit counts: each protocol's own epochs, an adaptive fit's on every fold too
+    assert (PlainLBFGS(iterations=7).budget_epochs, LatentAdam(epochs=9).budget_epochs,
+            Adaptive(folds=3, latent_epochs=10).budget_epochs) == (7, 9, 40)
     for bad, match in (({"method": "newton"}, "fit method"), ({"capacity": "huge"}, "capacity"),
                        ({"epochs": 0}, "epochs"), ({"starts": "random"}, "starts")):
         with pytest.raises(ValueError, match=match):
