@@ -15,17 +15,16 @@ import math
 import time
 from typing import Callable
 
-from neuenh.checkpoint import Bundle
-from neuenh.scene.ladder import measure_cost
-from neuenh.search import Outcome, candidate_seed, hamming_ball, initial_state, keep_better_half, select, weight_cost
+from neuenh.search import Outcome, candidate_seed, hamming_ball, initial_state, keep_better_half, select
 from neuenh_service.storage import (ArtifactStore, CandidateRecord, EventKind, FinishedCandidate, HalvingRecord, JobRecord, JobStatus, JobStore, RoundKind,
                      RoundRecord, WarmupRecord)
 
 from .dataset import prepare_dataset
 from .executor import CandidateReport, CandidateTask, Executor, Resources, unlimited
+from .policies import cost_policy, round_pruning
 from .progress import Progress
 from .shares import FairShare
-from .spec import JobSpec, neural_weights
+from .spec import JobSpec
 
 log = logging.getLogger("neuenh.orchestrator")
 
@@ -38,13 +37,18 @@ PRUNED = "pruned by successive halving"
 
 @dataclasses.dataclass(frozen=True)
 class RoundResult:
-    """A trained search round before its commit: the winner, every report in ball order, and with
-    successive halving its record and the states it pruned."""
+    """A trained round before its commit: the winner, every report in ball order, with successive
+    halving its record and the states it pruned; and what the round record says besides (its kind,
+    a polish round's outcome, round 0's warm-up, why ``stop_when`` ended the search after it)."""
 
     winner: CandidateReport
     reports: list[CandidateReport]
     halving: HalvingRecord | None = None
     pruned: frozenset[str] = frozenset()
+    kind: RoundKind = RoundKind.SEARCH
+    outcome: JobStatus | None = None
+    warmup: WarmupRecord | None = None
+    stop_reason: str | None = None
 
 
 class Cancelled(Exception):
@@ -78,7 +82,8 @@ class JobRun:
         self.names: list[str] = []  # the dataset's materials, once prepared
         self.dataset: object | None = None  # the executor's handle, once prepared
         self.recovered: dict[int, int] = {}  # round -> candidates read back instead of trained
-        self.costs_ns: dict[str, float] | None = None  # state -> measured evaluation cost (search.cost "time")
+        self.pruning = round_pruning(spec)  # search.prune
+        self.costs = cost_policy(spec, jobs, job_id)  # search.cost
         self.stop_reason: str | None = None  # why search.stop_when ended the search
         job = jobs.get_job(job_id)
         self.used_wall_s, self.used_cpu_s = job.used_wall_s, job.used_cpu_s  # as stored, over restarts
@@ -120,8 +125,8 @@ class JobRun:
             winner = result.winner
             finished = winner.task.state == self.format(state)
             stop = None if finished else self.good_enough(state, winner, result.reports)
-            self.commit(k, state, winner, result.reports, started, warmup=warmup if k == 0 else None,
-                        halving=result.halving, pruned=result.pruned, stop_reason=stop)
+            self.commit(k, state, dataclasses.replace(result, warmup=warmup if k == 0 else None, stop_reason=stop),
+                        started)
             self.charge()
             if stop:
                 self.stop_reason, finished = stop, True
@@ -198,37 +203,20 @@ class JobRun:
         tasks = [CandidateTask(self.format(s), candidate_seed(self.spec.train.seed, k, s), epochs) for s in states]
         self.jobs.append_event(self.job_id, EventKind.ROUND_STARTED, {"round": k, "state": self.format(state),
                                                               "candidates": len(tasks)})
-        halving, pruned = None, frozenset()
-        if self.spec.search.prune == "halving" and len(tasks) > 2:
-            reports, halving, pruned = self.halving_round(k, parent, tasks)
-        else:
-            reports = self.train(k, [parent], tasks, self.train_config)
-        choice = select(self.outcomes([r for r in reports if r.task.state not in pruned]), state,
+        trained = self.pruning.train_round(
+            lambda parents, tasks, phase: self.train(k, parents, tasks, self.train_config, phase=phase),
+            lambda reports: [self.format(s) for s in keep_better_half(self.outcomes(reports),
+                                                                      self.spec.search.complexity_weight)],
+            parent, tasks)
+        reports = trained.reports
+        choice = select(self.outcomes([r for r in reports if r.task.state not in trained.pruned]), state,
                         complexity_weight=self.spec.search.complexity_weight,
                         min_improvement=self.spec.search.min_improvement)
         if choice is None:
             errors = "; ".join(f"{r.task.state}: {r.error}" for r in reports[:3])
             raise RuntimeError(f"round {k}: every candidate failed ({errors})")
         winner = next(r for r in reports if r.task.state == self.format(choice.state))
-        return RoundResult(winner, reports, halving, pruned)
-
-    def halving_round(self, k: int, parent: bytes, tasks: list[CandidateTask]
-                      ) -> tuple[list[CandidateReport], HalvingRecord, frozenset[str]]:
-        """Successive halving: every task trains a first share of the epochs, the better half goes
-        on from there; the pruned keep their early reports."""
-        epochs = tasks[0].epochs
-        first = max(1, round(epochs * self.spec.search.halving_fraction))
-        early = self.train(k, [parent], [dataclasses.replace(t, epochs=first) for t in tasks], self.train_config,
-                           phase="halving")
-        survivors = keep_better_half(self.outcomes(early), self.spec.search.complexity_weight)
-        by_state = {r.task.state: r for r in early}
-        second = [CandidateTask(r.task.state, r.task.seed, epochs - first, parent=i)
-                  for i, r in enumerate(by_state[self.format(s)] for s in survivors)]
-        late = self.train(k, [by_state[t.state].bundle for t in second], second, self.train_config, phase="continue")
-        late_by_state = {r.task.state: dataclasses.replace(r, epochs=r.epochs + first) for r in late}
-        reports = [late_by_state.get(r.task.state, r) for r in early]
-        halving = HalvingRecord(first_epochs=first, early_val_loss={r.task.state: r.val_loss for r in early})
-        return reports, halving, frozenset(r.task.state for r in early if r.task.state not in late_by_state)
+        return RoundResult(winner, reports, trained.halving, trained.pruned)
 
     def polish(self, k: int, state, parent: bytes, outcome: JobStatus) -> None:
         """The final state trained ``polish_epochs`` more with a decaying lr, committed as round
@@ -241,7 +229,7 @@ class JobRun:
         [report] = self.train(k, [parent], [task], self.spec.polish_config(), phase="polish")
         if not report.ok:
             raise RuntimeError(f"polishing {name} failed: {report.error}")
-        self.commit(k, state, report, [report], started, kind=RoundKind.POLISH, outcome=outcome)
+        self.commit(k, state, RoundResult(report, [report], kind=RoundKind.POLISH, outcome=outcome), started)
         self.emit(RUNNING, round=k, done=1, total=1, best=self.loss(report), state=name, message="polished")
 
     # -- steps ---------------------------------------------------------------------------------
@@ -315,22 +303,9 @@ class JobRun:
     def outcomes(self, reports: list[CandidateReport]) -> list[Outcome]:
         """What the selection rule compares: each state's loss (``loss``), cost and failure."""
         weight = self.spec.search.complexity_weight
-        return [Outcome(self.parse(r.task.state), self.loss(r), self.cost(r) if weight and r.ok else 0.0,
+        return [Outcome(self.parse(r.task.state), self.loss(r), self.costs.cost(r) if weight and r.ok else 0.0,
                         failed=not r.ok)
                 for r in reports]
-
-    def cost(self, report: CandidateReport) -> float:
-        """A candidate's cost for ``complexity_weight`` (``search.cost``)."""
-        if self.spec.search.cost == "weights":
-            return weight_cost(neural_weights(self.spec, report.task.state))
-        if self.costs_ns is None:  # measured before a restart: the same numbers, so the same choices
-            self.costs_ns = {e.payload["state"]: e.payload["ns"] for e in self.jobs.events(self.job_id)
-                             if e.kind == EventKind.COST}
-        state = report.task.state
-        if state not in self.costs_ns:
-            self.costs_ns[state] = evaluation_cost_ns(Bundle.from_bytes(report.bundle))
-            self.jobs.append_event(self.job_id, EventKind.COST, {"state": state, "ns": self.costs_ns[state]})
-        return self.costs_ns[state] / 100.0
 
     def good_enough(self, state, winner: CandidateReport, reports: list[CandidateReport]) -> str | None:
         """Why ``search.stop_when`` ends the search after this round (None: go on)."""
@@ -347,20 +322,18 @@ class JobRun:
                 return f"gain {100 * gain:.2f} % over stay < gain_below {100 * stop.gain_below:g} %"
         return None
 
-    def commit(self, k: int, state, winner: CandidateReport, reports: list[CandidateReport], started: float, *,
-               kind: RoundKind = RoundKind.SEARCH, outcome: JobStatus | None = None,
-               warmup: WarmupRecord | None = None, halving: HalvingRecord | None = None,
-               pruned: frozenset[str] = frozenset(), stop_reason: str | None = None) -> None:
+    def commit(self, k: int, state, result: RoundResult, started: float) -> None:
         """Round ``k``'s winner checkpoint, durably, then the round itself in one transaction. The
         checkpoint is content-addressed: the round record holds its SHA-256 (the key), and every
         read re-hashes it, so a changed byte is an error naming it, never a silently wrong model."""
+        winner = result.winner
         key = self.artifacts.put_content(winner.bundle)  # durable before the round becomes visible
         self.jobs.commit_round(self.job_id, RoundRecord(
             index=k, parent_state=self.format(state), winner_state=winner.task.state,
-            candidates=tuple(_candidate_record(r, r.task.state in pruned) for r in reports),
-            started_at=started, finished_at=time.time(), artifact_key=key,
-            kind=kind, outcome=outcome, warmup=warmup, halving=halving, recovered=self.recovered.get(k, 0),
-            stop_reason=stop_reason,
+            candidates=tuple(_candidate_record(r, r.task.state in result.pruned) for r in result.reports),
+            started_at=started, finished_at=time.time(), artifact_key=key, kind=result.kind, outcome=result.outcome,
+            warmup=result.warmup, halving=result.halving, recovered=self.recovered.get(k, 0),
+            stop_reason=result.stop_reason,
         ))
 
     # -- cancellation, budget and progress ---------------------------------------------------------
@@ -406,11 +379,6 @@ class JobRun:
 
     def format(self, digits) -> str:
         return self.graph.format_state(digits)
-
-
-def evaluation_cost_ns(bundle: Bundle) -> float:
-    """Nanoseconds per evaluation of a candidate's specialized BRDF on its first training material."""
-    return measure_cost(bundle.model.specialize(bundle.materials.as_params(0)))
 
 
 def _candidate_record(r: CandidateReport, pruned: bool) -> CandidateRecord:

@@ -471,7 +471,7 @@ def test_a_time_cost_is_measured_once_per_state_and_kept_for_a_resume(orchestrat
 
     again = JobRun(job.id, spec, jobs, stores[1], InlineExecutor(), lambda p: None, lambda: False)
     report = CandidateReport(CandidateTask("00100000000", 0, 1), 0.1, 0.1, 1, 0.0, "inline", bundle=None)
-    assert again.cost(report) == by_state["00100000000"] / 100.0
+    assert again.costs.cost(report) == by_state["00100000000"] / 100.0
 
 
 def test_a_search_scored_by_fit_selects_the_lowest_fit_score_and_records_both(orchestrator, stores):
