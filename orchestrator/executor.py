@@ -1,13 +1,14 @@
 """The Executor contract: how the orchestrator has candidates trained, without knowing by whom.
 
 An executor receives the job's training data once (``put_dataset``), then batches of candidate
-tasks, each naming its parent bundle (bytes) by index so a round ships its parent once. It yields
+tasks (a ``TrainRequest``), each naming its parent bundle (bytes) by index so a round ships its
+parent once. It yields
 a ``CandidateReport`` per task as each finishes, in completion order. A task that raises or whose
 loss is not finite comes back as a report with ``error`` set (the round goes on); an executor
 retries a task whose worker died. When ``cancelled()`` turns true the executor stops the tasks
 still running and stops yielding.
 
-Several jobs may call ``train`` at once from their own threads. Each call names its ``owner`` (the
+Several jobs may call ``train`` at once from their own threads. Each request names its ``owner`` (the
 job) and keeps at most ``limit(unfinished)`` of its tasks in flight, asking again as tasks finish
 (``orchestrator.shares.FairShare`` answers); ``cluster().holders`` says which job holds what.
 
@@ -41,6 +42,20 @@ class CandidateTask:
     seed: int
     epochs: int
     parent: int = 0  # index into the ``parents`` of the batch
+
+
+@dataclass(frozen=True)
+class TrainRequest:
+    """One batch of candidates for ``Executor.train``: the tasks, trained from ``parents[task.parent]``
+    on ``dataset`` (``put_dataset``'s handle) with ``config`` (whose ``epochs`` each task's replaces),
+    each asking ``resources`` of the cluster, on behalf of the job ``owner``."""
+
+    dataset: object
+    parents: Sequence[bytes]
+    tasks: Sequence[CandidateTask]
+    config: TrainConfig
+    resources: Resources = Resources()
+    owner: str = ""
 
 
 @dataclass
@@ -146,19 +161,10 @@ class Executor(ABC):
         """Make the data available to workers once; returns an opaque handle for ``train``."""
 
     @abstractmethod
-    def train(
-        self,
-        dataset: object,
-        parents: Sequence[bytes],
-        tasks: Sequence[CandidateTask],
-        config: TrainConfig,
-        resources: Resources = Resources(),
-        cancelled: Callable[[], bool] = lambda: False,
-        owner: str = "",
-        limit: Callable[[int], int] = unlimited,
-    ) -> Iterator[CandidateReport]:
-        """Train every task (``config.epochs`` is replaced by each task's ``epochs``), at most
-        ``limit(n)`` in flight while ``n`` are unfinished, on behalf of the job ``owner``."""
+    def train(self, request: TrainRequest, cancelled: Callable[[], bool] = lambda: False,
+              limit: Callable[[int], int] = unlimited) -> Iterator[CandidateReport]:
+        """Train every task of ``request``, at most ``limit(n)`` in flight while ``n`` are
+        unfinished, until ``cancelled()`` (see the module doc)."""
 
     @abstractmethod
     def cluster(self) -> ClusterInfo:

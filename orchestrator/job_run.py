@@ -20,7 +20,7 @@ from neuenh_service.storage import (ArtifactStore, CandidateRecord, EventKind, F
                      RoundRecord, WarmupRecord)
 
 from .dataset import prepare_dataset
-from .executor import CandidateReport, CandidateTask, Executor, Resources, unlimited
+from .executor import CandidateReport, CandidateTask, Executor, Resources, TrainRequest, unlimited
 from .policies import cost_policy, round_pruning
 from .progress import Progress
 from .shares import FairShare
@@ -245,8 +245,8 @@ class JobRun:
         cancelled = lambda: self.should_stop() or self.cancel_requested() or self.budget_spent() is not None  # noqa: E731
         limit = (lambda unfinished: self.share.limit(self.job_id, self.resources, unfinished)) if self.share else unlimited
         try:
-            for report in self.executor.train(self.dataset, parents, todo, config, self.resources, cancelled=cancelled,
-                                              owner=self.job_id, limit=limit):
+            request = TrainRequest(self.dataset, parents, todo, config, self.resources, owner=self.job_id)
+            for report in self.executor.train(request, cancelled=cancelled, limit=limit):
                 self.persist(k, phase, report)
                 reports.append(report)
                 if report.ok and math.isfinite(self.loss(report)) and (best is None or self.loss(report) < best):

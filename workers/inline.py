@@ -7,12 +7,11 @@ from __future__ import annotations
 
 import os
 import socket
-from typing import Callable, Iterator, Sequence
+from typing import Callable, Iterator
 
-from neuenh.train import TrainConfig
 
 from neuenh.data.samples import TrainingData
-from neuenh_service.orchestrator.executor import (CandidateReport, CandidateTask, ClusterInfo, Executor, InFlight, NodeInfo, Resources,
+from neuenh_service.orchestrator.executor import (CandidateReport, ClusterInfo, Executor, InFlight, NodeInfo, TrainRequest,
                                    unlimited)
 
 from .candidate import run_candidate
@@ -25,26 +24,18 @@ class InlineExecutor(Executor):
     def put_dataset(self, data: TrainingData) -> TrainingData:
         return data
 
-    def train(
-        self,
-        dataset: TrainingData,
-        parents: Sequence[bytes],
-        tasks: Sequence[CandidateTask],
-        config: TrainConfig,
-        resources: Resources = Resources(),
-        cancelled: Callable[[], bool] = lambda: False,
-        owner: str = "",
-        limit: Callable[[int], int] = unlimited,
-    ) -> Iterator[CandidateReport]:
-        for i, task in enumerate(tasks):  # one at a time: within any limit (which is at least 1)
+    def train(self, request: TrainRequest, cancelled: Callable[[], bool] = lambda: False,
+              limit: Callable[[int], int] = unlimited) -> Iterator[CandidateReport]:
+        r = request
+        for i, task in enumerate(r.tasks):  # one at a time: within any limit (which is at least 1)
             if cancelled():
                 return
-            limit(len(tasks) - i)
-            self._in_flight.set(owner, 1, resources)
+            limit(len(r.tasks) - i)
+            self._in_flight.set(r.owner, 1, r.resources)
             try:
-                report = run_candidate(parents[task.parent], dataset, task, config, node="inline")
+                report = run_candidate(r.parents[task.parent], r.dataset, task, r.config, node="inline")
             finally:
-                self._in_flight.set(owner, 0, resources)
+                self._in_flight.set(r.owner, 0, r.resources)
             yield report
 
     def cluster(self) -> ClusterInfo:

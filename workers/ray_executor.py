@@ -20,7 +20,7 @@ import os
 import signal
 import threading
 import time
-from typing import Callable, Iterator, Sequence
+from typing import Callable, Iterator
 
 import ray
 from ray.autoscaler.sdk import request_resources
@@ -29,8 +29,8 @@ from ray.exceptions import RayError
 from neuenh.train import TrainConfig
 
 from neuenh.data.samples import TrainingData
-from neuenh_service.orchestrator.executor import (CandidateReport, CandidateTask, ClusterInfo, Executor, InFlight, NodeInfo, Resources,
-                                   unlimited)
+from neuenh_service.orchestrator.executor import (CandidateReport, CandidateTask, ClusterInfo, Executor, InFlight, NodeInfo,
+                                   TrainRequest, unlimited)
 
 from .candidate import run_candidate
 
@@ -90,22 +90,15 @@ class RayExecutor(Executor):
     def put_dataset(self, data: TrainingData) -> ray.ObjectRef:
         return ray.put(data)
 
-    def train(
-        self,
-        dataset: ray.ObjectRef,
-        parents: Sequence[bytes],
-        tasks: Sequence[CandidateTask],
-        config: TrainConfig,
-        resources: Resources = Resources(),
-        cancelled: Callable[[], bool] = lambda: False,
-        owner: str = "",
-        limit: Callable[[int], int] = unlimited,
-    ) -> Iterator[CandidateReport]:
+    def train(self, request: TrainRequest, cancelled: Callable[[], bool] = lambda: False,
+              limit: Callable[[int], int] = unlimited) -> Iterator[CandidateReport]:
+        dataset, tasks, config, resources, owner = (request.dataset, request.tasks, request.config,
+                                                    request.resources, request.owner)
         bundle = {"CPU": resources.cpus, **({"GPU": resources.gpus} if resources.gpus else {})}
         with self._demand_lock:
             self._demand[owner] = [bundle] * len(tasks)
             request_resources(bundles=[b for job in self._demand.values() for b in job])
-        parent_refs = [ray.put(p) for p in parents]
+        parent_refs = [ray.put(p) for p in request.parents]
         threads = max(1, int(resources.cpus))
         remote = _train_candidate.options(num_cpus=resources.cpus, num_gpus=resources.gpus,
                                           max_retries=self.max_retries)

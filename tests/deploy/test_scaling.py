@@ -14,7 +14,7 @@ from neuenh.checkpoint import Bundle
 from neuenh.data.sources import SyntheticZoo, materialise
 from neuenh.search import hamming_ball
 from neuenh.train import TrainConfig
-from neuenh_service.orchestrator.executor import CandidateTask, Resources
+from neuenh_service.orchestrator.executor import CandidateTask, Resources, TrainRequest
 from neuenh_service.workers.ray_executor import RayExecutor
 
 
@@ -51,8 +51,8 @@ def test_a_round_asks_the_cluster_for_one_bundle_per_candidate(executor, radius,
     states = ["".join(map(str, s)) for s in hamming_ball((0,) * 11, radius, 2)]
     assert len(states) == n  # GGX: 1 + 11 (+ 55)
     tasks = [CandidateTask(s, seed=1, epochs=1) for s in states]
-    rounds = executor.train(executor.put_dataset(data), [parent], tasks,
-                            TrainConfig(epochs=1, batch_size=1000), Resources(cpus=0.5))
+    rounds = executor.train(TrainRequest(executor.put_dataset(data), [parent], tasks,
+                                         TrainConfig(epochs=1, batch_size=1000), Resources(cpus=0.5)))
     next(rounds)  # the round is under way
     during = requested_bundles()
     rounds.close()  # the caller stops the round (e.g. a cancel): the request is withdrawn too

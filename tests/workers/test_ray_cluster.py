@@ -9,7 +9,7 @@ from ray.cluster_utils import Cluster
 from neuenh.checkpoint import Bundle
 from neuenh.data.sources import SyntheticZoo, materialise
 from neuenh.train import TrainConfig
-from neuenh_service.orchestrator.executor import CandidateTask
+from neuenh_service.orchestrator.executor import CandidateTask, TrainRequest
 from neuenh_service.workers.ray_executor import RayExecutor
 
 STATES = [f"{'0' * i}1{'0' * (10 - i)}" for i in range(11)] + ["0" * 11]
@@ -39,8 +39,8 @@ def test_candidates_run_on_both_worker_nodes(cluster, job_inputs):
     c, workers = cluster
     data, parent = job_inputs
     executor = RayExecutor(address=c.address)
-    reports = list(executor.train(executor.put_dataset(data), [parent],
-                                  [CandidateTask(s, seed=1, epochs=2) for s in STATES], CONFIG))
+    reports = list(executor.train(TrainRequest(executor.put_dataset(data), [parent],
+                                               [CandidateTask(s, seed=1, epochs=2) for s in STATES], CONFIG)))
     assert len(reports) == 12 and all(r.ok for r in reports)
     assert {r.node for r in reports} == {w.node_id for w in workers}
 
@@ -50,8 +50,8 @@ def test_a_node_removed_mid_round_still_completes_the_round(cluster, job_inputs)
     data, parent = job_inputs
     executor = RayExecutor(address=c.address, max_retries=3)
     reports = []
-    for report in executor.train(executor.put_dataset(data), [parent],
-                                 [CandidateTask(s, seed=1, epochs=4) for s in STATES], CONFIG):
+    for report in executor.train(TrainRequest(executor.put_dataset(data), [parent],
+                                              [CandidateTask(s, seed=1, epochs=4) for s in STATES], CONFIG)):
         reports.append(report)
         if len(reports) == 2:
             c.remove_node(workers[1])  # its running candidate dies with it and is retried

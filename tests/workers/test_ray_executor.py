@@ -11,7 +11,7 @@ import torch
 from neuenh.checkpoint import Bundle
 from neuenh.data.sources import SyntheticZoo, materialise
 from neuenh.train import TrainConfig
-from neuenh_service.orchestrator.executor import CandidateTask
+from neuenh_service.orchestrator.executor import CandidateTask, TrainRequest
 from neuenh_service.orchestrator.runner import Orchestrator
 from jobspecs import tiny_spec
 from neuenh_service.storage import JobStatus, LocalArtifactStore, SQLiteJobStore
@@ -43,10 +43,10 @@ def _tasks(*states, epochs=1):
 def test_ray_matches_in_process_training(executor, data):
     parent = Bundle.initial("ggx", data.names).to_bytes()
     tasks = _tasks("00000000000", "00010000000", "00000100000")
-    remote = {r.task.state: r for r in executor.train(executor.put_dataset(data), [parent], tasks, CONFIG)}
+    remote = {r.task.state: r for r in executor.train(TrainRequest(executor.put_dataset(data), [parent], tasks, CONFIG))}
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # the Ray tasks ran with one thread each (cpus_per_candidate = 1)
-    local = {r.task.state: r for r in InlineExecutor().train(data, [parent], tasks, CONFIG)}
+    local = {r.task.state: r for r in InlineExecutor().train(TrainRequest(data, [parent], tasks, CONFIG))}
     torch.set_num_threads(threads)
     assert set(remote) == set(local)
     node_ids = {n["NodeID"] for n in ray.nodes()}
@@ -57,8 +57,8 @@ def test_ray_matches_in_process_training(executor, data):
 
 def test_a_failing_candidate_comes_back_as_a_report(executor, data):
     parent = Bundle.initial("ggx", data.names).to_bytes()
-    reports = list(executor.train(executor.put_dataset(data), [parent],
-                                  _tasks("00000000000", "99999999999"), CONFIG))
+    reports = list(executor.train(TrainRequest(executor.put_dataset(data), [parent],
+                                               _tasks("00000000000", "99999999999"), CONFIG)))
     by_state = {r.task.state: r for r in reports}
     assert by_state["00000000000"].ok
     bad = by_state["99999999999"]
@@ -70,7 +70,7 @@ def test_cancellation_stops_the_remaining_candidates(executor, data):
     flag = threading.Event()
     tasks = _tasks(*([PAPER_STATE] * 1 + [f"{'0' * i}1{'0' * (10 - i)}" for i in range(11)]), epochs=30)
     got = []
-    for report in executor.train(executor.put_dataset(data), [parent], tasks, CONFIG, cancelled=flag.is_set):
+    for report in executor.train(TrainRequest(executor.put_dataset(data), [parent], tasks, CONFIG), cancelled=flag.is_set):
         got.append(report)
         flag.set()
     assert 1 <= len(got) < len(tasks)
