@@ -10,11 +10,11 @@ fit and test sets of the study (``neuenh.study.heldout.draw_fit_test``, seed 0, 
 the pairs near the mirror direction: 0.5 is the README's protocol), one torch thread, and:
 
 * **encoder alone**: the encoder's parameters from the fit set, no fitting; held-out log-L1;
-* **today**: ``fit_materials`` with the default ``FitConfig`` (its analytical and imitation starts,
+* **today**: ``fit_materials`` with ``LatentAdam()`` (the default: its analytical and imitation starts,
   300 Adam epochs); held-out log-L1, fit loss and wall time;
-* **from the encoder, E epochs**: one start, the encoder's, ``fit_starts`` with ``FitConfig(epochs=E)``;
-* **epochs to today's loss**: the 300-epoch fit from the encoder's start, traced: the first epoch at
-  which its fit loss is at most today's final fit loss (none: never);
+* **from the encoder, E epochs**: one start, the encoder's, ``LatentAdam(epochs=E).fit(..., start=...)``;
+* **epochs to today's loss**: the shortest of the E above whose fit loss is at most today's final
+  fit loss (none: neither);
 * **spread of end points**: the fit loss of each start fitted alone for 300 epochs — today's kinds of
   start (the paper's, the training materials' mean latent code) and the encoder's from three random
   halves of the fit set — as (max - min) / min over the starts of each kind.
