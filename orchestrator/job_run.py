@@ -146,19 +146,19 @@ class JobRun:
         recorded first: a preparation that was started ``MAX_PREPARE_ATTEMPTS`` times and never
         finished (the process died in it, e.g. out of memory) fails the job instead of killing the
         service again on every restart."""
-        started = self._unfinished_preparations()
+        started = self.jobs.get_job(self.job_id).unfinished_preparations
         if started >= MAX_PREPARE_ATTEMPTS:
             raise RuntimeError(f"preparing the dataset started {started} times and never finished (the "
                                "service died while preparing it, e.g. out of memory); not retried")
-        self.jobs.append_event(self.job_id, EventKind.PREPARING, {})
+        self.jobs.begin_preparation(self.job_id)
         try:
             data, data_key = prepare_dataset(self.spec, self.artifacts, check=self.check_cancel)
         except Interrupted:
-            self.jobs.append_event(self.job_id, EventKind.PREPARATION_INTERRUPTED, {})
+            self.jobs.end_preparation(self.job_id, EventKind.PREPARATION_INTERRUPTED)
             raise
-        self.jobs.append_event(self.job_id, EventKind.DATASET, {"key": data_key, "materials": len(data.names),
-                                                        "train": len(data.train), "val": len(data.val),
-                                                        "bytes": data.nbytes})
+        self.jobs.end_preparation(self.job_id, EventKind.DATASET, {
+            "key": data_key, "materials": len(data.names), "train": len(data.train), "val": len(data.val),
+            "bytes": data.nbytes})
         self.names = data.names
         self.dataset = self.executor.put_dataset(data)
 
@@ -174,16 +174,6 @@ class JobRun:
                                    f"(NEUENH_RESOURCE_WAIT_S): {'; '.join(missing)}")
             self.check_cancel()
             time.sleep(min(poll_s, max(0.0, deadline - time.monotonic())))
-
-    def _unfinished_preparations(self) -> int:
-        """Preparations started since the last one that finished or was interrupted cleanly."""
-        count = 0
-        for event in self.jobs.events(self.job_id):
-            if event.kind == EventKind.PREPARING:
-                count += 1
-            elif event.kind in (EventKind.DATASET, EventKind.PREPARATION_INTERRUPTED):
-                count = 0
-        return count
 
     def warm_up(self, state, parent: bytes) -> tuple[bytes, WarmupRecord]:
         """The starting state trained ``warmup_epochs`` (seeded as round -1, so a resumed job warms

@@ -135,6 +135,7 @@ class JobRecord:
     reason: str | None = None          # why a job that did not fail ended where it did, e.g. "budget"
     used_wall_s: float = 0.0           # wall time its runs took so far, summed over restarts
     used_cpu_s: float = 0.0            # CPU time its candidates held (wall x CPUs asked), over restarts
+    unfinished_preparations: int = 0   # dataset preparations begun since the last one that ended
 
     @property
     def terminal(self) -> bool:
@@ -382,6 +383,10 @@ class JobStore(ABC):
       and appends a ``CANDIDATE`` event in ONE transaction: all three or none. Recording the same
       one again is idempotent by content (it writes nothing: no second charge, no second event); a
       different one raises ``ConflictError``. ``finished_candidates`` reads a round's.
+    * **Preparations.** ``begin_preparation`` counts a start of the job's dataset preparation in
+      ``unfinished_preparations`` and appends a ``PREPARING`` event; ``end_preparation`` sets the
+      count to 0 and appends how it ended (``DATASET`` or ``PREPARATION_INTERRUPTED``); each in one
+      transaction.
     * **Usage** (``charge``) adds wall and CPU seconds to the job's totals in one write, so what a
       budget counts survives restarts; totals only grow.
     * **Events** are numbered 1, 2, 3, ... per job without gaps, in commit order, also when
@@ -434,6 +439,14 @@ class JobStore(ABC):
         """The finished candidates recorded for ``round_index``, in the order they were recorded."""
 
     @abstractmethod
+    def begin_preparation(self, job_id: str) -> JobRecord:
+        """Count a start of the job's dataset preparation and log it (see the class docstring)."""
+
+    @abstractmethod
+    def end_preparation(self, job_id: str, kind: EventKind, payload: Mapping[str, Any] | None = None) -> JobRecord:
+        """The preparation ended as ``kind`` says (``DATASET`` or ``PREPARATION_INTERRUPTED``)."""
+
+    @abstractmethod
     def charge(self, job_id: str, *, wall_s: float = 0.0, cpu_s: float = 0.0) -> JobRecord:
         """Add non-negative seconds to the job's ``used_wall_s`` and ``used_cpu_s``; returns the job."""
 
@@ -482,6 +495,13 @@ def validate_error(job_id: str, status: JobStatus, error: str | None, reason: st
     if (error is not None or reason is not None) and not status.terminal:
         raise InvalidRecordError(
             f"job {job_id}: an error or reason is only recorded with a terminal status, not {status.value}")
+
+
+def validate_preparation_end(job_id: str, kind: EventKind | str) -> EventKind:
+    if kind not in (EventKind.DATASET, EventKind.PREPARATION_INTERRUPTED):
+        raise InvalidRecordError(f"job {job_id}: a preparation ends as {EventKind.DATASET.value} or "
+                                 f"{EventKind.PREPARATION_INTERRUPTED.value}, not {kind!r}")
+    return EventKind(kind)
 
 
 def validate_charge(job_id: str, wall_s: float, cpu_s: float) -> tuple[float, float]:

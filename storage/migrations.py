@@ -155,6 +155,15 @@ MIGRATIONS: tuple[Migration, ...] = (
         """UPDATE rounds SET stop_reason = json_extract(extra, '$.stop_when'), extra = json_remove(extra, '$.stop_when')
            WHERE json_type(extra, '$.stop_when') = 'text'""",
     )),
+    Migration(10, "each job's unfinished dataset preparations, a column instead of counted from its events", (
+        "ALTER TABLE jobs ADD COLUMN unfinished_preparations INTEGER NOT NULL DEFAULT 0 "
+        "CHECK (unfinished_preparations >= 0)",
+        # Stores written before this version: the preparing events since the last that ended.
+        """UPDATE jobs SET unfinished_preparations = (
+               SELECT COUNT(*) FROM events e WHERE e.job_id = jobs.id AND e.kind = 'preparing' AND e.seq > COALESCE(
+                   (SELECT MAX(f.seq) FROM events f WHERE f.job_id = jobs.id
+                                                      AND f.kind IN ('dataset', 'preparation_interrupted')), 0))""",
+    )),
 )
 
 SCHEMA_VERSION = MIGRATIONS[-1].version

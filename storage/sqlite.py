@@ -30,7 +30,8 @@ from .errors import ConflictError, InvalidRecordError, NotFoundError, StorageErr
 from .jobs import (UNFINISHED, CandidateRecord, EventKind, EventRecord, FinishedCandidate,
                    HalvingRecord, JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord, StoreStatistics,
                    WarmupRecord, caller_idempotency_key, candidate_payload, canonical_json, check_transition, round_payload,
-                   status_filter, stored_idempotency_key, validate_charge, validate_error)
+                   status_filter, stored_idempotency_key, validate_charge, validate_error,
+                   validate_preparation_end)
 from .migrations import migrate
 
 INT64_MAX = 2**63 - 1  # SQLite's largest integer: a larger bound is clamped to it, never sent as is
@@ -233,6 +234,24 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
                      **({"reason": reason} if reason is not None else {})})
             return _job(_require(c, job_id))
 
+    def begin_preparation(self, job_id: str) -> JobRecord:
+        now = time.time()
+        with self._write(f"begin preparing job {job_id}") as c:
+            _require(c, job_id)
+            c.execute("UPDATE jobs SET unfinished_preparations = unfinished_preparations + 1 WHERE id = ?", (job_id,))
+            _append(c, job_id, now, EventKind.PREPARING, {})
+            return _job(_require(c, job_id))
+
+    def end_preparation(self, job_id: str, kind: EventKind, payload: Mapping[str, Any] | None = None) -> JobRecord:
+        kind = validate_preparation_end(job_id, kind)
+        payload = json.loads(canonical_json(dict(payload or {}), f"{kind} event payload"))
+        now = time.time()
+        with self._write(f"end preparing job {job_id}") as c:
+            _require(c, job_id)
+            c.execute("UPDATE jobs SET unfinished_preparations = 0 WHERE id = ?", (job_id,))
+            _append(c, job_id, now, kind, payload)
+            return _job(_require(c, job_id))
+
     def charge(self, job_id: str, *, wall_s: float = 0.0, cpu_s: float = 0.0) -> JobRecord:
         wall_s, cpu_s = validate_charge(job_id, wall_s, cpu_s)
         with self._write(f"charge job {job_id}") as c:
@@ -371,7 +390,8 @@ def _job(row: sqlite3.Row) -> JobRecord:
                      created_at=row["created_at"], updated_at=row["updated_at"], error=row["error"],
                      idempotency_key=caller_idempotency_key(row["idempotency_key"]), last_round=row["last_round"],
                      current_state=row["current_state"], owner=row["owner"], reason=row["reason"],
-                     used_wall_s=row["used_wall_s"], used_cpu_s=row["used_cpu_s"])
+                     used_wall_s=row["used_wall_s"], used_cpu_s=row["used_cpu_s"],
+                     unfinished_preparations=row["unfinished_preparations"])
 
 
 def owned_by_key(c: sqlite3.Connection, table: str, stored_key: str, key: str, owner: str | None):

@@ -7,7 +7,7 @@ from safetensors.torch import load
 from neuenh.checkpoint import Bundle, blob_metadata
 from neuenh.data.sources import materialise
 from neuenh_service.orchestrator.runner import Orchestrator
-from neuenh_service.storage import JobStatus
+from neuenh_service.storage import EventKind, JobStatus
 from neuenh_service.workers.inline import InlineExecutor
 
 from jobspecs import fit_scored_spec, tiny_spec
@@ -361,13 +361,14 @@ def test_a_preparation_that_died_twice_fails_the_job_instead_of_looping(orchestr
     job, _ = orchestrator.submit(tiny_spec())
     jobs.set_status(job.id, JobStatus.PREPARING)
     for _ in range(2):
-        jobs.append_event(job.id, "preparing", {})
+        jobs.begin_preparation(job.id)
     final = orchestrator.run(job.id)
     assert final.status is JobStatus.FAILED and "never finished" in final.error
     # a clean interruption in between does not count against it
     job, _ = orchestrator.submit(tiny_spec(), idempotency_key="other")
-    for kind in ("preparing", "preparation_interrupted", "preparing"):
-        jobs.append_event(job.id, kind, {})
+    jobs.begin_preparation(job.id)
+    jobs.end_preparation(job.id, EventKind.PREPARATION_INTERRUPTED)
+    jobs.begin_preparation(job.id)
     assert orchestrator.run(job.id).status is not JobStatus.FAILED
 
 

@@ -440,6 +440,26 @@ class TestJobStoreContract:
                 store.charge(job_id, **bad)
         assert store.get_job(job_id).used_wall_s == 1.75
 
+    def test_preparations_are_counted_until_one_ends(self, job_backend):
+        store = job_backend.open()
+        job_id = job_in(store, S.PREPARING)
+        assert store.get_job(job_id).unfinished_preparations == 0
+        store.begin_preparation(job_id)
+        assert store.begin_preparation(job_id).unfinished_preparations == 2
+        assert job_backend.open().get_job(job_id).unfinished_preparations == 2  # survives a restart
+        ended = store.end_preparation(job_id, EventKind.DATASET, {"key": "k", "materials": 2})
+        assert ended.unfinished_preparations == 0 == store.get_job(job_id).unfinished_preparations
+        assert store.begin_preparation(job_id).unfinished_preparations == 1
+        assert store.end_preparation(job_id, EventKind.PREPARATION_INTERRUPTED).unfinished_preparations == 0
+        kinds = [(e.kind, e.payload) for e in store.events(job_id)][-5:]
+        assert kinds == [(EventKind.PREPARING, {}), (EventKind.PREPARING, {}),
+                         (EventKind.DATASET, {"key": "k", "materials": 2}), (EventKind.PREPARING, {}),
+                         (EventKind.PREPARATION_INTERRUPTED, {})]
+        with pytest.raises(InvalidRecordError, match="a preparation ends as"):
+            store.end_preparation(job_id, EventKind.COST)
+        with pytest.raises(NotFoundError):
+            store.begin_preparation("nope")
+
     def test_a_reason_is_recorded_with_a_terminal_status(self, job_store):
         job_id = running_job(job_store)
         with pytest.raises(InvalidRecordError, match="terminal"):

@@ -32,6 +32,7 @@ RELEASED = {
     7: "07880a86",
     8: "14b1d2e0",
     9: "bfff151f",
+    10: "6bcd51b8",
 }
 
 
@@ -155,6 +156,27 @@ def test_upgrades_a_version_8_database_moving_the_stop_reason_out_of_extra(tmp_p
         first, last = store.rounds("old")
     assert (first.stop_reason, first.extra) == (None, {"radius": 1})
     assert (last.stop_reason, last.extra) == ("gain 0.5 %", {"radius": 1})
+
+
+def test_upgrades_a_version_9_database_counting_unfinished_preparations_from_its_events(tmp_path):
+    path = tmp_path / "v9.db"
+    with raw(path) as conn:
+        conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
+        conn.execute("INSERT INTO schema_version VALUES (9)")
+        for m in MIGRATIONS[:9]:
+            for statement in m.statements:
+                conn.execute(statement)
+        logs = {"died_twice": ["preparing", "dataset", "preparing", "status", "preparing"],
+                "interrupted": ["preparing", "preparing", "preparation_interrupted"], "prepared": ["dataset"],
+                "new": []}
+        for job_id, kinds in logs.items():
+            conn.execute("INSERT INTO jobs (id, spec, status, created_at, updated_at) "
+                         "VALUES (?, '{}', 'PREPARING', 1.0, 2.0)", (job_id,))
+            for seq, kind in enumerate(kinds, 1):
+                conn.execute("INSERT INTO events (job_id, seq, time, kind) VALUES (?, ?, 1.0, ?)", (job_id, seq, kind))
+    with SQLiteJobStore(path) as store:
+        assert {j: store.get_job(j).unfinished_preparations for j in logs} == \
+            {"died_twice": 2, "interrupted": 0, "prepared": 0, "new": 0}
 
 
 def test_a_failed_migration_changes_nothing(tmp_path):
