@@ -265,7 +265,7 @@ def markdown_section(env: dict, results: dict, command: str) -> str:
         lines.append(f"| `{label}` | {fmt(val, 5)} | "
                      + " | ".join(fmt(cell(results, p, gs, label)) for _, p, gs in cols) + " |")
     selectors = [(h, p, gs) for h, p, gs in cols if p in ("score", "score2") and len(gs) > 1]
-    truths = [(h, p, gs) for h, p, gs in cols if len(gs) > 1 or p.startswith("rgl")]
+    truths = [(h, p, gs) for h, p, gs in cols if p not in ("score", "score2") or (p == "score2" and len(gs) > 1)]
     for what, subset in ((f"the rungs of `{config['model']}` (one search, one training set)",
                           [(label, val) for label, val in models if label.startswith(config["model"] + "@")]),
                          ("every enhanced model", [(label, val) for label, val in models if label != "ggx"])):
