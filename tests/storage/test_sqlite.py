@@ -44,6 +44,17 @@ def raw(path: Path) -> sqlite3.Connection:
     return sqlite3.connect(path, isolation_level=None)
 
 
+def at_version(path: Path, version: int) -> sqlite3.Connection:
+    """A raw connection to a database as neuenh with schema ``version`` left it."""
+    conn = raw(path)
+    conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
+    conn.execute("INSERT INTO schema_version VALUES (?)", (version,))
+    for m in MIGRATIONS[:version]:
+        for statement in m.statements:
+            conn.execute(statement)
+    return conn
+
+
 def test_released_migrations_are_frozen():
     assert [m.version for m in MIGRATIONS] == list(range(1, SCHEMA_VERSION + 1))
     assert {m.version: digest(m) for m in MIGRATIONS} == RELEASED
@@ -79,11 +90,7 @@ def test_opens_an_empty_file(tmp_path):
 
 def test_upgrades_a_version_1_database(tmp_path):
     path = tmp_path / "v1.db"
-    with raw(path) as conn:  # a database as neuenh with schema version 1 left it
-        conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
-        conn.execute("INSERT INTO schema_version VALUES (1)")
-        for statement in MIGRATIONS[0].statements:
-            conn.execute(statement)
+    with at_version(path, 1) as conn:
         conn.execute("INSERT INTO jobs (id, spec, status, created_at, updated_at, idempotency_key) "
                      "VALUES ('old', '{\"model\":\"ggx\"}', 'RUNNING', 1.0, 2.0, 'k1')")
         conn.execute("INSERT INTO events (job_id, seq, time, kind, payload) "
@@ -103,12 +110,7 @@ def test_upgrades_a_version_2_database_moving_round_kinds_out_of_extra(tmp_path)
     """Before version 3 a polish round, a warm-up, successive halving and pruned candidates were
     keys of the rounds' ``extra`` JSON; a store written then reads as typed fields, extra cleared."""
     path = tmp_path / "v2.db"
-    with raw(path) as conn:
-        conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
-        conn.execute("INSERT INTO schema_version VALUES (2)")
-        for m in MIGRATIONS[:2]:
-            for statement in m.statements:
-                conn.execute(statement)
+    with at_version(path, 2) as conn:
         conn.execute("INSERT INTO jobs (id, spec, status, created_at, updated_at, last_round, current_state) "
                      "VALUES ('old', '{}', 'CONVERGED', 1.0, 2.0, 1, '01')")
         warmup = '{"epochs":4,"train_loss":0.5,"val_loss":0.6,"wall_s":3.5,"node":"n1"}'
@@ -137,12 +139,7 @@ def test_upgrades_a_version_8_database_moving_the_stop_reason_out_of_extra(tmp_p
     """Before version 9 why search.stop_when ended a search was the key stop_when of its last search
     round's extra; a store written then reads it as the round's stop_reason, the other keys kept."""
     path = tmp_path / "v8.db"
-    with raw(path) as conn:
-        conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
-        conn.execute("INSERT INTO schema_version VALUES (8)")
-        for m in MIGRATIONS[:8]:
-            for statement in m.statements:
-                conn.execute(statement)
+    with at_version(path, 8) as conn:
         conn.execute("INSERT INTO jobs (id, spec, status, created_at, updated_at, last_round, current_state, reason) "
                      "VALUES ('old', '{}', 'STOPPED', 1.0, 2.0, 1, '11', 'stop_when')")
         for i, (parent, winner, extra) in enumerate([("00", "01", '{"radius":1}'),
@@ -160,12 +157,7 @@ def test_upgrades_a_version_8_database_moving_the_stop_reason_out_of_extra(tmp_p
 
 def test_upgrades_a_version_9_database_counting_unfinished_preparations_from_its_events(tmp_path):
     path = tmp_path / "v9.db"
-    with raw(path) as conn:
-        conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
-        conn.execute("INSERT INTO schema_version VALUES (9)")
-        for m in MIGRATIONS[:9]:
-            for statement in m.statements:
-                conn.execute(statement)
+    with at_version(path, 9) as conn:
         logs = {"died_twice": ["preparing", "dataset", "preparing", "status", "preparing"],
                 "interrupted": ["preparing", "preparing", "preparation_interrupted"], "prepared": ["dataset"],
                 "new": []}
@@ -181,11 +173,7 @@ def test_upgrades_a_version_9_database_counting_unfinished_preparations_from_its
 
 def test_a_failed_migration_changes_nothing(tmp_path):
     path = tmp_path / "v1.db"
-    with raw(path) as conn:
-        conn.execute("CREATE TABLE schema_version (version INTEGER NOT NULL)")
-        conn.execute("INSERT INTO schema_version VALUES (1)")
-        for statement in MIGRATIONS[0].statements:
-            conn.execute(statement)
+    with at_version(path, 1) as conn:
         conn.execute("CREATE TABLE jobs_by_status (x)")  # makes migration 2 fail
     with pytest.raises(StorageError, match="migration 2 .* already a table named jobs_by_status.* "
                                            "unchanged at version 1"):
