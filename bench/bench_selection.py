@@ -260,10 +260,9 @@ def markdown_section(env: dict, results: dict, command: str) -> str:
              f"{SEARCH.near_mirror:.0%} near the mirror); *user* phases: `neuenh fit`'s ({USER.fit_samples} / "
              f"{USER.test_samples}, {USER.epochs} epochs, {USER.near_mirror:.0%} near the mirror). *val*: the "
              "in-sample validation loss the model's search selected by. —: not measured (run cut short).", ""]
-    lines += ["| model | val | " + " | ".join(h for h, _, _ in cols) + " |", "|---|---:|" + "---:|" * len(cols)]
+    lines += ["| model | val |" + "".join(f" {h} |" for h, _, _ in cols), "|---|---:|" + "---:|" * len(cols)]
     for label, val in models:
-        lines.append(f"| `{label}` | {fmt(val, 5)} | "
-                     + " | ".join(fmt(cell(results, p, gs, label)) for _, p, gs in cols) + " |")
+        lines.append(f"| `{label}` | {fmt(val, 5)} |" + "".join(f" {fmt(cell(results, p, gs, label))} |" for _, p, gs in cols))
     selectors = [(h, p, gs) for h, p, gs in cols if p in ("score", "score2") and len(gs) > 1]
     truths = [(h, p, gs) for h, p, gs in cols if p not in ("score", "score2") or (p == "score2" and len(gs) > 1)]
     for what, subset in ((f"the rungs of `{config['model']}` (one search, one training set)",
