@@ -32,8 +32,7 @@ from fastapi import APIRouter, Depends, FastAPI
 import neuenh
 from neuenh.scene import SceneError, parse_scene
 from neuenh_service.orchestrator.executor import Executor
-from neuenh_service.storage import (ArtifactStore, LocalArtifactStore, OwnerLock, PlanRecord, SQLiteJobStore,
-                                   SQLitePlanStore)
+from neuenh_service.storage import OwnerLock, PlanRecord, SQLiteJobStore, SQLitePlanStore
 
 from . import deps, errors
 from .auth import TokenTable
@@ -41,6 +40,7 @@ from .middleware import AuthFirst, BodyLimit, HostCheck
 from .metrics import ServiceMetrics
 from .routes import cluster, dashboard, docs, fit, health, jobs, metrics, plans
 from .settings import Settings
+from .stores import artifact_store
 from .job_queue import JobQueue
 from .limits import plan_problems
 from .plan_queue import PlanQueue
@@ -55,21 +55,6 @@ def ray_executor(settings: Settings) -> Executor:
     from neuenh_service.workers.ray_executor import RayExecutor  # Ray only when the service really starts
 
     return RayExecutor(address=settings.ray_address, num_cpus=settings.ray_num_cpus)
-
-
-def artifact_store(settings: Settings) -> ArtifactStore:
-    """The bucket when ``s3_bucket`` is set (checked: a ``StorageError`` naming a missing bucket or
-    an unreachable endpoint), else the directory ``data_dir/artifacts``."""
-    if not settings.s3_bucket:
-        return LocalArtifactStore(settings.data_dir / "artifacts")
-    from neuenh_service.storage.s3 import S3ArtifactStore  # boto3 only for a bucket
-
-    secret = settings.s3_secret_access_key
-    return S3ArtifactStore(settings.s3_bucket, prefix=settings.s3_prefix,
-                           endpoint_url=settings.s3_endpoint_url, region=settings.s3_region,
-                           access_key_id=settings.s3_access_key_id,
-                           secret_access_key=secret.get_secret_value() if secret else None,
-                           max_attempts=settings.s3_max_attempts)
 
 
 def owner_lock(settings: Settings) -> OwnerLock:

@@ -33,7 +33,7 @@ def run_plan(settings: Settings, base: Path, plan_id: str, progress: Connection)
     from neuenh_service.orchestrator.plans import PlanRunner
     from neuenh_service.storage import SQLitePlanStore
 
-    from .app import artifact_store
+    from .stores import artifact_store
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(settings.plan_cpus)
