@@ -39,8 +39,8 @@ from safetensors.torch import load as st_load
 from safetensors.torch import load_file, save, save_file
 
 from .encoder import MaterialEncoder
-from .graph import BRDFModel
 from .materials import MaterialTable
+from .model import BRDFModel
 from .models import get_model
 from .modules import ModuleConfig
 

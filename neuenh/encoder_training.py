@@ -28,8 +28,8 @@ import torch
 from .data.samples import Samples
 from .encoder import EncoderConfig, MaterialEncoder
 from .fit import frozen
-from .graph import BRDFModel
 from .materials import MaterialTable
+from .model import BRDFModel
 from .train import log_l1
 
 __all__ = ["EncoderTrainConfig", "FixedSets", "MeasurementPools", "encoder_loss", "start_losses", "train_encoder"]

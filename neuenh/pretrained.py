@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 
 from .checkpoint import Bundle, Rung
-from .graph import BRDFModel
+from .model import BRDFModel
 from .materials import MaterialTable
 from .models import available_models, get_model
 

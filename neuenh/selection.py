@@ -29,8 +29,8 @@ import torch
 from .checkpoint import Bundle
 from .data.samples import Samples, TrainingData
 from .fit import FitOptions, fit_materials, per_material_loss
-from .graph import BRDFModel
 from .materials import MaterialTable
+from .model import BRDFModel
 from .train import CandidateResult, FitScoreConfig, TrainConfig, train_candidate
 
 __all__ = ["FitScore", "FitScoreConfig", "fit_score", "split_materials", "train_and_score"]

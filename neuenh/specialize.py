@@ -27,7 +27,7 @@ from typing import Any, Mapping
 
 import torch
 
-from .graph import Operator, Term  # graph imports this module only inside BRDFModel.specialize
+from .graph import Operator, Term
 from .materials import MaterialParams
 from .ops import TORCH, BatchVec3
 from .shading import Shading, shade, shading_frame

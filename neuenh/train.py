@@ -26,7 +26,7 @@ import torch
 
 from .checkpoint import Bundle
 from .data.samples import Samples, TrainingData
-from .graph import BRDFModel
+from .model import BRDFModel
 from .materials import MaterialTable
 
 

@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from neuenh.checkpoint import Bundle
 from neuenh.data.sources import DataSource
-from neuenh.graph import BRDFModel
+from neuenh.model import BRDFModel
 from neuenh.models import available_models, get_model, models_with_alternatives
 from neuenh.modules import ModuleConfig
 from neuenh.search import Constraints

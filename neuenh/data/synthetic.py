@@ -17,7 +17,7 @@ from typing import Callable
 
 import torch
 
-from ..models.ggx import ggx_distribution, ggx_shadowing
+from ..models.microfacet import ggx_distribution, smith_shadowing
 from ..shading import COS_EPS, Shading, make_shading
 from .directions import Sampling
 
@@ -63,7 +63,7 @@ def _shading(wi, wo, **params) -> Shading:
 def _ggx_lobe(wi, wo, alpha_x, alpha_y, t_theta=0.0):
     """D G / (4 cos_i cos_o) of anisotropic GGX (Walter et al. 2007), without Fresnel."""
     s = _shading(wi, wo, alpha_x=[alpha_x], alpha_y=[alpha_y], t_theta=[t_theta])
-    return ggx_distribution(s) * ggx_shadowing(s) / (4 * s.cos_i * s.cos_o), s
+    return ggx_distribution(s) * smith_shadowing(s) / (4 * s.cos_i * s.cos_o), s
 
 
 def conductor_fresnel(cos: torch.Tensor, eta: torch.Tensor, k: torch.Tensor) -> torch.Tensor:

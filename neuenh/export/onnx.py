@@ -50,8 +50,9 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from .. import __version__
-from ..graph import BRDFModel, Term
+from ..graph import Term
 from ..materials import LATENT_NAME, MaterialParams
+from ..model import BRDFModel
 from ..ops import BatchVec3, EmittingOps, _is_const
 from ..shading import make_shading, shade
 from ..specialize import SpecializedBRDF

@@ -10,8 +10,8 @@ through the frozen modules, with per-row corrections), ``optim`` (row-wise Adam 
 from __future__ import annotations
 
 from ..data.samples import Samples
-from ..graph import BRDFModel
 from ..materials import MaterialTable
+from ..model import BRDFModel
 from .capacity import CAPACITIES, Adaptive
 from .kernel import frozen
 from .optim import SURROGATE_EPS

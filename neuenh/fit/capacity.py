@@ -31,8 +31,8 @@ from typing import Callable, ClassVar
 
 import torch
 
-from ..graph import BRDFModel
 from ..materials import MaterialTable
+from ..model import BRDFModel
 from .kernel import LayerCorrection, RowKernel, RowLosses, RowSpace, frozen
 from .layout import fold_masks
 from .optim import Adam, adam_rows, evaluate_rows

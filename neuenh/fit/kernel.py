@@ -31,8 +31,8 @@ from typing import Iterator, Sequence
 import torch
 from torch import nn
 
-from ..graph import BRDFModel
 from ..materials import MaterialTable
+from ..model import BRDFModel
 from ..modules import NeuralModule
 from ..train import log_residual
 from .layout import RowLayout

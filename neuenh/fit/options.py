@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from ..graph import BRDFModel
+from ..model import BRDFModel
 from .capacity import CAPACITIES, Adaptive
 from .protocols import FitProtocol, LatentAdam, PaperRMSProp, PlainLBFGS
 

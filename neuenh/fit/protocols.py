@@ -42,8 +42,8 @@ from typing import ClassVar
 import torch
 
 from ..data.samples import Samples
-from ..graph import BRDFModel
 from ..materials import LATENT_INIT, MaterialTable
+from ..model import BRDFModel
 from ..train import log_l1, predict
 from .kernel import RowKernel, RowLosses, RowSpace, frozen
 from .layout import layout_rows, padded

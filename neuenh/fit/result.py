@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 import torch
 
 from ..data.samples import Samples
-from ..graph import BRDFModel
 from ..materials import MaterialParams, MaterialTable
+from ..model import BRDFModel
 from ..train import log_l1, predict
 
 

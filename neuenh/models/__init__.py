@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from typing import Callable
 
-from ..graph import BRDFModel, Graph
+from ..graph import Graph
+from ..model import BRDFModel
 from ..modules import ModuleConfig
 from ..params import ParamSpecs
 from . import blinn_phong, cook_torrance, ggx, ggx_residual, ward

@@ -8,7 +8,7 @@ mapping and initial value as every parameter: ``params.ParamSpec``). Formulas an
 
 D, normal distributions (width 1; every one integrates to 1 over projected area, tests):
 * ``beckmann`` (for GGX; Cook-Torrance gets ``ggx`` here): anisotropic Beckmann (Walter et al. 2007 eq. 25; Heitz 2014 eq. 83), as in
-  Cook-Torrance (``models.cook_torrance.beckmann_distribution``).
+  Cook-Torrance (``models.microfacet.beckmann_distribution``).
 * ``gtr``: Burley's generalized Trowbridge-Reitz (Burley, "Physically-Based Shading at Disney",
   SIGGRAPH 2012 course, eq. 4 and its normalisation in the addenda)
   ``D = c / (a² cos²θh + sin²θh)^γ``, ``c = (γ−1)(1−a²) / (π ((a²)^(1−γ) − 1))``. Burley's GTR is
@@ -49,7 +49,7 @@ import math
 from ..graph import Term
 from ..params import ParamSpec
 from ..shading import COS_EPS, Shading
-from .common import anisotropic_slope_sq
+from .microfacet import ggx_d, slope_sq
 
 # -- extra per-material parameters (their names are unique across a model's parameters) ----------
 # Each starts where its term equals or nears the original (GGX, Schlick, Lambert), so a candidate
@@ -69,13 +69,6 @@ GTR_A2_MAX = 0.999  # GTR's normalisation is 0/0 at a² = 1 (its limit there is 
 
 
 # -- D ----------------------------------------------------------------------------------------------
-def _ggx_d(s: Shading, ax, ay):
-    """Anisotropic GGX D for roughnesses ``ax, ay`` (as ``models.ggx.ggx_distribution``)."""
-    h = s.h
-    stretch = (h.x / ax) ** 2 + (h.y / ay) ** 2 + s.cos_h**2
-    return 1.0 / (math.pi * ax * ay * stretch**2)
-
-
 def gtr_distribution(s: Shading):
     """Burley's GTR, isotropic in a² = αx αy, in log space so that tiny roughness stays finite."""
     xp, gamma = s.xp, s.params["gtr_gamma"]
@@ -93,7 +86,7 @@ def student_t_distribution(s: Shading):
     a finite gradient)."""
     xp, gamma = s.xp, s.params["std_gamma"]
     ax, ay = s.params["alpha_x"], s.params["alpha_y"]
-    r2 = anisotropic_slope_sq(s, s.h) / s.cos_h**2
+    r2 = slope_sq(s.h, ax, ay) / s.cos_h**2
     log_norm = xp.log(math.pi * ax * ay) + 4.0 * xp.log(s.cos_h)
     return xp.exp(-gamma * xp.log(1.0 + r2 / (gamma - 1.0)) - log_norm)
 
@@ -102,8 +95,8 @@ def hazy_ggx_distribution(s: Shading):
     """(1 − χ) GGX(α) + χ GGX(min(λα, 1)): a sharp core under a wide haze lobe."""
     xp, chi, extent = s.xp, s.params["haze_weight"], s.params["haze_extent"]
     ax, ay = s.params["alpha_x"], s.params["alpha_y"]
-    core = _ggx_d(s, ax, ay)
-    haze = _ggx_d(s, xp.clamp(extent * ax, hi=1.0), xp.clamp(extent * ay, hi=1.0))
+    core = ggx_d(s, ax, ay)
+    haze = ggx_d(s, xp.clamp(extent * ax, hi=1.0), xp.clamp(extent * ay, hi=1.0))
     return (1.0 - chi) * core + chi * haze
 
 

@@ -47,9 +47,3 @@ def schlick_fresnel(s: Shading):
 def inverse_microfacet_normalisation(s: Shading):
     """1/E = 1 / (4 cos_i cos_o), the microfacet Jacobian (Walter et al. 2007, eq. 20)."""
     return 1.0 / (4.0 * s.cos_i * s.cos_o)
-
-
-def anisotropic_slope_sq(s: Shading, w):
-    """(w_x / alpha_x)^2 + (w_y / alpha_y)^2 for a shading-frame vector w: the anisotropic
-    stretch shared by GGX, Beckmann and Ward lobes."""
-    return (w.x / s.params["alpha_x"]) ** 2 + (w.y / s.params["alpha_y"]) ** 2

@@ -14,7 +14,7 @@ Surfaces", EGSR 2007 (D eq. 33, Smith G1 eq. 34, Jacobian eq. 20); the anisotrop
 G1 from Heitz, "Understanding the Masking-Shadowing Function in Microfacet-Based BRDFs", JCGT 2014
 (eqs. 85-86); Schlick, "An Inexpensive BRDF Model for Physically-based Rendering", 1994; the graph,
 parameters and enhancement from Shen, Ma, Zhou, Wu, "Neural Enhancement of Analytical Appearance
-Models" (Sec. 3). 11 positions, 12 parameters.
+Models" (Sec. 3). 11 positions, 12 parameters. D and G are ``models.microfacet``'s.
 
 ``build(alternatives=True)`` offers each of M, D, F and G's alternative analytical terms
 (``models.alternatives``) as further digits; F is then an RGB position (Schlick broadcasts).
@@ -22,41 +22,11 @@ Models" (Sec. 3). 11 positions, 12 parameters.
 
 from __future__ import annotations
 
-import math
-
 from ..graph import Graph, Term, add, mul
 from ..params import ParamSpecs
-from ..shading import Shading
-from .cook_torrance import beckmann_distribution
 from .alternatives import microfacet_alternatives
-from .common import (
-    MICROFACET_PARAMS,
-    anisotropic_slope_sq,
-    inverse_microfacet_normalisation,
-    lambertian,
-    schlick_fresnel,
-    specular_albedo,
-)
-
-
-def ggx_distribution(s: Shading):
-    """D(h): Walter et al. 2007 eq. 33, anisotropic (Heitz 2014 eq. 85). chi+(h.n) = 1 because
-    h of two directions above the shading horizon always has h_z > 0."""
-    ax, ay = s.params["alpha_x"], s.params["alpha_y"]
-    stretch = anisotropic_slope_sq(s, s.h) + s.cos_h**2
-    return 1.0 / (math.pi * ax * ay * stretch**2)
-
-
-def ggx_smith_g1(s: Shading, w, cos_w):
-    """G1(w) = 1 / (1 + Lambda(w)), written without tan so it is exact and finite at grazing."""
-    ax, ay = s.params["alpha_x"], s.params["alpha_y"]
-    projected = (ax * w.x) ** 2 + (ay * w.y) ** 2
-    return 2.0 * cos_w / (cos_w + s.xp.sqrt(cos_w**2 + projected))
-
-
-def ggx_shadowing(s: Shading):
-    """G = G1(wi) G1(wo): the separable Smith masking-shadowing (Walter et al. 2007 eq. 23)."""
-    return ggx_smith_g1(s, s.wi, s.cos_i) * ggx_smith_g1(s, s.wo, s.cos_o)
+from .common import MICROFACET_PARAMS, inverse_microfacet_normalisation, lambertian, schlick_fresnel, specular_albedo
+from .microfacet import beckmann_distribution, ggx_distribution, smith_shadowing
 
 
 def build(alternatives: bool = False) -> tuple[Graph, ParamSpecs]:
@@ -66,6 +36,6 @@ def build(alternatives: bool = False) -> tuple[Graph, ParamSpecs]:
     S = Term("S", 3, specular_albedo, False, "albedo")  # specular albedo rho_s
     D = Term("D", 1, ggx_distribution, True, "ggx", alternatives=alt.get("D", ()))  # GGX distribution
     F = Term("F", f_width, schlick_fresnel, True, "schlick", alternatives=alt.get("F", ()))  # Schlick, f0
-    G = Term("G", 1, ggx_shadowing, True, "smith", alternatives=alt.get("G", ()))  # separable Smith G1 G1
+    G = Term("G", 1, smith_shadowing, True, "smith", alternatives=alt.get("G", ()))  # separable Smith G1 G1
     invE = Term("invE", 1, inverse_microfacet_normalisation, True, "jacobian")  # 1/(4 cos_i cos_o)
     return Graph(add(M, mul(S, D, F, G, invE))), ParamSpecs(MICROFACET_PARAMS)

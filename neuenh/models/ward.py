@@ -19,14 +19,14 @@ import math
 from ..graph import Graph, Term, add, mul
 from ..params import ParamSpecs
 from ..shading import Shading
-from .common import ALPHA_X, ALPHA_Y, NORMAL, RHO_D, RHO_S, T_THETA, anisotropic_slope_sq
-from .common import lambertian, specular_albedo
+from .common import ALPHA_X, ALPHA_Y, NORMAL, RHO_D, RHO_S, T_THETA, lambertian, specular_albedo
+from .microfacet import slope_sq
 
 
 def ward_lobe(s: Shading):
     """D: the elliptical Gaussian in the half-vector slopes, normalised by pi a_x a_y."""
     ax, ay = s.params["alpha_x"], s.params["alpha_y"]
-    return s.xp.exp(-anisotropic_slope_sq(s, s.h) / s.cos_h**2) / (math.pi * ax * ay)
+    return s.xp.exp(-slope_sq(s.h, ax, ay) / s.cos_h**2) / (math.pi * ax * ay)
 
 
 def ward_normalisation(s: Shading):

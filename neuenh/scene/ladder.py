@@ -26,8 +26,8 @@ import torch
 from ..data.directions import sample_directions
 from ..data.samples import Samples
 from ..fit import FitOptions, fit_materials, model_for
-from ..graph import BRDFModel
 from ..materials import MaterialParams, MaterialTable
+from ..model import BRDFModel
 from ..train import log_l1
 
 __all__ = ["FittedRung", "GraphRung", "NBRDFRung", "Rung", "build_ladder", "measure_cost"]

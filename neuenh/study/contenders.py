@@ -28,8 +28,8 @@ import torch
 from ..data.samples import Samples
 from ..encoder import MaterialEncoder
 from ..fit import FitOptions, fit_materials, per_material_loss
-from ..graph import BRDFModel
 from ..materials import MaterialTable
+from ..model import BRDFModel
 from .nbrdf_fit import NBRDFConfig, fit_nbrdf
 
 __all__ = ["Contender", "EncodedContender", "FittedMaterial", "GraphContender", "NBRDFContender"]

@@ -32,8 +32,8 @@ import torch
 from ..data.samples import Samples
 from ..data.directions import sample_directions
 from ..fit import FitOptions, FitResult, fit_materials, per_material_loss
-from ..graph import BRDFModel
 from ..materials import MaterialTable
+from ..model import BRDFModel
 
 __all__ = ["draw_fit_test", "fit_and_evaluate", "heldout_log_l1", "predict_f_r", "split_rows",
            "write_predictions"]
