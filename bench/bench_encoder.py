@@ -38,6 +38,7 @@ import torch  # noqa: E402
 
 from bench.harness import machine, machine_line, wait_quiet  # noqa: E402
 from bench.report import publish  # noqa: E402
+from neuenh.files import atomic_write  # noqa: E402
 
 SECTION = "## Amortised starts (issue 24)"
 RGL = ROOT.parent / "shared" / "data" / "rgl"
@@ -180,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
         groups[label] = [measure(bundle.model, bundle.materials, bundle.encoder, m, args.n_fit, args.n_test,
                                  args.near_mirror) for m in materials]
     if args.json:
-        args.json.write_text(json.dumps(groups, indent=1))
+        atomic_write(args.json, json.dumps(groups, indent=1))
     command = " ".join(["python bench/bench_encoder.py", *(argv if argv is not None else sys.argv[1:])])
     model = f"{path.name}, state {bundle.model.state}, encoder of {bundle.encoder.describe()['n_weights']:,} weights"
     publish(markdown_section(env, groups, command, model, args.n_fit, args.near_mirror), args.write, SECTION)

@@ -32,6 +32,7 @@ import torch  # noqa: E402
 
 from bench.harness import machine, machine_line, wait_quiet  # noqa: E402
 from bench.report import publish  # noqa: E402
+from neuenh.files import atomic_write  # noqa: E402
 
 SECTION = "## Fitting speed (issue 13)"
 RGL = ROOT.parent / "shared" / "data" / "rgl"
@@ -128,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     before = run_before(args.before_rev, args) if args.before_rev else None
     now = run(args.rgl, args.model)
     if args.json:
-        args.json.write_text(json.dumps(now, indent=1))
+        atomic_write(args.json, json.dumps(now, indent=1))
     from neuenh.pretrained import load_model
 
     enhanced, _ = load_model(args.model)

@@ -41,7 +41,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import statistics
 import sys
 import time
@@ -54,6 +53,7 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
 from bench.harness import machine, machine_line  # noqa: E402
 from bench.report import publish  # noqa: E402
+from neuenh.files import atomic_write  # noqa: E402
 
 SECTION = "## Selection by generalisation: the experiment (issue 23)"
 RGL = ROOT.parent / "shared" / "data" / "rgl"
@@ -146,9 +146,7 @@ def unit_key(phase: str, group: str, label: str) -> str:
 
 
 def save(path: Path, results: dict) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(results, indent=1))
-    os.replace(tmp, path)
+    atomic_write(path, json.dumps(results, indent=1))
 
 
 def run(args, config: dict) -> dict:

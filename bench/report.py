@@ -5,6 +5,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from neuenh.files import atomic_write
+
 HEADER = "# Benchmarks\n\nMeasured numbers, each with the command that produced it.\n"
 
 
@@ -21,9 +23,7 @@ def write_section(path: Path, title: str, text: str) -> None:
         end = start + len(title) + following.start() if following else len(old)
         new = old[:start] + text + ("\n" + old[end:] if following else "")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(new.rstrip("\n") + "\n")
-    tmp.replace(path)
+    atomic_write(path, new.rstrip("\n") + "\n")
 
 
 def publish(section: str | list[str], write: str | None, title: str) -> None:

@@ -27,12 +27,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from neuenh.data.table import savez
+from neuenh.files import atomic_write
 
 
 class DataCommandError(ValueError):
@@ -283,12 +285,10 @@ def run_sample(args) -> int:
     arrays = {f"{part}_{f}": getattr(getattr(data, part), f).numpy()
               for part in ("train", "val") for f in ("wi", "wo", "f_r", "material")}
     recipe = {"data": [s.model_dump(mode="json") for s in sources], "val_fraction": val_fraction, "seed": seed}
-    tmp = args.output.with_name(f".{args.output.name}.tmp.npz")
+    arrays.update(names=np.array(data.names, dtype=str), recipe=np.array(json.dumps(recipe)))
     try:
-        np.savez(tmp, names=np.array(data.names, dtype=str), recipe=np.array(json.dumps(recipe)), **arrays)
-        os.replace(tmp, args.output)
+        atomic_write(args.output, lambda tmp: savez(tmp, arrays))
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise DataCommandError(f"-o {args.output}: cannot be written ({exc.strerror or exc})") from None
     report = {"output": str(args.output), "materials": len(data.names), "train": len(data.train),
               "val": len(data.val), "memory_bytes": data.nbytes,

@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -45,6 +44,7 @@ from pathlib import Path
 import torch
 
 from neuenh.checkpoint import Bundle
+from neuenh.files import atomic_write
 from neuenh.materials import LATENT_INIT, MaterialParams
 
 from neuenh.pretrained import bundle_path, load_model
@@ -292,12 +292,7 @@ def run(args) -> int:
 
 
 def _write_json(path: Path, doc: dict) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        tmp.write_text(json.dumps(doc, indent=2) + "\n")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    atomic_write(path, json.dumps(doc, indent=2) + "\n")
 
 
 def _summary(report: dict) -> str:

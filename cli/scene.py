@@ -17,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+from neuenh.files import atomic_write
 from neuenh.scene import MaterialPlan, load_scene, plan_scene
 from neuenh.scene.outputs import write_plan
 
@@ -48,9 +49,7 @@ def run(args) -> int:
 
     def keep(plan: MaterialPlan) -> None:
         kept.mkdir(parents=True, exist_ok=True)
-        tmp = kept / f".{_file(plan.name)}.tmp"
-        tmp.write_text(json.dumps(plan.to_json()))
-        tmp.replace(kept / _file(plan.name))
+        atomic_write(kept / _file(plan.name), json.dumps(plan.to_json()))
 
     if args.chunk < 1:
         raise ValueError(f"--chunk must be at least 1, got {args.chunk}")

@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from neuenh.checkpoint import Bundle
+from neuenh.files import atomic_write
 from neuenh_service.orchestrator.dataset import prepare_dataset
 from neuenh_service.orchestrator.runner import Orchestrator, Progress, train_plain_baseline
 from neuenh_service.orchestrator.spec import load_spec, parse_spec
@@ -114,9 +115,7 @@ def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
 
     history = {"spec": spec.model_dump(mode="json"),
                **HistoryPublic.from_records(job, rounds).model_dump(mode="json")}
-    tmp = out / ".history.json.tmp"
-    tmp.write_text(json.dumps(history, indent=2) + "\n")
-    tmp.replace(out / "history.json")
+    atomic_write(out / "history.json", json.dumps(history, indent=2) + "\n")
     final = rounds[-1].winner
     stay0 = next(c for c in rounds[0].candidates if c.state == rounds[0].parent_state)
     summary.update({

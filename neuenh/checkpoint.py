@@ -18,8 +18,8 @@ A bundle directory holds
   measurements of a material -> its parameters, the start of its fit; ``model.json``'s ``encoder``
   holds its description and training record. A bundle without one fits from the usual starts.
 
-Loading never unpickles: safetensors and JSON only. Every file is written atomically (temporary
-file + rename) and ``model.json`` last, so a directory with a ``model.json`` is complete.
+Loading never unpickles: safetensors and JSON only. Every file is written atomically
+(``neuenh.files``: temporary file, fsync, 0644, rename) and ``model.json`` last, so a directory with a ``model.json`` is complete.
 ``to_bytes``/``from_bytes`` pack the same content into one safetensors blob for transport.
 """
 
@@ -29,7 +29,6 @@ import copy
 import hashlib
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,6 +38,7 @@ from safetensors.torch import load as st_load
 from safetensors.torch import load_file, save, save_file
 
 from .encoder import MaterialEncoder
+from .files import atomic_write, atomic_write_digest
 from .materials import MaterialTable
 from .model import BRDFModel
 from .models import get_model
@@ -142,23 +142,23 @@ class Bundle:
         by ``load`` with an error naming the file, never loaded as a mix of two models."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
-        digests = {WEIGHTS: _atomic(directory / WEIGHTS, lambda p: save_file(_weights(self.model), p))}
+        digests = {WEIGHTS: atomic_write_digest(directory / WEIGHTS, lambda p: save_file(_weights(self.model), p))}
         if self.materials is not None:
             meta = self.materials.metadata()
-            digests[MATERIALS] = _atomic(directory / MATERIALS,
-                                         lambda p: save_file(self.materials.tensors(), p, metadata=meta))
+            digests[MATERIALS] = atomic_write_digest(directory / MATERIALS,
+                                                     lambda p: save_file(self.materials.tensors(), p, metadata=meta))
         elif (directory / MATERIALS).exists():
             (directory / MATERIALS).unlink()
         if self.rungs:
-            digests[RUNGS] = _atomic(directory / RUNGS, lambda p: save_file(_rung_tensors(self.rungs), p))
+            digests[RUNGS] = atomic_write_digest(directory / RUNGS, lambda p: save_file(_rung_tensors(self.rungs), p))
         elif (directory / RUNGS).exists():
             (directory / RUNGS).unlink()
         if self.encoder is not None:
-            digests[ENCODER] = _atomic(directory / ENCODER, lambda p: save_file(self.encoder.tensors(), p))
+            digests[ENCODER] = atomic_write_digest(directory / ENCODER, lambda p: save_file(self.encoder.tensors(), p))
         elif (directory / ENCODER).exists():
             (directory / ENCODER).unlink()
         text = json.dumps({**self.describe(), "digests": digests}, indent=2, sort_keys=False) + "\n"
-        _atomic(directory / MODEL_JSON, lambda p: Path(p).write_text(text))
+        atomic_write(directory / MODEL_JSON, text)
         return directory
 
     @classmethod
@@ -330,23 +330,3 @@ def _read_materials(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, str]
 def _sha256(path: Path) -> str:
     with open(path, "rb") as f:
         return hashlib.file_digest(f, "sha256").hexdigest()
-
-
-def _atomic(path: Path, write) -> str:
-    """Write through a temporary file in the same directory, then rename over ``path``; returns
-    the SHA-256 of what was written."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.chmod(tmp, 0o644)  # mkstemp's (or the writer's) 0600 would hide a shared model from colleagues
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-            f.seek(0)
-            digest = hashlib.file_digest(f, "sha256").hexdigest()
-        os.replace(tmp, path)
-        return digest
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise

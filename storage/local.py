@@ -1,8 +1,8 @@
 """``ArtifactStore`` in a local directory: key ``a/b/c`` is the file ``<root>/a/b/c``.
 
-Atomic writes: the bytes go to a temporary file ``.tmp-*`` in the target's directory, are flushed
-and fsynced, then ``os.replace``d over the target (atomic on POSIX within one filesystem) and the
-directory is fsynced. A reader opens either the old file or the new one, never a partial one. A
+Atomic writes (``neuenh.files.atomic_write``): the bytes go to a temporary file ``.tmp-*`` in the
+target's directory, are flushed and fsynced, then ``os.replace``d over the target (atomic on POSIX
+within one filesystem) and the directory is fsynced. A reader opens either the old file or the new one, never a partial one. A
 writer killed mid-write leaves at most a ``.tmp-*`` file, which no key can name (key segments never
 start with a dot) and ``remove_stale_temp_files`` deletes.
 """
@@ -10,9 +10,10 @@ start with a dot) and ``remove_stale_temp_files`` deletes.
 from __future__ import annotations
 
 import os
-import tempfile
 import time
 from pathlib import Path
+
+from neuenh.files import atomic_write
 
 from .artifacts import ArtifactStore, Data
 from .errors import ConflictError, NotFoundError
@@ -40,21 +41,7 @@ class LocalArtifactStore(ArtifactStore):
                                 f"artifact in {self.root}") from None
         if path.is_dir():
             raise ConflictError(f"artifact {key!r} cannot be stored: other artifacts live under it")
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=TEMP_PREFIX)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                f.write(data)
-                f.flush()
-                os.fsync(f.fileno())
-            os.chmod(tmp, 0o644)
-            os.replace(tmp, path)
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except FileNotFoundError:
-                pass
-            raise
-        _fsync_dir(path.parent)
+        atomic_write(path, data, prefix=TEMP_PREFIX)
 
     def _read(self, key: str) -> bytes:
         try:

@@ -15,6 +15,8 @@ import tempfile
 import zipfile
 from pathlib import Path
 
+from neuenh.files import atomic_write
+
 from .api import DOWNLOAD_TIMEOUT_S, JOB_FAILED, USAGE, Api, ClientError
 from .commands import Commands, job_arg, json_arg, note, print_json
 
@@ -81,9 +83,7 @@ def save_model(archive: bytes, target: Path, force: bool):
         except Exception as exc:  # noqa: BLE001 - whatever is wrong with it, it is not a model
             raise ClientError(f"the downloaded model does not load ({exc})", JOB_FAILED) from None
         if is_zip(target):
-            tmp = staging / ".archive.zip"
-            tmp.write_bytes(archive)
-            os.replace(tmp, target)
+            atomic_write(target, archive)
         else:
             umask = os.umask(0)
             os.umask(umask)

@@ -11,6 +11,8 @@ import json
 import time
 from pathlib import Path
 
+from neuenh.files import atomic_write
+
 from ..tables import plan_totals, table
 from .api import DOWNLOAD_TIMEOUT_S, Api
 from .commands import Commands, json_arg, note, print_json
@@ -62,7 +64,7 @@ def run(args, api: Api) -> int:
     if args.output and found["status"] == "DONE":
         args.output.mkdir(parents=True, exist_ok=True)
         for name in found["files"]:
-            (args.output / name).write_bytes(api.plan_file(found["id"], name))
+            atomic_write(args.output / name, api.plan_file(found["id"], name))
     if args.json:
         print_json(found)
     elif found["status"] == "DONE":

@@ -23,6 +23,7 @@ from typing import Iterator, Mapping
 import numpy as np
 import torch
 
+from ..files import atomic_write
 from .errors import DataError
 
 RGB = ("R", "G", "B")
@@ -133,10 +134,7 @@ def write_exr_channels(path: str | os.PathLike, channels: Mapping[str, np.ndarra
     if len(shapes) != 1 or len(next(iter(shapes))) != 2:
         raise ValueError(f"EXR channels must be (H, W) arrays of one size, got {sorted(shapes)}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage, **(attributes or {})}
-    tmp = path.with_name(f".{path.name}.tmp")
-    OpenEXR.File(header, data).write(str(tmp))
-    os.replace(tmp, path)
-    return path
+    return atomic_write(path, lambda tmp: OpenEXR.File(header, data).write(str(tmp)))
 
 
 def write_rgb_exr(path: str | os.PathLike, rgb, *, half: bool = False) -> Path:

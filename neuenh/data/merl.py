@@ -38,6 +38,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from ..files import atomic_write
 from .errors import DataError, read_bytes
 from .directions import Sampling, from_rusinkiewicz, to_rusinkiewicz
 
@@ -262,12 +263,7 @@ def write_merl(path: str | os.PathLike, evaluate_fn: Evaluate | np.ndarray) -> P
     if table.shape != (3, *DIMS):
         raise ValueError(f"a MERL table must have shape {(3, *DIMS)}, got {table.shape}")
     raw = np.where(table < 0, INVALID, table / SCALE.reshape(3, 1, 1, 1))
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(HEADER)
-        f.write(raw.astype("<f8").tobytes())
-    os.replace(tmp, path)
-    return path
+    return atomic_write(path, HEADER + raw.astype("<f8").tobytes())
 
 
 def as_directions(wi, wo) -> tuple[torch.Tensor, torch.Tensor]:

@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..files import atomic_write
 from .errors import DataError, check_file
 from .samples import Samples
 
@@ -350,15 +351,18 @@ def write_table(path: str | os.PathLike, wi, wo, f_r, weight=None) -> Path:
         arrays[WEIGHT] = np.asarray(weight.detach().cpu().numpy() if isinstance(weight, torch.Tensor) else weight,
                                     dtype=np.float32).reshape(-1)
     if path.suffix.lower() == ".csv":
-        tmp = path.with_name(f".{path.name}.tmp")
         columns = [arrays["wi"], arrays["wo"], arrays["f_r"]]
         header = ",".join(CSV_COLUMNS)
         if WEIGHT in arrays:
             columns.append(arrays[WEIGHT][:, None])
             header += f",{WEIGHT}"
-        np.savetxt(tmp, np.concatenate(columns, axis=1), delimiter=",", fmt="%.9g", header=header, comments="")
-    else:
-        tmp = path.with_name(f".{path.name}.tmp.npz")
-        np.savez(tmp, **arrays)
-    os.replace(tmp, path)
-    return path
+        return atomic_write(path, lambda tmp: np.savetxt(tmp, np.concatenate(columns, axis=1), delimiter=",",
+                                                         fmt="%.9g", header=header, comments=""))
+    return atomic_write(path, lambda tmp: savez(tmp, arrays))
+
+
+def savez(path: Path, arrays) -> None:
+    """``np.savez`` to exactly ``path``: through a file object, as ``np.savez`` adds ``.npz`` to a
+    file name without it."""
+    with open(path, "wb") as f:
+        np.savez(f, **arrays)

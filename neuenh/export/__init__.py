@@ -22,9 +22,7 @@ format that needs them. Imports neither Ray, FastAPI nor SQL.
 from __future__ import annotations
 
 import importlib
-import os
 import re
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Mapping
 
@@ -73,18 +71,3 @@ def identifier(material: str) -> str:
     runs of ``_`` one (GLSL reserves ``__``), a leading digit gets ``m`` before it."""
     name = re.sub(r"_+", "_", re.sub(r"[^A-Za-z0-9_]", "_", material)).strip("_") or "material"
     return f"m{name}" if name[0].isdigit() else name
-
-
-def atomic_write(path: Path, data: str | bytes) -> Path:
-    """``data`` to ``path`` through a temporary file in the same folder (readable by all, 0644):
-    a reader sees the old file or the whole new one, never a part."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data.encode() if isinstance(data, str) else data)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path

@@ -33,7 +33,8 @@ from ..ops import EmittingOps, _is_const
 from ..shading import make_shading, shade
 from ..materials import LATENT_NAME, MaterialParams
 from ..specialize import FoldedModule, SpecializedBRDF, _fold
-from . import atomic_write, file_names
+from ..files import atomic_write
+from . import file_names
 
 VERSION = 450  # the GLSL version the source is written for (core profile)
 

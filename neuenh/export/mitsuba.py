@@ -48,7 +48,8 @@ from ..graph import Term
 from ..materials import MaterialParams
 from ..ops import EmittingOps, _is_const
 from ..shading import shade
-from . import atomic_write, file_names
+from ..files import atomic_write
+from . import file_names
 
 PLUGIN = "neuenh"
 FORMAT = "neuenh-mitsuba-material"

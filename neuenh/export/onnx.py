@@ -38,11 +38,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
-import tempfile
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 import onnx
@@ -50,6 +48,7 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from .. import __version__
+from ..files import atomic_write
 from ..graph import Term
 from ..materials import LATENT_NAME, MaterialParams
 from ..model import BRDFModel
@@ -461,18 +460,5 @@ def write(model: BRDFModel, materials: Mapping[str, MaterialParams], out_dir: Pa
     files.append((out_dir / generic, generic_graph(model)))
     out_dir.mkdir(parents=True, exist_ok=True)
     for path, blob in files:
-        _atomic_write(path, blob)
+        atomic_write(path, blob)
     return [path for path, _ in files]
-
-
-def _atomic_write(path: Path, blob: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(blob)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from ..data.exr import write_rgb_exr
+from ..files import atomic_write
 from .lights import LUMINANCE
 from .metrics import tone_map
 
@@ -30,18 +31,6 @@ from .metrics import tone_map
 def _numpy(image) -> np.ndarray:
     a = image.detach().cpu().numpy() if isinstance(image, torch.Tensor) else np.asarray(image)
     return a.astype(np.float64)
-
-
-def _atomic(path: str | os.PathLike, write) -> Path:
-    """Call ``write(tmp)`` on a temporary name beside ``path``, then rename it into place."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
 
 
 def write_exr(path: str | os.PathLike, image, *, half: bool = False) -> Path:
@@ -61,7 +50,7 @@ def write_png(path: str | os.PathLike, image, *, exposure: float = 0.0) -> Path:
     from matplotlib.image import imsave
 
     rgb = tonemap(image, exposure)
-    return _atomic(path, lambda tmp: imsave(tmp, rgb, format="png"))
+    return atomic_write(path, lambda tmp: imsave(tmp, rgb, format="png"))
 
 
 def luminance(image) -> np.ndarray:
@@ -106,4 +95,4 @@ def write_error_map(path: str | os.PathLike, reference, image, *, mask=None,
     ax.set_axis_off()
     ax.set_title(title or f"{kind} luminance error (max {float(finite.max()) if finite.size else 0:.3g})", fontsize=9)
     fig.colorbar(shown, ax=ax, fraction=0.046, pad=0.04)
-    return _atomic(path, lambda tmp: fig.savefig(tmp, format="png"))
+    return atomic_write(path, lambda tmp: fig.savefig(tmp, format="png"))

@@ -19,7 +19,7 @@ import io
 import json
 from pathlib import Path
 
-from ..export import atomic_write
+from ..files import atomic_write
 from .planner import Plan
 
 __all__ = ["plan_models", "safe_name", "write_plan"]

@@ -30,6 +30,8 @@ import numpy as np
 import torch
 
 from ..data.samples import Samples
+from ..data.table import savez
+from ..files import atomic_write
 from ..data.directions import sample_directions
 from ..fit import FitOptions, FitResult, fit_materials, per_material_loss
 from ..materials import MaterialTable
@@ -96,14 +98,7 @@ def write_predictions(path: str | os.PathLike, samples: Samples, f_r: torch.Tens
         "material": samples.material.detach().long().numpy(),
         "material_names": np.array(samples.names, dtype=str),
     }
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    atomic_write(path, lambda tmp: savez(tmp, arrays))
     return path
 
 

@@ -3,11 +3,11 @@ held-out error per material, and one render grid per material. Every figure is w
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
+from ..files import atomic_write
 from .summary import ModelSummary
 
 _COLOURS = {"enhanced": "#d62728", "analytical": "#1f77b4", "residual": "#2ca02c", "neural": "#9467bd"}
@@ -23,14 +23,10 @@ def _plt():
 
 
 def _save(fig, path: Path) -> Path:
-    tmp = path.with_name(f".{path.stem}.tmp.png")
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
+        return atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110))
     finally:
-        tmp.unlink(missing_ok=True)
         _plt().close(fig)
-    return path
 
 
 def pareto_front(points: list[tuple[float, float]]) -> list[int]:

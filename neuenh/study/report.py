@@ -6,12 +6,12 @@ from __future__ import annotations
 import concurrent.futures
 import json
 import multiprocessing
-import os
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..files import atomic_write
 from .registry import ANALYTICAL, BASELINES, EFFICIENCY_CONTENDERS, ENCODED, ENHANCED, OTHER_ENHANCED, contender_infos
 from .summary import MaterialResult, StudySummary
 
@@ -190,9 +190,4 @@ def _figures(img: Path, summary: StudySummary, materials: list[MaterialResult], 
 
 
 def _write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    atomic_write(path, text)
