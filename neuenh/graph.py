@@ -26,12 +26,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
-from typing import Callable, Literal, Mapping, Sequence
+from typing import Callable, Literal, Mapping, Sequence, TypeVar
 
 import torch
 
 from .params import ParamSpec
 from .shading import Shading
+
+V = TypeVar("V")  # a value on some backend (a torch tensor, a GLSL expression, an ONNX value, ...)
 
 # Digits of a state string: 0-9 then a-z, so m-ary states up to m = 36 stay one character each.
 _DIGITS = "0123456789abcdefghijklmnopqrstuvwxyz"
@@ -80,6 +82,30 @@ class Operator:
 
 
 Expr = Term | Operator
+
+
+def fold(root: Expr, term: Callable[[Term], V], operator: Callable[[Operator, V, V], V],
+         given: Callable[[Expr], V | None] = lambda expr: None) -> V:
+    """The tree's value bottom-up, on any backend: ``given(expr)`` first (a value known already,
+    e.g. a position folded into a constant, or None to go on), else ``term(leaf)`` for a leaf and
+    ``operator(op, left, right)`` for an inner node, its operands' values computed first (left,
+    then right). The one walk over an expression: ``BRDFModel.combine`` and
+    ``specialize.walk`` (the specialized evaluator, its FLOP count and every exporter) use it."""
+
+    def run(expr: Expr) -> V:
+        known = given(expr)
+        if known is not None:
+            return known
+        if isinstance(expr, Term):
+            return term(expr)
+        return operator(expr, run(expr.left), run(expr.right))
+
+    return run(root)
+
+
+def apply(op: Operator, left, right):
+    """The operator's own arithmetic, ``left + right`` or ``left * right``, on any backend."""
+    return left + right if op.op == "+" else left * right
 
 
 def add(left: Expr, right: Expr) -> Operator:

@@ -15,7 +15,7 @@ from typing import Any, Callable, Mapping, Sequence
 import torch
 from torch import nn
 
-from .graph import Expr, Graph, Operator, StateEncoding, Term
+from .graph import Expr, Graph, Operator, StateEncoding, Term, apply, fold
 from .materials import MaterialParams
 from .modules import ModuleConfig, NeuralModule, module_seed
 from .params import ParamSpec, ParamSpecs
@@ -272,14 +272,8 @@ class BRDFModel(nn.Module):
                 out[spec.name] = torch.full((spec.width,), spec.init)
         return out
 
-    def forward(
-        self,
-        wi: torch.Tensor,
-        wo: torch.Tensor,
-        values: Mapping[str, torch.Tensor],
-        latent: torch.Tensor | None,
-        digits: Sequence[int] | None = None,
-    ) -> torch.Tensor:
+    def forward(self, wi: torch.Tensor, wo: torch.Tensor, values: Mapping[str, torch.Tensor],
+                latent: torch.Tensor | None, digits: Sequence[int] | None = None) -> torch.Tensor:
         """Unchecked evaluation for training: values are physical, already (n, width).
 
         Returns f_r (n, 3) without clipping (a neural module may predict a negative value; the
@@ -301,16 +295,13 @@ class BRDFModel(nn.Module):
         ``module(op, left, right)`` for an operator whose digit selects a module, else its ``+`` or
         ``*`` of the operands. No horizon mask: the caller applies it."""
 
-        def run(expr: Expr):
-            digit = digits[self.graph.index[expr.name]]
-            if isinstance(expr, Term):
-                return term(expr, digit)
-            left, right = run(expr.left), run(expr.right)
-            if self.is_neural(digit):
-                return module(expr, left, right)
-            return left + right if expr.op == "+" else left * right
+        def digit(expr: Expr) -> int:
+            return digits[self.graph.index[expr.name]]
 
-        return run(self.expression(digits))
+        def operator(op: Operator, left, right):
+            return module(op, left, right) if self.is_neural(digit(op)) else apply(op, left, right)
+
+        return fold(self.expression(digits), lambda leaf: term(leaf, digit(leaf)), operator)
 
     def _combine(self, digits: Sequence[int], term: Callable[[Term, int], torch.Tensor],
                  above: torch.Tensor) -> torch.Tensor:

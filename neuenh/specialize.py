@@ -23,11 +23,11 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import torch
 
-from .graph import Operator, Term
+from .graph import Expr, Operator, Term, V, apply, fold
 from .materials import MaterialParams
 from .ops import TORCH, BatchVec3
 from .shading import Shading, shade, shading_frame
@@ -179,23 +179,17 @@ class SpecializedBRDF:
         rotate = (lambda w: w) if k.rotation is None else (lambda w: w @ k.rotation.t())
         s = shade(TORCH, BatchVec3(wi), BatchVec3(wo), BatchVec3(rotate(wi)), BatchVec3(rotate(wo)), k.params)
         directions = torch.cat([s.wi.array, s.wo.array], dim=-1) if k.modules else None
-        out = self._run(k, self.expression, s, directions)
-        out = out.expand(wi.shape[0], 3)
-        return torch.where(s.above, out, 0.0).clamp_min(0.0)
+        n = wi.shape[0]
 
-    def _run(self, k: Folded, expr, s: Shading, directions: torch.Tensor | None) -> torch.Tensor:
-        if expr.name in k.constants:
-            return k.constants[expr.name]
-        if isinstance(expr, Term):
-            if expr.name in k.modules:
-                return k.modules[expr.name](directions)
-            return _rows(expr.formula(s), expr.width).to(s.cos_i.dtype)
-        left, right = self._run(k, expr.left, s, directions), self._run(k, expr.right, s, directions)
-        if expr.name in k.modules:
-            n = s.cos_i.shape[0]
-            operands = [left.expand(n, expr.left.width), right.expand(n, expr.right.width)]
-            return k.modules[expr.name](torch.cat(operands, dim=-1))
-        return left + right if expr.op == "+" else left * right
+        def module(expr: Expr, folded: FoldedModule, operands) -> torch.Tensor:
+            if operands is None:  # a term's module reads the directions
+                return folded(directions)
+            left, right = operands
+            return folded(torch.cat([left.expand(n, expr.left.width), right.expand(n, expr.right.width)], dim=-1))
+
+        out = walk(self.expression, k, constant=lambda expr, value: value,
+                   formula=lambda term: _rows(term.formula(s), term.width).to(wi.dtype), module=module)
+        return torch.where(s.above, out.expand(n, 3), 0.0).clamp_min(0.0)
 
     # -- cost --------------------------------------------------------------------------------------
     @property
@@ -215,20 +209,10 @@ class SpecializedBRDF:
         rotate = (lambda w: w) if self.folded.rotation is None else (lambda w: xp.rotate(self.folded.rotation, w))
         params = {k: v if isinstance(v, float) else xp.constant(v.shape[-1]) for k, v in self.folded.params.items()}
         s = shade(xp, wi, wo, rotate(wi), rotate(wo), params)
-
-        def run(expr):
-            if expr.name in self.constants:
-                return xp.constant(self.constants[expr.name].shape[-1])
-            if expr.name in self.modules:
-                if isinstance(expr, Operator):
-                    run(expr.left), run(expr.right)
-                return xp.value(expr.width)
-            if isinstance(expr, Term):
-                return expr.formula(s)
-            left, right = run(expr.left), run(expr.right)
-            return left + right if expr.op == "+" else left * right
-
-        return xp.where(s.above, run(self.expression), 0.0)
+        value = walk(self.expression, self.folded, constant=lambda expr, v: xp.constant(v.shape[-1]),
+                     formula=lambda term: term.formula(s),
+                     module=lambda expr, folded, operands: xp.value(expr.width))  # counted exactly: FoldedModule.flops
+        return xp.where(s.above, value, 0.0)
 
     def throughput(self, n: int = 100_000, seconds: float = 0.5, threads: int | None = 1) -> float:
         """Measured evaluations per second at batches of ``n`` random directions (on ``threads``
@@ -248,6 +232,34 @@ class SpecializedBRDF:
         finally:
             torch.set_num_threads(saved)
         return calls * n / elapsed
+
+
+def walk(expression: Expr, folded: Folded, *, constant: Callable[[Expr, torch.Tensor], V],
+         formula: Callable[[Term], V], module: Callable[[Expr, FoldedModule, tuple[V, V] | None], V]) -> V:
+    """A specialized material's value, bottom-up, on any backend (``graph.fold``): what the torch
+    kernel, the FLOP count, GLSL, ONNX and Dr.Jit each make of the same expression.
+
+    * a position computed once (``folded.constants``): ``constant(expr, value (1, width))``;
+    * a term a module replaces: ``module(term, folded_module, None)`` (it reads the 6 shading-frame
+      directions); another term: ``formula(term)``, its formula on the backend;
+    * an operator a module replaces: ``module(op, folded_module, (left, right))``; another operator:
+      its ``+`` or ``*`` of the operands' values.
+
+    ``module`` is the one place a backend runs an MLP (its layers: ``FoldedModule.layers``)."""
+
+    def term(leaf: Term) -> V:
+        replaced = folded.modules.get(leaf.name)
+        return formula(leaf) if replaced is None else module(leaf, replaced, None)
+
+    def operator(op: Operator, left: V, right: V) -> V:
+        replaced = folded.modules.get(op.name)
+        return apply(op, left, right) if replaced is None else module(op, replaced, (left, right))
+
+    def given(expr: Expr) -> V | None:
+        value = folded.constants.get(expr.name)
+        return None if value is None else constant(expr, value)
+
+    return fold(expression, term, operator, given)
 
 
 def _constant(value: torch.Tensor):

@@ -28,11 +28,10 @@ from typing import Any, Mapping
 
 import torch
 
-from ..graph import Term
 from ..ops import EmittingOps, _is_const
 from ..shading import make_shading, shade
 from ..materials import LATENT_NAME, MaterialParams
-from ..specialize import FoldedModule, SpecializedBRDF, _fold
+from ..specialize import FoldedModule, SpecializedBRDF, _fold, walk
 from ..files import atomic_write
 from . import file_names
 
@@ -210,20 +209,13 @@ def material_source(brdf: SpecializedBRDF, name: str) -> str:
 
     functions = [_module_function(prefix, module) for module in folded.modules.values()]
 
-    def run(expr):
-        if expr.name in folded.constants:
-            return _constant_value(code, folded.constants[expr.name])
-        if isinstance(expr, Term):
-            if expr.name in folded.modules:
-                return _call_module(code, prefix, folded.modules[expr.name], [s.wi, s.wo], (3, 3))
-            return expr.formula(s)
-        left, right = run(expr.left), run(expr.right)
-        if expr.name in folded.modules:
-            return _call_module(code, prefix, folded.modules[expr.name], [left, right],
-                                (expr.left.width, expr.right.width))
-        return left + right if expr.op == "+" else left * right
+    def module(expr, folded_module: FoldedModule, operands):
+        if operands is None:  # a term's module reads the shading-frame directions
+            return _call_module(code, prefix, folded_module, [s.wi, s.wo], (3, 3))
+        return _call_module(code, prefix, folded_module, list(operands), (expr.left.width, expr.right.width))
 
-    value = run(brdf.expression)
+    value = walk(brdf.expression, folded, constant=lambda expr, v: _constant_value(code, v),
+                 formula=lambda term: term.formula(s), module=module)
     value = xp.where(s.above, value, (0.0, 0.0, 0.0))
     if _type(value) != "vec3":
         value = code.let("vec3", f"vec3({_text(value)})")

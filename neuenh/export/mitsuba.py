@@ -44,11 +44,11 @@ from typing import Mapping
 
 import torch
 
-from ..graph import Term
+from ..files import atomic_write
 from ..materials import MaterialParams
 from ..ops import EmittingOps, _is_const
 from ..shading import shade
-from ..files import atomic_write
+from ..specialize import walk
 from . import file_names
 
 PLUGIN = "neuenh"
@@ -148,7 +148,7 @@ class DrJitMaterial:
         self.xp = DrJitOps()
         mi = self.xp.mi
         k = special.folded.to(torch.float64)
-        self.expression = special.expression
+        self.expression, self.folded = special.expression, k
         self.rotation = None if k.rotation is None else [[float(v) for v in row] for row in k.rotation.tolist()]
         self.params = {name: self._constant(v) for name, v in k.params.items()}
         self.constants = {name: self._constant(v) for name, v in k.constants.items()}
@@ -199,17 +199,15 @@ class DrJitMaterial:
         s = shade(xp, wi, wo, self._rotate(wi), self._rotate(wo), self.params)
         directions = [s.wi.x, s.wi.y, s.wi.z, s.wo.x, s.wo.y, s.wo.z]
 
-        def run(expr):
-            if expr.name in self.constants:
-                return self.constants[expr.name]
-            if isinstance(expr, Term):
-                return self._mlp(expr.name, directions) if expr.name in self.modules else expr.formula(s)
-            left, right = run(expr.left), run(expr.right)
-            if expr.name in self.modules:
-                return self._mlp(expr.name, self._flat(left, expr.left.width) + self._flat(right, expr.right.width))
-            return left + right if expr.op == "+" else left * right
+        def module(expr, folded, operands):  # the seam where Dr.Jit runs an MLP
+            if operands is None:  # a term's module reads the shading-frame directions
+                return self._mlp(expr.name, directions)
+            left, right = operands
+            return self._mlp(expr.name, self._flat(left, expr.left.width) + self._flat(right, expr.right.width))
 
-        value = mi.Color3f(run(self.expression))
+        value = walk(self.expression, self.folded, constant=lambda expr, v: self.constants[expr.name],
+                     formula=lambda term: term.formula(s), module=module)
+        value = mi.Color3f(value)
         return xp.dr.maximum(xp.dr.select(s.above, value, mi.Color3f(0.0)), 0.0)
 
 

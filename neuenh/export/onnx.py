@@ -54,7 +54,7 @@ from ..materials import LATENT_NAME, MaterialParams
 from ..model import BRDFModel
 from ..ops import BatchVec3, EmittingOps, _is_const
 from ..shading import make_shading, shade
-from ..specialize import SpecializedBRDF
+from ..specialize import FoldedModule, SpecializedBRDF, walk
 
 __all__ = ["OPSET", "file_stem", "generic_graph", "material_graph", "write"]
 
@@ -315,22 +315,19 @@ def material_graph(specialized: SpecializedBRDF, name: str | None = None) -> byt
     s = shade(xp, BatchVec3(wi), BatchVec3(wo), BatchVec3(wi_s), BatchVec3(wo_s), params)
     directions = xp.concat([s.wi.array, s.wo.array]) if k.modules else None
 
-    def run(expr) -> _Value:
-        if expr.name in k.constants:
-            return _row(b, k.constants[expr.name])
-        module = k.modules.get(expr.name)
-        if isinstance(expr, Term):
-            if module is not None:
-                return xp.mlp(module.layers, module.negative_slope, directions)
-            value = expr.formula(s)
-            return _row(b, [float(value)] * expr.width) if _is_const(value) else value
-        left, right = run(expr.left), run(expr.right)
-        if module is not None:
-            operands = xp.concat([xp.rows(left, expr.left.width), xp.rows(right, expr.right.width)])
-            return xp.mlp(module.layers, module.negative_slope, operands)
-        return left + right if expr.op == "+" else left * right
+    def formula(term: Term) -> _Value:
+        value = term.formula(s)
+        return _row(b, [float(value)] * term.width) if _is_const(value) else value
 
-    output = xp.finish(run(specialized.expression), s.above)
+    def module(expr, folded: FoldedModule, operands) -> _Value:
+        if operands is None:  # a term's module reads the shading-frame directions
+            return xp.mlp(folded.layers, folded.negative_slope, directions)
+        left, right = operands
+        x = xp.concat([xp.rows(left, expr.left.width), xp.rows(right, expr.right.width)])
+        return xp.mlp(folded.layers, folded.negative_slope, x)
+
+    value = walk(specialized.expression, k, constant=lambda expr, v: _row(b, v), formula=formula, module=module)
+    output = xp.finish(value, s.above)
     inputs = {"wi": ([BATCH, 3], "incident direction, local frame (z = geometric normal), unit"),
               "wo": ([BATCH, 3], "outgoing direction, local frame, unit")}
     what = f"material {name!r} of " if name is not None else "one material of "
