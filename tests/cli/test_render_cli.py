@@ -199,8 +199,8 @@ def test_params_files_pick_a_material_by_name_or_index(tmp_path):
                                                 {"name": "glossy", "params": GGX}]}))
     assert _read_params(params, None)[0] == "matte"
     for choice in ("glossy", "1"):
-        name, values = _read_params(params, choice)
-        assert name == "glossy" and values["alpha_y"].tolist() == [pytest.approx(0.3)]
+        name, material = _read_params(params, choice)
+        assert name == "glossy" and material.values["alpha_y"].tolist() == [pytest.approx(0.3)]
     with pytest.raises(ValueError, match="index 2 out of range"):
         _read_params(params, "2")
     params.write_text('{"params": {}}')
