@@ -26,7 +26,7 @@ from .specialize import SpecializedBRDF
 class BRDFModel(nn.Module):
     """An analytical BRDF as a graph, in one enhancement state, with the modules that state needs.
 
-    The stable Python API (DESIGN §4): ``positions``, ``param_names`` and
+    The stable Python API (ARCHITECTURE §4): ``positions``, ``param_names`` and
     ``evaluate(wi, wo, params, state=None) -> (n, 3)`` f_r without the cosine factor.
 
     Parameters: ``module_specs`` are the model's own (the paper's 12 for GGX): every neural module

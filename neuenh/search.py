@@ -1,4 +1,4 @@
-"""The hypercube search, as pure functions (paper Sec. 4.2; DESIGN §1).
+"""The hypercube search, as pure functions (paper Sec. 4.2; ARCHITECTURE §1).
 
 A round starts from the current state B_c and builds every state within Hamming distance ``r``
 of it that the constraints allow (r = 1 over binary digits: "stay" plus one flip per position,

@@ -1,7 +1,7 @@
 """Shading geometry: from local-frame directions and per-sample parameters to the quantities
 every BRDF term reads.
 
-Conventions (DESIGN §4): ``wi`` and ``wo`` are ``(n, 3)`` unit vectors in the local frame whose
+Conventions (ARCHITECTURE §4): ``wi`` and ``wo`` are ``(n, 3)`` unit vectors in the local frame whose
 z axis is the geometric normal and whose x axis is the tangent *before* rotation by ``t_theta``.
 The shading normal is tilted by the two ``normal`` angles (slopes along x and y:
 ``n ∝ (tan a, tan b, 1)``, so ``(0, 0)`` is the geometric normal, which is the mean of the range).

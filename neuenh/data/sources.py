@@ -1,6 +1,6 @@
 """Data sources of a job spec, and their materialisation into training data.
 
-A ``DataSource`` is one entry of a job spec's ``data:`` list (DESIGN §4), a pydantic model
+A ``DataSource`` is one entry of a job spec's ``data:`` list (ARCHITECTURE §4), a pydantic model
 discriminated by ``source``. ``materialise`` turns a list of them into contiguous float32
 ``TrainingData`` with a seeded per-material train/validation split.
 

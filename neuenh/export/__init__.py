@@ -1,4 +1,4 @@
-"""Exporters: fitted materials of a model, in a renderer's own format (DESIGN §8).
+"""Exporters: fitted materials of a model, in a renderer's own format (ARCHITECTURE §2).
 
 Each format is a module with one entry point,
 

@@ -1,7 +1,7 @@
 """ONNX graphs (``neuenh export --format onnx``): one material specialized, and the generic model.
 
 Both graphs are opset 18, float32, with a dynamic batch dimension ``n``; ``wi``, ``wo`` are (n, 3)
-unit vectors in the local frame (z = geometric normal, DESIGN §4) and the output ``f_r`` (n, 3) is
+unit vectors in the local frame (z = geometric normal, ARCHITECTURE §4) and the output ``f_r`` (n, 3) is
 the BRDF without the cosine factor, exactly 0 below either horizon, clamped at 0:
 
 * ``material_graph(specialized)``: inputs ``wi``, ``wo``; the specialized evaluator
