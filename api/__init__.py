@@ -1,4 +1,4 @@
-"""The REST service (DESIGN §3-4): FastAPI app, routes under ``/v1``, schemas, dependencies, and
+"""The REST service (ARCHITECTURE §3-4): FastAPI app, routes under ``/v1``, schemas, dependencies, and
 the dashboard page at ``/`` (``api/dashboard/``).
 
 Nothing is built at import time: ``create_app(settings)`` returns an app whose lifespan builds the

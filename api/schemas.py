@@ -30,7 +30,7 @@ def _gain(val_loss: float, start: float | None) -> float | None:
 
 
 class JobCreate(JobSpec):
-    """A search job spec (DESIGN §4), submitted as the JSON body of ``POST /v1/jobs``."""
+    """A search job spec (ARCHITECTURE §4), submitted as the JSON body of ``POST /v1/jobs``."""
 
 
 class Links(BaseModel):

@@ -1,6 +1,6 @@
 """``neuenh``: the local command line.
 
-Exit codes (DESIGN §4): 0 success, 1 the work failed, 2 usage error or unusable input.
+Exit codes (ARCHITECTURE §4): 0 success, 1 the work failed, 2 usage error or unusable input.
 A user's mistake prints one line naming what is wrong, never a traceback.
 """
 

@@ -1,4 +1,4 @@
-"""The job state machine (DESIGN §3):
+"""The job state machine (ARCHITECTURE §3):
 
     QUEUED -> PREPARING -> RUNNING (round k) -> CONVERGED | STOPPED | CANCELLED | FAILED
 

@@ -1,4 +1,4 @@
-"""The job spec (DESIGN §4): what a user submits, validated with a message that names the field.
+"""The job spec (ARCHITECTURE §4): what a user submits, validated with a message that names the field.
 
     model: ggx
     search: {radius: 1, epochs_per_round: 30, max_rounds: 20, max_neural: null, fixed: {},

@@ -8,7 +8,7 @@ rounds. Whoever runs jobs first takes ``OwnerLock(data_dir / "owner.lock")``; th
 The lock is ``flock(2)``: the kernel drops it when the owning process dies, however it dies, so a
 crash never leaves a stale lock behind. The owner's description is written into the file for the
 error message only; it is never trusted as the lock itself. Local filesystems only (NFS ``flock``
-semantics vary): on a cluster the job store lives on the api's own volume (DESIGN §2).
+semantics vary): on a cluster the job store lives on the api's own volume (ARCHITECTURE §2).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The Ray executor: one Ray task per candidate (DESIGN §3).
+"""The Ray executor: one Ray task per candidate (ARCHITECTURE §3).
 
 * The training data is put in the object store once per job, each round's parent bundle once per
   round; tasks receive references, so nothing is copied per candidate on a node.

@@ -15,7 +15,7 @@ The service is ``--url`` or ``$NEUENH_URL`` (default http://127.0.0.1:8000); its
 or ``$NEUENH_API_TOKEN`` (prefer the variable: flags show in ``ps``). ``--json`` prints what the
 service answered, for machines; people get tables and a progress display (on stderr).
 
-Exit codes (DESIGN §4): 0 success, 1 the job failed (or was cancelled) or the service failed
+Exit codes (ARCHITECTURE §4): 0 success, 1 the job failed (or was cancelled) or the service failed
 (a damaged stored file: its operator restores it), 2 usage error (a bad spec or table, no such
 job, a request the service refuses), 3 the service cannot be reached, does not accept the token,
 or is busy (429: retry later). Every error is one line, never a traceback.

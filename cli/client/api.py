@@ -1,5 +1,5 @@
 """The neuenh service as ``neuenh-client`` sees it: one ``Api`` over httpx whose every failure is a
-``ClientError`` carrying a one-line reason and the exit code of DESIGN §4.
+``ClientError`` carrying a one-line reason and the exit code of ARCHITECTURE §4.
 
 =============================================  ====  ==========================================
 what happened                                  exit  the line says

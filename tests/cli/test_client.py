@@ -1,5 +1,5 @@
 """``neuenh-client`` as a user runs it: a subprocess against a real server (uvicorn, SQLite, the
-in-process executor), checked on its exit codes (DESIGN §4), its one-line errors and what it
+in-process executor), checked on its exit codes (ARCHITECTURE §4), its one-line errors and what it
 prints against what the service holds."""
 
 from __future__ import annotations

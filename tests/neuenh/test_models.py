@@ -1,4 +1,4 @@
-"""Contract tests of the analytical models, in layers (Mitsuba-style, DESIGN §7):
+"""Contract tests of the analytical models, in layers (Mitsuba-style, ARCHITECTURE §5):
 
 1. consistency: ``evaluate`` against the independent numpy re-derivation in ``reference_brdfs``,
    and an enhanced model in the all-zero state against the analytical model;

@@ -16,6 +16,7 @@ counted independently from the layer shapes; (4) errors name their culprit.
 from __future__ import annotations
 
 import copy
+import math
 
 import numpy as np
 import pytest
@@ -131,7 +132,8 @@ def test_flops_are_the_layer_shapes_plus_the_analytical_part():
 
 def test_throughput_is_measured():
     special = get_model("ggx").specialize({s.name: torch.full((s.width,), s.init) for s in get_model("ggx").specs})
-    assert special.throughput(n=1000, seconds=0.05) > 1e4
+    rate = special.throughput(n=1000, seconds=0.05)  # how fast is bench/'s question; here: it measures
+    assert math.isfinite(rate) and rate > 0
 
 
 @pytest.mark.parametrize("params, message", [

@@ -39,7 +39,7 @@ def job_in(store, status: JobStatus, spec=None) -> str:
 
 
 def test_state_machine_is_the_documented_one():
-    """The moves DESIGN §3 describes, written out here (not derived from ``TRANSITIONS``): forward
+    """The moves ARCHITECTURE §3 describes, written out here (not derived from ``TRANSITIONS``): forward
     through preparation and training to an end, or cancelled/failed from any unfinished status."""
     documented = {(S.QUEUED, S.PREPARING), (S.PREPARING, S.RUNNING), (S.RUNNING, S.CONVERGED),
                   (S.RUNNING, S.STOPPED)} | {(a, b) for a in (S.QUEUED, S.PREPARING, S.RUNNING)
