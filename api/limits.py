@@ -98,6 +98,12 @@ def epoch_settings(value: Any, where: str = "") -> list[tuple[str, int]]:
     return found
 
 
+def epoch_problems(spec_json: Any, settings: Settings) -> list[str]:
+    """Each epoch count of ``spec_json`` (a job's or a scene's spec as JSON) over ``NEUENH_MAX_EPOCHS``."""
+    return [f"{where}: {epochs} exceeds this service's limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)"
+            for where, epochs in epoch_settings(spec_json) if epochs > settings.max_epochs]
+
+
 def unsatisfiable(spec: JobSpec, cluster: ClusterInfo) -> list[str]:
     """What a candidate asks that no node of ``cluster`` has: such a job would wait forever
     (RUNNING 0/n, every later job queued behind it). Nothing, while no worker has joined."""
@@ -116,10 +122,7 @@ def check_limits(spec: JobSpec, settings: Settings, cluster: ClusterInfo | None 
     settings_used = spec.model_dump(mode="json")
     if not spec.holds_out():  # no held-out materials: the fit score is never computed
         settings_used["search"].pop("fit_score")
-    for where, epochs in epoch_settings(settings_used):
-        if epochs > settings.max_epochs:
-            problems.append(f"{where}: {epochs} exceeds this service's limit of {settings.max_epochs} "
-                            "(NEUENH_MAX_EPOCHS)")
+    problems += epoch_problems(settings_used, settings)
     if spec.resources.cpus_per_candidate < settings.min_cpus_per_candidate:
         problems.append(f"resources.cpus_per_candidate: {spec.resources.cpus_per_candidate} is below this "
                         f"service's floor of {settings.min_cpus_per_candidate} (NEUENH_MIN_CPUS_PER_CANDIDATE): "
@@ -205,10 +208,7 @@ def plan_problems(spec: SceneSpec, settings: Settings, base: Path) -> list[str]:
         if value > settings.max_samples:
             problems.append(f"fit.{field}: {value} exceeds this service's limit of {settings.max_samples} "
                             "per material (NEUENH_MAX_SAMPLES)")
-    for where, epochs in epoch_settings(spec.model_dump(mode="json")):
-        if epochs > settings.max_epochs:
-            problems.append(f"{where}: {epochs} exceeds this service's limit of {settings.max_epochs} "
-                            "(NEUENH_MAX_EPOCHS)")
+    problems += epoch_problems(spec.model_dump(mode="json"), settings)
     materials = scene_materials(spec)
     if materials > settings.max_materials:
         problems.append(f"materials: {materials} materials exceed this service's limit of {settings.max_materials} "

@@ -18,11 +18,8 @@ weights; the Makefile takes its files from e388c1a), since issue 14 shipped a la
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,9 +27,8 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
 import torch  # noqa: E402
 
-from bench.harness import machine, machine_line, wait_quiet  # noqa: E402
+from bench.harness import machine, machine_line, run_at_revision, wait_quiet, write_json  # noqa: E402
 from bench.report import publish  # noqa: E402
-from neuenh.files import atomic_write  # noqa: E402
 
 SECTION = "## Fitting speed (issue 13)"
 RGL = ROOT.parent / "shared" / "data" / "rgl"
@@ -95,17 +91,8 @@ def markdown_section(env: dict, now: dict, before: dict | None, command: str, mo
 
 
 def run_before(rev: str, args: argparse.Namespace) -> dict:
-    """This file's ``run`` in the repository at ``rev`` (``git archive`` to a temporary folder)."""
-    with tempfile.TemporaryDirectory(prefix="bench-fit-") as tmp:
-        checkout = Path(tmp) / "checkout"
-        checkout.mkdir()
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev], check=True, capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(checkout)], input=archive, check=True)
-        (checkout / "bench" / "bench_fit.py").write_text(Path(__file__).read_text())
-        out = Path(tmp) / "before.json"
-        subprocess.run([sys.executable, str(checkout / "bench" / "bench_fit.py"), "--model", str(args.model),
-                        "--rgl", str(args.rgl.resolve()), "--json", str(out), "--max-wait", "0"], check=True)
-        return json.loads(out.read_text())
+    """This file's ``run`` in the repository at ``rev``."""
+    return run_at_revision(rev, Path(__file__), ["--model", str(args.model), "--rgl", str(args.rgl.resolve())])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -129,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     before = run_before(args.before_rev, args) if args.before_rev else None
     now = run(args.rgl, args.model)
     if args.json:
-        atomic_write(args.json, json.dumps(now, indent=1))
+        write_json(args.json, now)
     from neuenh.pretrained import load_model
 
     enhanced, _ = load_model(args.model)

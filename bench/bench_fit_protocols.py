@@ -23,11 +23,8 @@ then the median over materials.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -36,7 +33,7 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
 import torch  # noqa: E402
 
-from bench.harness import machine, machine_line, wait_quiet  # noqa: E402
+from bench.harness import machine, machine_line, run_at_revision, wait_quiet, write_json  # noqa: E402
 from bench.report import publish  # noqa: E402
 
 SECTION = "## Fit protocols against NBRDF (issues 23, 24)"
@@ -96,17 +93,9 @@ def run(spec: str, weights: Path, count: int, sizes: list[int], default_only: bo
 
 def run_before(rev: str, args: argparse.Namespace) -> dict:
     """This file's ``run`` (default fits only) in the repository at ``rev``."""
-    with tempfile.TemporaryDirectory(prefix="bench-fit-protocols-") as tmp:
-        checkout = Path(tmp) / "checkout"
-        checkout.mkdir()
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev], check=True, capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(checkout)], input=archive, check=True)
-        (checkout / "bench" / Path(__file__).name).write_text(Path(__file__).read_text())
-        out = Path(tmp) / "before.json"
-        subprocess.run([sys.executable, str(checkout / "bench" / Path(__file__).name), "--model", str(args.model),
-                        "--materials", str(args.materials), "--nbrdf", str(args.nbrdf.resolve()), "--sizes", *map(str, args.sizes), "--default-only",
-                        "--json", str(out), "--max-wait", "0"], check=True)
-        return json.loads(out.read_text())
+    return run_at_revision(rev, Path(__file__), ["--model", str(args.model), "--materials", str(args.materials),
+                                                 "--nbrdf", str(args.nbrdf.resolve()), "--sizes", *map(str, args.sizes),
+                                                 "--default-only"])
 
 
 def markdown_section(env: dict, now: dict, before: dict | None, command: str, model: str, sizes: list[int]) -> str:
@@ -164,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     before = run_before(args.before_rev, args) if args.before_rev else None
     now = run(args.model, args.nbrdf, args.materials, args.sizes, args.default_only)
     if args.json:
-        args.json.write_text(json.dumps({"now": now, "before": before} if not args.default_only else now, indent=1))
+        write_json(args.json, {"now": now, "before": before} if not args.default_only else now)
     if args.default_only:
         return 0
     from neuenh.pretrained import load_model

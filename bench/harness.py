@@ -12,6 +12,7 @@ and describe the machine a number was measured on.
 from __future__ import annotations
 
 import datetime as dt
+import json
 import math
 import os
 import platform
@@ -19,6 +20,8 @@ import re
 import resource
 import statistics
 import subprocess
+import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -135,6 +138,38 @@ class Timer:
         return (f"medians of {self.repeats} interleaved repeats after a warm-up; repeats during which the "
                 f"rest of the machine used more than {self.max_background} cores were redone "
                 f"({self.rejected} redone; median background load of the kept ones {background:.2f} cores)")
+
+
+def write_json(path: Path, data) -> None:
+    """``data`` as indented JSON at ``path``, atomically (``neuenh.files``). A bench run by
+    ``run_at_revision`` in a checkout older than that module writes plainly: its parent reads the
+    file only once it has exited."""
+    text = json.dumps(data, indent=1)
+    try:
+        from neuenh.files import atomic_write
+    except ImportError:
+        Path(path).write_text(text)
+    else:
+        atomic_write(path, text)
+
+
+def run_at_revision(rev: str, script: Path, argv: list[str]) -> dict:
+    """``script`` (this checkout's copy of a bench) run with ``argv`` in the repository as it was at
+    ``rev`` (``git archive`` to a temporary folder), so the same measurement runs on the older code
+    in the same session; returns the JSON it writes (``--json``; ``--max-wait 0``: this process waited).
+    This file goes along with the script (it imports nothing of ``neuenh``); the rest is ``rev``'s."""
+    repo = Path(__file__).resolve().parents[1]
+    with tempfile.TemporaryDirectory(prefix="bench-before-") as tmp:
+        checkout = Path(tmp) / "checkout"
+        checkout.mkdir()
+        archive = subprocess.run(["git", "-C", str(repo), "archive", rev], check=True, capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(checkout)], input=archive, check=True)
+        copy = checkout / "bench" / script.name
+        copy.write_text(script.read_text())
+        (checkout / "bench" / "harness.py").write_text(Path(__file__).read_text())
+        out = Path(tmp) / "before.json"
+        subprocess.run([sys.executable, str(copy), *argv, "--json", str(out), "--max-wait", "0"], check=True)
+        return json.loads(out.read_text())
 
 
 def cpu_info() -> dict:
