@@ -15,7 +15,7 @@ from collections.abc import Callable
 from neuenh.checkpoint import Bundle
 from neuenh.scene.ladder import measure_cost
 from neuenh.search import weight_cost
-from neuenh_service.storage import EventKind, HalvingRecord, JobStore
+from neuenh_service.storage import HalvingRecord, JobStore
 
 from .executor import CandidateReport, CandidateTask
 from .spec import JobSpec, neural_weights
@@ -102,8 +102,8 @@ class WeightCost(CostPolicy):
 
 class TimeCost(CostPolicy):
     """``cost: time``: the specialized evaluation's time, in units of 100 ns, measured once per state
-    of the job and recorded as a ``COST`` event; after a restart the recorded numbers are read back,
-    so a resumed job makes the same choices."""
+    of the job and kept by the job store (``JobStore.record_state_cost``); after a restart the kept
+    numbers are read back, so a resumed job makes the same choices."""
 
     def __init__(self, jobs: JobStore, job_id: str) -> None:
         self.jobs, self.job_id = jobs, job_id
@@ -111,12 +111,11 @@ class TimeCost(CostPolicy):
 
     def cost(self, report):
         if self._ns is None:
-            self._ns = {e.payload["state"]: e.payload["ns"] for e in self.jobs.events(self.job_id)
-                        if e.kind == EventKind.COST}
+            self._ns = self.jobs.state_costs(self.job_id)
         state = report.task.state
         if state not in self._ns:
-            self._ns[state] = evaluation_cost_ns(Bundle.from_bytes(report.bundle))
-            self.jobs.append_event(self.job_id, EventKind.COST, {"state": state, "ns": self._ns[state]})
+            measured = evaluation_cost_ns(Bundle.from_bytes(report.bundle))
+            self._ns[state] = self.jobs.record_state_cost(self.job_id, state, measured)
         return self._ns[state] / 100.0
 
 

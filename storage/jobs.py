@@ -387,6 +387,10 @@ class JobStore(ABC):
       ``unfinished_preparations`` and appends a ``PREPARING`` event; ``end_preparation`` sets the
       count to 0 and appends how it ended (``DATASET`` or ``PREPARATION_INTERRUPTED``); each in one
       transaction.
+    * **State costs** (``record_state_cost``): one measured evaluation cost per job and state
+      (``search.cost: time``). The first recorded stays: recording a state again returns the stored
+      cost and writes nothing. Recording one stores it and appends a ``COST`` event in ONE
+      transaction. ``state_costs`` reads a job's, state -> nanoseconds.
     * **Usage** (``charge``) adds wall and CPU seconds to the job's totals in one write, so what a
       budget counts survives restarts; totals only grow.
     * **Events** are numbered 1, 2, 3, ... per job without gaps, in commit order, also when
@@ -447,6 +451,14 @@ class JobStore(ABC):
         """The preparation ended as ``kind`` says (``DATASET`` or ``PREPARATION_INTERRUPTED``)."""
 
     @abstractmethod
+    def record_state_cost(self, job_id: str, state: str, ns: float) -> float:
+        """Keep ``ns`` as ``state``'s cost unless one is kept already; returns the kept one."""
+
+    @abstractmethod
+    def state_costs(self, job_id: str) -> dict[str, float]:
+        """The job's kept costs: state -> nanoseconds per evaluation."""
+
+    @abstractmethod
     def charge(self, job_id: str, *, wall_s: float = 0.0, cpu_s: float = 0.0) -> JobRecord:
         """Add non-negative seconds to the job's ``used_wall_s`` and ``used_cpu_s``; returns the job."""
 
@@ -502,6 +514,15 @@ def validate_preparation_end(job_id: str, kind: EventKind | str) -> EventKind:
         raise InvalidRecordError(f"job {job_id}: a preparation ends as {EventKind.DATASET.value} or "
                                  f"{EventKind.PREPARATION_INTERRUPTED.value}, not {kind!r}")
     return EventKind(kind)
+
+
+def validate_state_cost(job_id: str, state: str, ns: float) -> float:
+    if not isinstance(state, str) or not state.isdigit():
+        raise InvalidRecordError(f"job {job_id}: a state is a string of digits, got {state!r}")
+    if isinstance(ns, bool) or not isinstance(ns, (int, float)) or not math.isfinite(ns) or ns <= 0:
+        raise InvalidRecordError(f"job {job_id}: state {state}'s cost must be a positive number of "
+                                 f"nanoseconds, got {ns!r}")
+    return float(ns)
 
 
 def validate_charge(job_id: str, wall_s: float, cpu_s: float) -> tuple[float, float]:

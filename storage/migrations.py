@@ -164,6 +164,20 @@ MIGRATIONS: tuple[Migration, ...] = (
                    (SELECT MAX(f.seq) FROM events f WHERE f.job_id = jobs.id
                                                       AND f.kind IN ('dataset', 'preparation_interrupted')), 0))""",
     )),
+    Migration(11, "each job's measured evaluation cost per state (search.cost: time), a table instead of its events", (
+        """CREATE TABLE state_costs (
+            job_id          TEXT    NOT NULL REFERENCES jobs(id) ON DELETE CASCADE,
+            state           TEXT    NOT NULL,
+            ns              REAL    NOT NULL CHECK (ns > 0),    -- nanoseconds per evaluation
+            PRIMARY KEY (job_id, state)
+        )""",
+        # Stores written before this version: the cost events, the first of each state kept.
+        """INSERT OR IGNORE INTO state_costs (job_id, state, ns)
+           SELECT job_id, json_extract(payload, '$.state'), json_extract(payload, '$.ns') FROM events
+           WHERE kind = 'cost' AND json_type(payload, '$.state') = 'text'
+             AND json_type(payload, '$.ns') IN ('real', 'integer') AND json_extract(payload, '$.ns') > 0
+           ORDER BY job_id, seq""",
+    )),
 )
 
 SCHEMA_VERSION = MIGRATIONS[-1].version

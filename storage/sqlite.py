@@ -30,7 +30,7 @@ from .errors import ConflictError, InvalidRecordError, NotFoundError, StorageErr
 from .jobs import (UNFINISHED, CandidateRecord, EventKind, EventRecord, FinishedCandidate,
                    HalvingRecord, JobPage, JobRecord, JobStatus, JobStore, RoundKind, RoundRecord, StoreStatistics,
                    WarmupRecord, caller_idempotency_key, candidate_payload, canonical_json, check_transition, round_payload,
-                   status_filter, stored_idempotency_key, validate_charge, validate_error,
+                   status_filter, stored_idempotency_key, validate_charge, validate_error, validate_state_cost,
                    validate_preparation_end)
 from .migrations import migrate
 
@@ -251,6 +251,24 @@ class SQLiteJobStore(SQLiteDatabase, JobStore):
             c.execute("UPDATE jobs SET unfinished_preparations = 0 WHERE id = ?", (job_id,))
             _append(c, job_id, now, kind, payload)
             return _job(_require(c, job_id))
+
+    def record_state_cost(self, job_id: str, state: str, ns: float) -> float:
+        ns = validate_state_cost(job_id, state, ns)
+        now = time.time()
+        with self._write(f"record state {state}'s cost for job {job_id}") as c:
+            _require(c, job_id)
+            kept = c.execute("SELECT ns FROM state_costs WHERE job_id = ? AND state = ?", (job_id, state)).fetchone()
+            if kept is not None:
+                return kept["ns"]
+            c.execute("INSERT INTO state_costs (job_id, state, ns) VALUES (?, ?, ?)", (job_id, state, ns))
+            _append(c, job_id, now, EventKind.COST, {"state": state, "ns": ns})
+            return ns
+
+    def state_costs(self, job_id: str) -> dict[str, float]:
+        with self._read(f"read state costs of job {job_id}") as c:
+            _require(c, job_id)
+            rows = c.execute("SELECT state, ns FROM state_costs WHERE job_id = ?", (job_id,)).fetchall()
+        return {r["state"]: r["ns"] for r in rows}
 
     def charge(self, job_id: str, *, wall_s: float = 0.0, cpu_s: float = 0.0) -> JobRecord:
         wall_s, cpu_s = validate_charge(job_id, wall_s, cpu_s)

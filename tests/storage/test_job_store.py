@@ -468,6 +468,27 @@ class TestJobStoreContract:
         assert (job.status, job.reason, job.error) == (S.STOPPED, "budget", None)
         assert job_store.events(job_id)[-1].payload["reason"] == "budget"
 
+    def test_a_states_first_cost_is_kept_with_its_event(self, job_backend):
+        store = job_backend.open()
+        job_id = running_job(store)
+        assert store.state_costs(job_id) == {}
+        assert store.record_state_cost(job_id, "00100", 350.5) == 350.5
+        assert store.record_state_cost(job_id, "00100", 999.0) == 350.5  # measured again: the first stays
+        assert store.record_state_cost(job_id, "00000", 120) == 120.0
+        assert job_backend.open().state_costs(job_id) == {"00100": 350.5, "00000": 120.0}  # survives a restart
+        costs = [e.payload for e in store.events(job_id) if e.kind == EventKind.COST]
+        assert costs == [{"state": "00100", "ns": 350.5}, {"state": "00000", "ns": 120.0}]  # one event each
+        for state, ns, match in (("00100", 0.0, "positive"), ("00011", math.nan, "positive"),
+                                 ("00011", math.inf, "positive"), ("00011", True, "positive"),
+                                 ("0a", 1.0, "string of digits"), ("", 1.0, "string of digits")):
+            with pytest.raises(InvalidRecordError, match=match):
+                store.record_state_cost(job_id, state, ns)
+        assert len(store.state_costs(job_id)) == 2
+        with pytest.raises(NotFoundError):
+            store.record_state_cost("nope", "00000", 1.0)
+        with pytest.raises(NotFoundError):
+            store.state_costs("nope")
+
     # ----------------------------------------------------------------------------- events
 
     def test_event_kinds_read_back_typed(self, job_store):

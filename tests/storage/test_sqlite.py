@@ -33,6 +33,7 @@ RELEASED = {
     8: "14b1d2e0",
     9: "bfff151f",
     10: "6bcd51b8",
+    11: "3f1bf306",
 }
 
 
@@ -169,6 +170,21 @@ def test_upgrades_a_version_9_database_counting_unfinished_preparations_from_its
     with SQLiteJobStore(path) as store:
         assert {j: store.get_job(j).unfinished_preparations for j in logs} == \
             {"died_twice": 2, "interrupted": 0, "prepared": 0, "new": 0}
+
+
+def test_upgrades_a_version_10_database_keeping_each_states_first_cost_from_its_events(tmp_path):
+    path = tmp_path / "v10.db"
+    with at_version(path, 10) as conn:
+        conn.execute("INSERT INTO jobs (id, spec, status, created_at, updated_at) VALUES ('old', '{}', 'RUNNING', 1, 2)")
+        payloads = ['{"state":"001","ns":350.5}', '{"state":"000","ns":120}', '{"state":"001","ns":999.0}',
+                    '{"state":"010"}', '{"state":"011","ns":-1}', '{}']
+        for seq, payload in enumerate(payloads, 1):
+            conn.execute("INSERT INTO events (job_id, seq, time, kind, payload) VALUES ('old', ?, 1.0, 'cost', ?)",
+                         (seq, payload))
+        conn.execute("INSERT INTO events (job_id, seq, time, kind, payload) VALUES ('old', 7, 1.0, 'note', "
+                     "'{\"state\":\"100\",\"ns\":5}')")
+    with SQLiteJobStore(path) as store:
+        assert store.state_costs("old") == {"001": 350.5, "000": 120.0}
 
 
 def test_a_failed_migration_changes_nothing(tmp_path):
