@@ -8,13 +8,16 @@ materials), a shipped model or an analytical model. The materials exported are t
 with ``--params`` those of a fit report (``neuenh fit --json``, or the answer of ``POST
 /v1/jobs/{id}/fit``), which must be a fit of this very model; ``--material`` picks some by name.
 With ``--plan`` (written by ``neuenh scene plan``) every material is exported with the rung the plan
-chose for it, one folder per rung (``OUT/<rung>/``), each holding only that rung's modules.
+chose for it, one folder per rung (``OUT/<rung>/``), each holding only that rung's modules; the
+materials planned with the per-material NBRDF rung are skipped, each named on stderr (no exporter
+writes NBRDF networks), and naming one with ``--material`` is an error.
 Each format's files are described in docs/EXPORT.md and ``neuenh.export``.
 """
 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from neuenh.export import FORMATS, export
@@ -42,15 +45,26 @@ def run(args) -> int:
         raise ValueError("give a MODEL or --plan PLAN.json (one of them)")
     if args.plan and args.params:
         raise ValueError("--params goes with a MODEL; a plan holds its materials' parameters")
+    wanted = set(args.material or ())
     if args.plan:
         from neuenh.scene.outputs import plan_models, safe_name
 
-        groups = [(args.output / safe_name(key), model, materials) for key, model, materials in plan_models(args.plan)]
+        planned = plan_models(args.plan)
+        named = sorted(wanted & set(planned.nbrdf))
+        if named:
+            raise ValueError(f"{', '.join(map(repr, named))} planned with the per-material NBRDF rung, which the "
+                             "exporters do not write")
+        groups = [(args.output / safe_name(key), model, materials) for key, model, materials in planned.groups]
+        if not groups:
+            raise ValueError(f"{args.plan}: every material was planned with the per-material NBRDF rung; nothing to "
+                             "export")
+        for name in [] if wanted else planned.nbrdf:
+            print(f"skipped {name!r}: planned with the per-material NBRDF rung, which the exporters do not write "
+                  f"(its network's weights are in {args.plan})", file=sys.stderr)
     else:
         model, trained = load_model(args.model, "MODEL")
         materials = fit_report_materials(args.params, model) if args.params else bundle_materials(trained, args.model)
         groups = [(args.output, model, materials)]
-    wanted = set(args.material or ())
     every = {m for _, _, materials in groups for m in materials}
     missing = sorted(wanted - every)
     if missing:

@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import io
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..files import atomic_write
 from .planner import Plan
 
-__all__ = ["plan_models", "safe_name", "write_plan"]
+__all__ = ["PlanModels", "plan_models", "safe_name", "write_plan"]
 
 PLAN_JSON, PLAN_MD, PLOT, SHEET = "plan.json", "plan.md", "cost_vs_error.png", "contact_sheet.png"
 
@@ -62,11 +63,19 @@ def _bundles(plan: Plan, folder: Path) -> list[Path]:
     return written
 
 
-def plan_models(plan_json: Path) -> list[tuple[str, object, dict[str, dict]]]:
-    """The models a written plan uses, each with its materials' records: ``[(rung key, BRDFModel,
-    {material: MaterialParams})]`` in ladder order, read from ``plan.json`` and the bundles beside it (what the
-    exporters take, ``neuenh export --plan``). A material planned with the NBRDF rung, or a rung
-    whose bundle is missing, is a ValueError naming it."""
+@dataclass(frozen=True)
+class PlanModels:
+    """What the exporters take from a written plan (``plan_models``)."""
+
+    groups: list[tuple[str, object, dict]]  # (rung key, BRDFModel, {material: MaterialParams}), in ladder order
+    nbrdf: list[str]  # the materials planned with the per-material NBRDF rung, which no exporter writes
+
+
+def plan_models(plan_json: Path) -> PlanModels:
+    """The models a written plan uses, each with its materials' records, read from ``plan.json`` and
+    the bundles beside it (what the exporters take, ``neuenh export --plan``). The materials planned
+    with the NBRDF rung are not in ``groups`` but named in ``PlanModels.nbrdf`` (their networks'
+    weights stay in ``plan.json``). A rung whose bundle is missing is a ValueError naming it."""
     from ..checkpoint import Bundle, BundleError
     from ..materials import MaterialParams
     from ..models import get_model
@@ -80,11 +89,12 @@ def plan_models(plan_json: Path) -> list[tuple[str, object, dict[str, dict]]]:
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{plan_json}: not a scene plan (neuenh scene plan): {type(exc).__name__}: {exc}") from None
     out: dict[str, tuple[object, dict]] = {}
+    nbrdf = []
     for name, key, params in chosen:
         rung = ladder[key]
         if rung["model"] == "nbrdf":
-            raise ValueError(f"{plan_json}: material {name!r} was planned with the per-material NBRDF rung, which "
-                             "the exporters do not write; plan the scene without nbrdf in its ladder")
+            nbrdf.append(name)
+            continue
         if key not in out:
             if rung["shared_weights"]:
                 folder = Path(plan_json).parent / "bundles" / safe_name(rung["source"])
@@ -102,7 +112,7 @@ def plan_models(plan_json: Path) -> list[tuple[str, object, dict[str, dict]]]:
             out[key][1][name] = MaterialParams.from_json(params)
         except ValueError as exc:
             raise ValueError(f"{plan_json}: material {name!r}: {exc}") from None
-    return [(key, model, materials) for key, (model, materials) in out.items()]
+    return PlanModels([(key, model, materials) for key, (model, materials) in out.items()], nbrdf)
 
 
 def safe_name(name: str) -> str:
@@ -120,17 +130,22 @@ def markdown(plan: Plan, sheet: bool = True) -> str:
         tol.metric]
     analytical = sum(1 for m in plan.materials if plan.rung_info(m.chosen)["shared_weights"] == 0
                      and plan.rung_info(m.chosen)["model"] != "nbrdf")
+    per_rung = totals["plan"]["rungs"]  # rung key -> materials the planner gave it
     lines = [
         f"# Scene plan{f': {s.name}' if s.name else ''}", "",
         f"Every material gets the cheapest rung of the ladder whose {metric} is {within} "
         f"(fit on {s.fit.samples} measurements, tested on {s.fit.test_samples} others; "
         f"{100 * s.fit.near_mirror:g} % of a continuous material's pairs near the mirror direction). "
         "Cost: nanoseconds per evaluation of the rung's specialized BRDF, measured on this machine (one thread).",
-        "", f"**{analytical} of {len(plan.materials)} materials stay analytical.**", "",
-        "## Ladder", "", "| rung | model | shared weights | cost (ns / evaluation) |", "|---|---|---:|---:|",
+        "", f"**{analytical} of {len(plan.materials)} materials stay analytical"
+        + "".join(f"; {per_rung.get(r['key'], 0)} of {len(plan.materials)} go to {r['label']}" for r in plan.ladder
+                  if r["model"] == "nbrdf")
+        + ".** The ladder's last column counts the materials given to each rung.", "",
+        "## Ladder", "", "| rung | model | shared weights | cost (ns / evaluation) | materials given to it |",
+        "|---|---|---:|---:|---:|",
     ]
-    lines += [f"| {r['label']} | {r['model']} {r['state'] or ''} | {r['shared_weights']:,} | {r['cost_ns']:.1f} |"
-              for r in plan.ladder]
+    lines += [f"| {r['label']} | {r['model']} {r['state'] or ''} | {r['shared_weights']:,} | {r['cost_ns']:.1f} | "
+              f"{per_rung.get(r['key'], 0)} |" for r in plan.ladder]
     richest = plan.ladder[-1]["key"]
     lines += ["", "## Materials", "",
               "| material | weight | chosen rung | error | cost (ns) | parameters (bytes) | richest rung's error | "

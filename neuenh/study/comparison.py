@@ -62,6 +62,7 @@ class ContenderResult:
     evals_per_s: float  # eval_throughput of the fitted BRDF
     heldout_near: float = float("nan")  # held-out log-L1 over the test pairs near the mirror direction
     heldout_away: float = float("nan")  # ... and over the others
+    capacity: str | None = None  # the fit's capacity (a model with modules): params_per_material counts it
 
     def row(self) -> dict:
         return dict(self.__dict__)
@@ -114,6 +115,7 @@ def compare_material(material, contenders: Sequence[Contender], n_fit: int, n_te
             heldout_near=float(losses[near].mean()) if near.any() else float("nan"),
             heldout_away=float(losses[~near].mean()) if (~near).any() else float("nan"), fit_s=fitted.fit_s,
             params_per_material=fitted.params_per_material, shared_weights=fitted.shared_weights,
+            capacity=fitted.capacity,
             ssim=ssim(truth, image, mask=scene.mask), delta_e_itp=delta_e_itp(truth, image, mask=scene.mask),
             render_s=render_s, rays=rays, evals_per_s=eval_throughput(fitted.brdf, eval_pairs)))
     return MaterialComparison(material.name, len(fit), len(test), split, results, truth, images, scene.mask)

@@ -48,6 +48,8 @@ class CurvePoint:
     near: float  # over the test pairs near the mirror direction
     away: float  # over the others
     fit_s: float
+    params_per_material: int = 0  # at the capacity the fit chose (``contenders.FittedMaterial``)
+    capacity: str | None = None  # the fit's capacity (a model with modules)
 
     def row(self) -> dict:
         return asdict(self)
@@ -72,7 +74,8 @@ def measure_curve(material, contenders: Sequence[Contender], sizes: Iterable[int
                     loss = log_l1(fitted.predict(test.wi, test.wo), test.f_r, test.wi).double()
                 out.append(CurvePoint(material.name, protocol, n, contender.name, float(loss.mean()),
                                       float(loss[near].mean()) if near.any() else float("nan"),
-                                      float(loss[~near].mean()) if (~near).any() else float("nan"), fit_s))
+                                      float(loss[~near].mean()) if (~near).any() else float("nan"), fit_s,
+                                      fitted.params_per_material, fitted.capacity))
     return out
 
 

@@ -103,7 +103,8 @@ def efficiency(path: Path, points: list, labels: dict[str, str]) -> Path:
     protocols = list(dict.fromkeys(p.protocol for p in points))
     fig, axes = plt.subplots(1, len(protocols), figsize=(6.5 * len(protocols), 4.6), constrained_layout=True,
                              squeeze=False)
-    styles = {"enhanced": ("#d62728", "o"), "ggx": ("#1f77b4", "s"), "nbrdf": ("#9467bd", "^")}
+    styles = {"enhanced": ("#d62728", "o"), "enhanced-adaptive": ("#ff7f0e", "v"), "ggx": ("#1f77b4", "s"),
+              "nbrdf": ("#9467bd", "^")}
     for ax, protocol in zip(axes[0], protocols):
         for name, by_n in medians(points, protocol).items():
             colour, marker = styles.get(name, ("#2ca02c", "D"))

@@ -11,9 +11,13 @@ from ..modules import ModuleConfig
 from ..models.ggx_residual import RESIDUAL_STATE
 
 __all__ = ["ANALYTICAL", "BASELINES", "Baseline", "ContenderInfo", "EFFICIENCY_CONTENDERS", "ENCODED", "ENHANCED",
-           "OTHER_ENHANCED", "contender_infos", "shipped_others"]
+           "ENHANCED_ADAPTIVE", "OTHER_ENHANCED", "contender_infos", "shipped_others"]
 
+# The enhanced model fitted at two capacities (``neuenh.fit.capacity``): the latent code and analytical
+# parameters alone (the compact model, a few dozen parameters per material), and the adaptive fit that
+# chooses per material, by cross-validation on its fit data, how many module-weight corrections to free.
 ENHANCED = "enhanced"
+ENHANCED_ADAPTIVE = "enhanced-adaptive"
 # the enhanced model's encoder alone (no fit: ``contenders.EncodedContender``), when its bundle has one
 ENCODED = "enhanced-encoder"
 ANALYTICAL = {"ggx": "GGX", "cook_torrance": "Cook-Torrance", "ward": "Ward"}
@@ -51,6 +55,7 @@ class ContenderInfo:
     name: str
     label: str
     family: str  # "enhanced", "analytical", "residual" or "neural"
+    capacity: str = "latent"  # a model with modules: the fit's capacity (``neuenh.fit.FitOptions.capacity``)
 
 
 # The paper's other enhancements (its "enhancing other models"): shipped models, each measured beside
@@ -62,7 +67,8 @@ OTHER_ENHANCED = {"enhanced-cook-torrance": ("Enhanced Cook-Torrance", "cook_tor
 def contender_infos(others: tuple[str, ...] = (), encoded: bool = False) -> list[ContenderInfo]:
     """Every model of the study, in the order of its tables; ``others``: the names of
     ``OTHER_ENHANCED`` to include (those shipped); ``encoded``: the enhanced model's encoder alone too."""
-    return [ContenderInfo(ENHANCED, "Enhanced GGX (ours)", "enhanced"),
+    return [ContenderInfo(ENHANCED, "Enhanced GGX (ours), latent", "enhanced"),
+            ContenderInfo(ENHANCED_ADAPTIVE, "Enhanced GGX (ours), adaptive", "enhanced", capacity="auto"),
             *([ContenderInfo(ENCODED, "Enhanced GGX, encoder alone (no fit)", "enhanced")] if encoded else []),
             *(ContenderInfo(n, label, "analytical") for n, label in ANALYTICAL.items()),
             *(ContenderInfo(n, OTHER_ENHANCED[n][0], "enhanced") for n in others),
@@ -80,4 +86,4 @@ def shipped_others() -> tuple[str, ...]:
 
 # The models of the data-efficiency curves (``study.efficiency``): the question is where a shared
 # model's prior beats a network fitted from scratch, against the analytical model and the residual MLP.
-EFFICIENCY_CONTENDERS = (ENHANCED, ENCODED, "ggx", "residual-1x", "nbrdf")
+EFFICIENCY_CONTENDERS = (ENHANCED, ENHANCED_ADAPTIVE, ENCODED, "ggx", "residual-1x", "nbrdf")

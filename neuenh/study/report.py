@@ -12,10 +12,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..files import atomic_write
-from .registry import ANALYTICAL, BASELINES, EFFICIENCY_CONTENDERS, ENCODED, ENHANCED, OTHER_ENHANCED, contender_infos
+from .registry import (ANALYTICAL, BASELINES, EFFICIENCY_CONTENDERS, ENCODED, ENHANCED, ENHANCED_ADAPTIVE, OTHER_ENHANCED,
+                       contender_infos)
 from .summary import MaterialResult, StudySummary
 
-__all__ = ["StudySettings", "find_materials", "run_study"]
+__all__ = ["StudySettings", "build_contenders", "find_materials", "run_study"]
 
 
 @dataclass(frozen=True)
@@ -111,8 +112,9 @@ def run_study(settings: StudySettings) -> StudySummary:
     return summary
 
 
-def _contenders(s: StudySettings) -> list:
-    """Every model of ``contender_infos()``, in its order, ready to be fitted per material."""
+def build_contenders(s: StudySettings, names: tuple[str, ...] | None = None) -> list:
+    """The models of ``contender_infos()`` (only ``names`` when given), in its order, ready to be fitted
+    per material; the enhanced model's contenders are fitted at their ``ContenderInfo.capacity``."""
     from ..checkpoint import Bundle
     from ..fit import FitOptions
     from ..models import get_model
@@ -125,7 +127,9 @@ def _contenders(s: StudySettings) -> list:
     encoder = Bundle.load(path).encoder if path else None
     out = []
     for info in contender_infos(s.others, encoder is not None):
-        if info.name == ENHANCED:
+        if names is not None and info.name not in names:
+            continue
+        if info.name in (ENHANCED, ENHANCED_ADAPTIVE):
             model, trained = load_model(s.model)
         elif info.name == ENCODED:
             out.append(EncodedContender(info.name, info.label, info.family, load_model(s.model)[0], encoder))
@@ -142,7 +146,8 @@ def _contenders(s: StudySettings) -> list:
             continue
         else:
             raise ValueError(f"the registry names a contender nothing builds: {info.name!r}")
-        out.append(GraphContender(info.name, info.label, info.family, model, trained, fit))
+        out.append(GraphContender(info.name, info.label, info.family, model, trained,
+                                  fit.replace(capacity=info.capacity)))
     return out
 
 
@@ -154,7 +159,7 @@ def _measure(s: StudySettings, path: Path) -> MaterialResult:
     from .comparison import RenderSetup, compare_material
 
     torch.set_num_threads(1)
-    material, contenders = load_measured(path), _contenders(s)
+    material, contenders = load_measured(path), build_contenders(s)
     c = compare_material(material, contenders, s.fit_samples, s.test_samples, seed=s.seed,
                          setup=RenderSetup(s.size, s.samples, s.seed, s.scene), eval_pairs=s.eval_pairs)
     curve = []

@@ -10,7 +10,8 @@ import numpy as np
 
 from .comparison import ContenderResult
 from .efficiency import CurvePoint, crossover, medians, wins
-from .registry import ENHANCED, ContenderInfo
+from .registry import ENHANCED, ENHANCED_ADAPTIVE, ContenderInfo
+from .targets import Target, issue23_targets
 
 __all__ = ["MaterialResult", "ModelSummary", "StudySummary"]
 
@@ -52,8 +53,15 @@ class ModelSummary:
     evals_per_s: float
     rays_per_s: float
     fit_s: float
-    params_per_material: int
+    params_per_material: int  # the median over materials (an adaptive fit's vary with its chosen capacity)
     shared_weights: int
+    params_range: tuple[int, int] = (0, 0)  # the fewest and most parameters per material
+
+    @property
+    def params(self) -> str:
+        """Parameters per material as the tables show them: the count, or the median and range."""
+        low, high = self.params_range
+        return f"{self.params_per_material:,}" if low == high else f"{self.params_per_material:,} ({low:,}–{high:,})"
 
     @classmethod
     def over(cls, info: ContenderInfo, materials: list[MaterialResult]) -> "ModelSummary":
@@ -66,7 +74,9 @@ class ModelSummary:
                    evals_per_s=statistics.median(r.evals_per_s for r in rows),
                    rays_per_s=sum(r.rays for r in rows) / sum(r.render_s for r in rows),
                    fit_s=statistics.median(r.fit_s for r in rows),
-                   params_per_material=rows[0].params_per_material, shared_weights=rows[0].shared_weights)
+                   params_per_material=round(statistics.median(r.params_per_material for r in rows)),
+                   shared_weights=rows[0].shared_weights,
+                   params_range=(min(r.params_per_material for r in rows), max(r.params_per_material for r in rows)))
 
 
 def _rate(x: float) -> str:
@@ -133,16 +143,19 @@ class StudySummary:
         return [*lines, ""]
 
     def _near_away(self, materials: list[MaterialResult]) -> list[str]:
-        """The held-out error split at the mirror direction (the test pairs of the main protocol)."""
+        """The held-out error split at the mirror direction (the test pairs of the main protocol), with
+        each model's parameters per material and fit time beside it."""
         lines = ["### Near and away from the mirror direction", "",
                  "The same held-out log-L1, over the test pairs whose half vector lies within 10° of the normal "
                  "(*near*: where highlights are, a sixth of the uniform pairs) and over the others (*away*). Medians "
-                 "over the materials.", "", "| model | near | away | all |", "|---|---:|---:|---:|"]
+                 "over the materials; beside them each model's parameters per material (median, and range when "
+                 "its fit chooses a capacity per material) and its fit time.", "",
+                 "| model | near | away | all | params / material | fit (s) |", "|---|---:|---:|---:|---:|---:|"]
         for info in self.models:
             rows = [m.by_name()[info.name] for m in materials]
             med = lambda f: statistics.median(getattr(r, f) for r in rows)  # noqa: E731
             lines.append(f"| {info.label} | {med('heldout_near'):.4f} | {med('heldout_away'):.4f} | "
-                         f"{med('heldout_log_l1'):.4f} |")
+                         f"{med('heldout_log_l1'):.4f} | {info.params} | {info.fit_s:.1f} |")
         return [*lines, ""]
 
     def _efficiency(self, materials: list[MaterialResult]) -> list[str]:
@@ -150,67 +163,58 @@ class StudySummary:
         if not points:
             return []
         labels = {x.name: x.label for x in self.models}
-        params = {x.name: x.params_per_material for x in self.models}
         speed = {x.name: x.evals_per_s for x in self.models}
+        enhanced = [x.name for x in self.models if x.name in (ENHANCED, ENHANCED_ADAPTIVE)]
         n = len(materials)
         threshold = (3 * n + 3) // 4  # 6 of 8
-        crossovers: dict[str, int | None] = {}
         lines = ["## Data efficiency: held-out error against the number of fit samples", "",
                  "Each model fitted to 100 to 10,000 measurements of each material and tested on the same "
                  f"{self.settings['test_samples']:,} others, under two protocols (`neuenh.study.efficiency`): "
                  "*uniform* in the four Rusinkiewicz angles, as above, and *mirror*: half the fit and test pairs "
                  "near the mirror direction (half vector within 10° of the normal), the way the reference values "
-                 "of ../shared draw theirs. Medians over the materials; beside each model its parameters per "
-                 "material and its evaluation speed (specialized, one thread, from the table above).", ""]
+                 "of ../shared draw theirs. Medians over the materials; beside each model its evaluation speed "
+                 "(specialized, one thread, from the table above), and below each table its parameters per "
+                 "material (at the capacity each fit chose) and fit time at every size.", ""]
         for protocol in dict.fromkeys(p.protocol for p in points):
             table = medians(points, protocol)
             near, away = medians(points, protocol, "near"), medians(points, protocol, "away")
+            params, fit_s = medians(points, protocol, "params_per_material"), medians(points, protocol, "fit_s")
             sizes = sorted({p.n_fit for p in points if p.protocol == protocol})
+            row = lambda label, cells: f"| {label} | | " + " | ".join(cells) + " |"  # noqa: E731
             lines += [f"### Protocol: {protocol}", "",
-                      "| model | params / material | evaluations/s | " + " | ".join(f"{s:,}" for s in sizes) + " |",
-                      "|---|---:|---:|" + "---:|" * len(sizes)]
+                      "| model | evaluations/s | " + " | ".join(f"{s:,}" for s in sizes) + " |",
+                      "|---|---:|" + "---:|" * len(sizes)]
             for name, by_n in table.items():
-                lines.append(f"| {labels.get(name, name)} | {params.get(name, '')} | {_rate(speed[name]) if name in speed else ''} | "
+                lines.append(f"| {labels.get(name, name)} | {_rate(speed[name]) if name in speed else ''} | "
                              + " | ".join(f"{by_n.get(s, float('nan')):.4f}" for s in sizes) + " |")
-            ahead = wins(points, protocol, ENHANCED, "nbrdf")
-            lines.append("| *enhanced ahead of NBRDF on* | | | "
-                         + " | ".join(f"{ahead[s][0]}/{ahead[s][1]}" if s in ahead else "" for s in sizes) + " |")
-            lines.append("| *near / away, enhanced* | | | " + " | ".join(
-                f"{near[ENHANCED][s]:.3f} / {away[ENHANCED][s]:.3f}" for s in sizes) + " |")
-            lines.append("| *near / away, NBRDF* | | | " + " | ".join(
-                f"{near['nbrdf'][s]:.3f} / {away['nbrdf'][s]:.3f}" for s in sizes) + " |")
-            cross = crossovers[protocol] = crossover(points, protocol, ENHANCED, "nbrdf", threshold)
-            lines += ["", f"Largest fit-set size at which the enhanced model is ahead of NBRDF on at least "
-                      f"{threshold} of {n} materials: **{f'{cross:,}' if cross else 'none'}**.", ""]
-        return [*lines, *self._standing(materials, points, crossovers, threshold),
-                "![held-out error against fit samples](img/results/efficiency.png)", ""]
+            for name in enhanced:
+                ahead = wins(points, protocol, name, "nbrdf")
+                lines.append(row(f"*{labels[name]}: ahead of NBRDF on*",
+                                 [f"{ahead[s][0]}/{ahead[s][1]}" if s in ahead else "" for s in sizes]))
+            for name in [*enhanced, "nbrdf"]:
+                lines.append(row(f"*near / away, {labels.get(name, name)}*",
+                                 [f"{near[name][s]:.3f} / {away[name][s]:.3f}" if s in near.get(name, {}) else ""
+                                  for s in sizes]))
+            lines += ["", f"Parameters per material / fit seconds (medians over the materials), protocol {protocol}:",
+                      "", "| model | " + " | ".join(f"{s:,}" for s in sizes) + " |", "|---|" + "---:|" * len(sizes)]
+            for name in table:
+                lines.append(f"| {labels.get(name, name)} | " + " | ".join(
+                    f"{params[name][s]:,.0f} / {fit_s[name][s]:.1f} s" if s in params[name] else "" for s in sizes) + " |")
+            lines.append("")
+            for name in enhanced:
+                cross = crossover(points, protocol, name, "nbrdf", threshold)
+                lines.append(f"Largest fit-set size at which {labels[name]} is ahead of NBRDF on at least "
+                             f"{threshold} of {n} materials: **{f'{cross:,}' if cross else 'none'}**.")
+            lines.append("")
+        return [*lines, *self._standing(points), "![held-out error against fit samples](img/results/efficiency.png)", ""]
 
-    def _standing(self, materials: list[MaterialResult], points: list[CurvePoint],
-                  crossovers: dict[str, int | None], threshold: int) -> list[str]:
-        """The figures issue 14 set targets for, from the tables above (medians over the materials;
-        ``crossovers``: per protocol, the largest size with the enhanced model ahead of NBRDF on
-        ``threshold`` materials)."""
-        n = len(materials)
-        main = {x.name: x.log_l1 for x in self.models}
-        rows = [("uniform protocol, 10,000 fit samples: enhanced / NBRDF (medians)", f"{main[ENHANCED] / main['nbrdf']:.2f}×",
-                 "≤ 1.2×"),
-                ("uniform protocol: enhanced below GGX, median (materials ahead)",
-                 f"{100 * self.median_reduction_vs_ggx:.1f} % ({self.enhanced_beats_ggx}/{n})", f"≥ 45 % ({n}/{n})")]
-        mirror = medians(points, "mirror")
-        if 3000 in mirror.get(ENHANCED, {}) and 3000 in mirror.get("nbrdf", {}):
-            per = {m.material: {p.contender: p.heldout_log_l1 for p in m.curve if p.protocol == "mirror" and p.n_fit == 3000}
-                   for m in materials}
-            reductions = [1 - v[ENHANCED] / v["ggx"] for v in per.values()]
-            rows += [("near-mirror protocol, 3,000 fit samples: enhanced / NBRDF (medians)",
-                      f"{mirror[ENHANCED][3000] / mirror['nbrdf'][3000]:.2f}×", "≤ 1.4×"),
-                     ("near-mirror protocol, 3,000: enhanced below GGX, median (materials ahead)",
-                      f"{100 * statistics.median(reductions):.1f} % ({sum(r > 0 for r in reductions)}/{n})",
-                      f"≥ 35 % ({n}/{n})")]
-        for protocol, cross in crossovers.items():
-            rows.append((f"largest fit-set size with enhanced ahead of NBRDF on ≥ {threshold} of {n} ({protocol})",
-                         f"{cross:,}" if cross else "none", "≥ 3,000"))
-        return ["### Where the shared model stands", "", "| figure | now | target (issue 14) |", "|---|---:|---:|",
-                *(f"| {a} | {b} | {c} |" for a, b, c in rows), ""]
+    def _standing(self, points: list[CurvePoint]) -> list[str]:
+        """Issue 23's targets (``study.targets``), measured by the curves above."""
+        rows = issue23_targets(points)
+        return ["### Where the shared model stands", "",
+                "Issue 23's targets, medians over the materials of the curves above (the scene example's, NBRDF "
+                "chosen for at most 2 of 8, is in docs/scene-example/plan.md).", "",
+                *Target.HEADER, *(t.markdown() for t in rows), ""]
 
     def _heldout(self, materials: list[MaterialResult]) -> list[str]:
         names, labels = [m.name for m in self.models], [m.label for m in self.models]
@@ -272,7 +276,7 @@ class StudySummary:
                  "log-L1 | SSIM | ΔE_ITP |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
         for m in self.models:
             lines.append(f"| {m.label} | {_rate(m.evals_per_s)} | {_rate(m.rays_per_s)} | {m.fit_s:.1f} | "
-                         f"{m.params_per_material} | {m.shared_weights:,} | {m.log_l1:.4f} | {m.ssim:.3f} | "
+                         f"{m.params} | {m.shared_weights:,} | {m.log_l1:.4f} | {m.ssim:.3f} | "
                          f"{m.delta_e:.2f} |")
         return [*lines, "", f"Enhanced / plain GGX: evaluation throughput ratio "
                 f"**{self.eval_ratio_enhanced_to_ggx:.2f}**, render throughput ratio "

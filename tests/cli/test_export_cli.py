@@ -153,18 +153,35 @@ def Bundle_rung(plan_json: Path, key: str):
     return rung.model
 
 
-def test_a_plan_without_its_bundle_or_with_nbrdf_is_a_one_line_error(plan, tmp_path):
+def test_a_plan_without_its_bundle_is_a_one_line_error(plan, tmp_path):
     import shutil
 
-    path, data = plan
+    path, _ = plan
     copy = tmp_path / "plan"
     shutil.copytree(path.parent, copy)
     shutil.rmtree(copy / "bundles")
     one_line_error(neuenh("export", "--plan", copy / "plan.json", "--format", "glsl", "-o", tmp_path / "o"),
                    "needs its bundle")
+
+
+def test_a_plan_skips_the_materials_planned_with_nbrdf_and_names_them(plan, tmp_path):
+    from neuenh.scene.outputs import safe_name
+
+    path, data = plan
     data = json.loads(path.read_text())
     data["ladder"].append({"key": "nbrdf", "label": "NBRDF", "model": "nbrdf", "state": None, "shared_weights": 0})
     data["materials"][0]["chosen"] = "nbrdf"
-    (copy / "plan.json").write_text(json.dumps(data))
-    one_line_error(neuenh_here("export", "--plan", copy / "plan.json", "--format", "glsl", "-o", tmp_path / "o"),
-                   "material 'gloss' was planned with the per-material NBRDF rung")
+    copy = path.parent / "with-nbrdf.json"  # beside the plan's bundles
+    copy.write_text(json.dumps(data))
+    out = neuenh("export", "--plan", copy, "--format", "onnx", "-o", tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert "skipped 'gloss': planned with the per-material NBRDF rung" in out.stderr
+    written = sorted(p.name for p in tmp_path.rglob("*") if p.is_file())
+    assert "retro.onnx" in written and not any("gloss" in n for n in written)
+    assert (tmp_path / safe_name(data["materials"][1]["chosen"])).is_dir()
+    one_line_error(neuenh_here("export", "--plan", copy, "--format", "glsl", "--material", "gloss", "-o", tmp_path / "o"),
+                   "'gloss' planned with the per-material NBRDF rung")
+    data["materials"][1]["chosen"] = "nbrdf"
+    copy.write_text(json.dumps(data))
+    one_line_error(neuenh_here("export", "--plan", copy, "--format", "glsl", "-o", tmp_path / "o"),
+                   "every material was planned with the per-material NBRDF rung")

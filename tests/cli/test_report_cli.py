@@ -14,6 +14,7 @@ from neuenh.study.plots import pareto_front
 from neuenh.study.registry import BASELINES, ContenderInfo, shipped_others
 from neuenh.study.summary import MaterialResult, StudySummary
 from neuenh.checkpoint import Bundle
+from neuenh.fit import CAPACITIES
 from neuenh.modules import ModuleConfig
 from cli_runs import neuenh, neuenh_here
 
@@ -55,7 +56,8 @@ def test_the_report_measures_every_model_and_writes_its_files(report):
     results = json.loads((out / "results.json").read_text())
     [material] = results["materials"]
     names = [r["contender"] for r in material["results"]]
-    assert names == ["enhanced", "ggx", "cook_torrance", "ward", *shipped_others(), *BASELINES, "nbrdf"]
+    assert names == ["enhanced", "enhanced-adaptive", "ggx", "cook_torrance", "ward", *shipped_others(), *BASELINES,
+                     "nbrdf"]
     for r in material["results"]:
         assert np.isfinite([r["heldout_log_l1"], r["ssim"], r["delta_e_itp"], r["evals_per_s"]]).all()
         assert 0 < r["heldout_log_l1"] < 1 and -1 <= r["ssim"] <= 1 and r["rays"] > 0
@@ -69,7 +71,13 @@ def test_the_report_measures_every_model_and_writes_its_files(report):
         assert np.isfinite([r["heldout_near"], r["heldout_away"]]).all()
     curve = material["efficiency"]
     assert {(p["protocol"], p["n_fit"]) for p in curve} == {(p, n) for p in ("uniform", "mirror") for n in (100, 300)}
-    assert {p["contender"] for p in curve} == {"enhanced", "ggx", "residual-1x", "nbrdf"}
+    assert {p["contender"] for p in curve} == {"enhanced", "enhanced-adaptive", "ggx", "residual-1x", "nbrdf"}
+    # the enhanced model at two capacities: latent (its code and analytical parameters) and the fit's own choice
+    assert by["enhanced"]["capacity"] == "latent" and by["enhanced-adaptive"]["capacity"] in CAPACITIES
+    for p in curve:
+        expected = {"enhanced": by["enhanced"]["params_per_material"], "nbrdf": 675}.get(p["contender"])
+        assert p["params_per_material"] == expected if expected else p["params_per_material"] > 0
+    assert "### Where the shared model stands" in text and "target (issue 23)" in text
     assert "## Data efficiency" in text and "### Protocol: mirror" in text and "ahead of NBRDF on" in text
     assert "--efficiency 100 300" in text  # the regenerating command
     for png in ("speed_vs_error", "heldout", "search", "paper_white_rgb", "efficiency"):
@@ -138,3 +146,31 @@ def test_other_enhanced_models_are_measured_against_their_originals():
     text = summary.markdown(materials, {})
     # reductions 25 %, 60 %, 50 %: median 50 %, ahead on 3 of 3; medians 0.02 against 0.04
     assert "| Enhanced Cook-Torrance | 0.0200 | 0.0400 | 50.0 % | 3 of 3 |" in text
+
+
+def test_the_efficiency_tables_show_each_enhanced_fit_with_its_parameters_and_fit_time():
+    from neuenh.study.efficiency import CurvePoint
+
+    def result(name, log_l1, params):
+        return ContenderResult(name, fit_loss=log_l1, heldout_log_l1=log_l1, fit_s=2.0, params_per_material=params,
+                               shared_weights=0, ssim=0.9, delta_e_itp=1.0, render_s=1.0, rays=10, evals_per_s=1e6)
+
+    # per material (a, b): the adaptive fit chose 240 and 102 parameters, fitted in 3 and 5 s: medians 171, 4.0 s;
+    # against NBRDF (0.015, 0.025) it is ahead on a only, the latent fit (0.02, 0.03) on neither
+    curves = {"a_rgb": [("enhanced", 0.02, 42, 1.0), ("enhanced-adaptive", 0.01, 240, 3.0), ("ggx", 0.03, 12, 0.5),
+                        ("nbrdf", 0.015, 675, 1.0)],
+              "b_rgb": [("enhanced", 0.03, 42, 1.0), ("enhanced-adaptive", 0.03, 102, 5.0), ("ggx", 0.03, 12, 0.5),
+                        ("nbrdf", 0.025, 675, 1.0)]}
+    materials = [MaterialResult(m, 10, 10, "uniform", [result(c, loss, k) for c, loss, k, _ in rows],
+                                curve=[CurvePoint(m, "uniform", 100, c, loss, loss, loss, s, k) for c, loss, k, s in rows])
+                 for m, rows in curves.items()]
+    infos = [ContenderInfo("enhanced", "latent", "enhanced"), ContenderInfo("enhanced-adaptive", "adaptive", "enhanced"),
+             ContenderInfo("ggx", "GGX", "analytical"), ContenderInfo("nbrdf", "NBRDF", "neural")]
+    summary = StudySummary.of(materials, infos, command="neuenh report", generated="today", wall_s=1,
+                              settings={"fit_samples": 10, "test_samples": 10, "size": 8, "light_samples": 4, "jobs": 1,
+                                        "eval_pairs": 100}, enhanced={"model": "m", "formula": "f", "state": "1", "weights": 1})
+    text = summary.markdown(materials, {})
+    assert "| adaptive | 171 / 4.0 s |" in text and "| latent | 42 / 1.0 s |" in text and "| NBRDF | 675 / 1.0 s |" in text
+    assert "| *adaptive: ahead of NBRDF on* | | 1/2 |" in text and "| *latent: ahead of NBRDF on* | | 0/2 |" in text
+    # the main tables: the adaptive fit's count per material as its median and range
+    assert "| adaptive | 1.00 M |" in text and "| 171 (102–240) |" in text

@@ -121,3 +121,19 @@ def test_the_example_scene_is_valid_and_names_files_beside_it():
     spec, base = load_scene(Path(__file__).resolve().parents[3] / "examples" / "scene.yaml")
     assert len(spec.materials) == 8 and spec.tolerance.relative == 0.1
     assert all((base / m.path).resolve().name.endswith("_rgb.bsdf") for m in spec.materials)
+
+
+def test_a_plan_with_nbrdf_writes_its_files_counts_each_rung_and_names_what_exporters_skip(known_plan, tmp_path):
+    from neuenh.scene.outputs import plan_models, write_plan
+
+    write_plan(known_plan, tmp_path)
+    text = (tmp_path / "plan.md").read_text()
+    assert "**1 of 2 materials stay analytical; 1 of 2 go to NBRDF (per material).**" in text
+    rows = {line.split(" | ")[0].lstrip("| "): line.rstrip(" |").rsplit(" | ", 1)[1]
+            for line in text.splitlines() if line.startswith("| ggx |") or line.startswith("| NBRDF")}
+    assert rows == {"ggx": "1", "NBRDF (per material)": "1"}  # the ladder's count of materials given to each rung
+    assert not (tmp_path / "bundles").exists()  # neither rung has modules
+    planned = plan_models(tmp_path / "plan.json")
+    assert planned.nbrdf == ["retro"]
+    [(key, model, materials)] = planned.groups
+    assert key == "ggx" and list(materials) == ["gloss"] and not model.has_modules

@@ -1,0 +1,154 @@
+"""Issue 23's targets on the visible RGL materials (evaluation only: nothing is chosen on them), by
+the report's own data-efficiency curves (``neuenh.study.efficiency``) and its contenders
+(``neuenh.study.report.build_contenders``): the enhanced model fitted at the latent and at the
+adaptive capacity, plain GGX and NBRDF, per material, protocol and fit size.
+
+    python bench/bench_issue23_targets.py --json OUT.json [--rgl ../shared/data/rgl] [--model enhanced-ggx]
+                                          [--jobs 2] [--stop-at HH:MM] [--write docs/BENCHMARKS.md]
+
+``neuenh report --efficiency`` measures the same points (same draws, seed 0, 10,000 test pairs),
+plus renders and every other model, in one go; this runs only what the targets need, cheapest and
+most needed first (the units of ``UNITS``: every material of one before the next), keeps each unit in
+``--json`` as it finishes (running the command again measures only the rest), and starts no unit
+after ``--stop-at`` (UTC), so a deadline leaves complete rows rather than half of each. It prints,
+and with ``--write`` records, the targets (``neuenh.study.targets``) and per fit size the adaptive
+fit's chosen capacities, parameters per material and fit time beside NBRDF's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import datetime as dt
+import json
+import multiprocessing
+import statistics
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
+
+from bench.harness import machine, machine_line, write_json  # noqa: E402
+from bench.report import publish  # noqa: E402
+from neuenh.study.registry import ENHANCED, ENHANCED_ADAPTIVE  # noqa: E402
+
+SECTION = "## Issue 23's targets on the visible 8"
+N_TEST = 10_000
+CHEAP = (ENHANCED, "ggx", "nbrdf")
+EVERY = (ENHANCED, ENHANCED_ADAPTIVE, "ggx", "nbrdf")
+# (protocol, fit size, contenders), in the order they run: the cheap rows at 10,000 first, the
+# adaptive fit at 10,000 (by far the dearest) last
+UNITS = [("uniform", 10_000, CHEAP), ("mirror", 3000, EVERY),
+         *((protocol, n, EVERY) for n in (100, 300, 1000) for protocol in ("uniform", "mirror")),
+         ("uniform", 10_000, (ENHANCED_ADAPTIVE,))]
+
+
+def unit_key(protocol: str, n: int, contenders: tuple[str, ...], material: str) -> str:
+    return f"{protocol}/{n}/{'+'.join(contenders)}/{material}"
+
+
+def measure(model: str, path: Path, protocol: str, n: int, contenders: tuple[str, ...], stop_at: float | None):
+    """One unit in a worker process: the curve's points, or None when it would start after ``stop_at``."""
+    if stop_at is not None and time.time() > stop_at:
+        return None
+    import torch
+
+    from neuenh.data.measured import load_measured
+    from neuenh.study.efficiency import measure_curve
+    from neuenh.study.report import StudySettings, build_contenders
+
+    torch.set_num_threads(1)
+    settings = StudySettings(rgl=path.parent, model=model, baselines=ROOT / "models" / "baselines", out=ROOT,
+                             command="")
+    points = measure_curve(load_measured(path), build_contenders(settings, contenders), (n,), (protocol,),
+                           n_test=N_TEST, seed=0)
+    return [p.row() for p in points]
+
+
+def run(args) -> dict:
+    from neuenh.study.report import find_materials
+
+    data = json.loads(args.json.read_text()) if args.json.exists() else {"units": {}}
+    stop_at = None
+    if args.stop_at:
+        hour, minute = map(int, args.stop_at.split(":"))
+        now = dt.datetime.now(dt.timezone.utc)
+        stop_at = now.replace(hour=hour, minute=minute, second=0).timestamp()
+    paths = find_materials(args.rgl, tuple(args.materials) if args.materials else None)
+    todo = [(protocol, n, c, p) for protocol, n, c in UNITS for p in paths
+            if unit_key(protocol, n, c, p.stem) not in data["units"]]
+    with concurrent.futures.ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("fork")) as pool:
+        futures = {pool.submit(measure, args.model, p, protocol, n, c, stop_at): (protocol, n, c, p)
+                   for protocol, n, c, p in todo}
+        for future in concurrent.futures.as_completed(futures):
+            protocol, n, c, p = futures[future]
+            points = future.result()
+            if points is None:
+                continue
+            data["units"][unit_key(protocol, n, c, p.stem)] = points
+            data["machine"] = machine()
+            write_json(args.json, data)
+            print(f"{dt.datetime.now(dt.timezone.utc):%H:%M} {protocol} {n:>6} {p.stem:24s} "
+                  + ", ".join(f"{x['contender']} {x['heldout_log_l1']:.4f} ({x['fit_s']:.0f} s)" for x in points),
+                  flush=True)
+    return data
+
+
+def section(data: dict, command: str) -> list[str]:
+    from neuenh.study.efficiency import CurvePoint
+    from neuenh.study.targets import Target, issue23_targets
+
+    points = [CurvePoint(**row) for rows in data["units"].values() for row in rows]
+    materials = sorted({p.material for p in points})
+    lines = [SECTION, "", f"Command: `{command}`  ", machine_line(data["machine"]) + "  ",
+             f"Materials measured: {len(materials)} ({', '.join(m.removesuffix('_rgb') for m in materials)})", "",
+             "The report's data-efficiency protocols (`neuenh.study.efficiency`, seed 0, 10,000 test pairs), "
+             "medians over the materials; *adaptive*: `--capacity auto` (`neuenh.fit.capacity.Adaptive`), "
+             "*latent*: the latent code and analytical parameters alone.", "",
+             *Target.HEADER, *(t.markdown() for t in issue23_targets(points))]
+    lines += ["", "Per protocol and fit size, medians over the materials: fit seconds of each model, and the "
+              "adaptive fit's parameters per material and chosen capacities.", "",
+              "| protocol | samples | materials | latent s | adaptive s | NBRDF s | adaptive params / material "
+              "(NBRDF 675) | adaptive capacities |", "|---|---:|---:|---:|---:|---:|---:|---|"]
+    cells = sorted({(p.protocol, p.n_fit) for p in points}, key=lambda k: (k[0] != "uniform", k[1]))
+    for protocol, n in cells:
+        at = [p for p in points if (p.protocol, p.n_fit) == (protocol, n)]
+        by = {c: [p for p in at if p.contender == c] for c in EVERY}
+        med = lambda c: f"{statistics.median(p.fit_s for p in by[c]):.1f}" if by[c] else "—"  # noqa: E731
+        adaptive = by[ENHANCED_ADAPTIVE]
+        params = f"{statistics.median(p.params_per_material for p in adaptive):.0f}" if adaptive else "—"
+        chosen = ", ".join(f"{c} {k}" for c, k in Counter(p.capacity for p in adaptive).most_common()) or "—"
+        lines.append(f"| {protocol} | {n:,} | {len({p.material for p in at})} | {med(ENHANCED)} | "
+                     f"{med(ENHANCED_ADAPTIVE)} | {med('nbrdf')} | {params} | {chosen} |")
+    return [*lines, ""]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--rgl", type=Path, default=ROOT.parent / "shared" / "data" / "rgl")
+    parser.add_argument("--model", default="enhanced-ggx", help="the enhanced model (default enhanced-ggx)")
+    parser.add_argument("--materials", nargs="+", metavar="NAME", help="only these (file stems)")
+    parser.add_argument("--jobs", type=int, default=2, help="units measured at once")
+    parser.add_argument("--stop-at", metavar="HH:MM", help="start no unit after this time (UTC)")
+    parser.add_argument("--json", type=Path, required=True, help="the units measured (read first: resumes)")
+    parser.add_argument("--summary", action="store_true", help="measure nothing: summarise --json")
+    parser.add_argument("--write", metavar="PATH", help="write/replace this section of PATH (docs/BENCHMARKS.md)")
+    args = parser.parse_args(argv)
+    if not args.rgl.is_dir():
+        print(f"skipped: {args.rgl} is absent (the RGL materials of ../shared)")
+        return 0
+    data = json.loads(args.json.read_text()) if args.summary else run(args)
+    if not data.get("units"):
+        print("nothing measured yet")
+        return 0
+    command = " ".join(["python bench/bench_issue23_targets.py",
+                        *(a for a in (argv if argv is not None else sys.argv[1:]) if a not in ("--summary",))])
+    publish(section(data, command), args.write, SECTION)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
