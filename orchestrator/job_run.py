@@ -21,7 +21,7 @@ from neuenh_service.storage import (ArtifactStore, CandidateRecord, EventKind, F
 
 from .dataset import prepare_dataset
 from .executor import CandidateReport, CandidateTask, Executor, Resources, TrainRequest, unlimited
-from .policies import cost_policy, round_pruning
+from .policies import cost_policy, round_pruning, selection_score
 from .progress import Progress
 from .shares import FairShare
 from .spec import JobSpec
@@ -83,6 +83,7 @@ class JobRun:
         self.dataset: object | None = None  # the executor's handle, once prepared
         self.recovered: dict[int, int] = {}  # round -> candidates read back instead of trained
         self.pruning = round_pruning(spec)  # search.prune
+        self.score = selection_score(spec)  # search.score
         self.costs = cost_policy(spec, jobs, job_id)  # search.cost
         self.stop_reason: str | None = None  # why search.stop_when ended the search
         job = jobs.get_job(job_id)
@@ -286,9 +287,7 @@ class JobRun:
     def loss(self, report: CandidateReport) -> float:
         """What selects (``search.score``): the candidate's validation loss, or its fit score on the
         held-out materials (NaN when it has none: not eligible)."""
-        if self.spec.search.score == "fit":
-            return float("nan") if report.fit_score is None else report.fit_score
-        return report.val_loss
+        return self.score.loss(report)
 
     def outcomes(self, reports: list[CandidateReport]) -> list[Outcome]:
         """What the selection rule compares: each state's loss (``loss``), cost and failure."""
@@ -302,7 +301,7 @@ class JobRun:
         stop = self.spec.search.stop_when
         if stop is None:
             return None
-        loss, what = self.loss(winner), "fit score" if self.spec.search.score == "fit" else "validation loss"
+        loss, what = self.loss(winner), self.score.name
         if stop.val_loss_below is not None and loss <= stop.val_loss_below:
             return f"{what} {loss:.5g} <= val_loss_below {stop.val_loss_below:g}"
         stay = next((r for r in reports if r.task.state == self.format(state) and r.ok), None)

@@ -1,8 +1,9 @@
 """The search's policies as objects, the way Optuna keeps samplers and pruners: how a round trains
-its candidates (``search.prune``) and what a candidate's complexity costs (``search.cost``).
+its candidates (``search.prune``), which loss selects (``search.score``) and what a candidate's
+complexity costs (``search.cost``).
 
-``JobRun`` builds one of each from the spec when it starts (``round_pruning``, ``cost_policy``) and
-asks it; a new policy is a class here and a name in ``spec.SearchSpec``. Policies know nothing of
+``JobRun`` builds one of each from the spec when it starts (``round_pruning``, ``selection_score``,
+``cost_policy``) and asks it; a new policy is a class here and a name in ``spec.SearchSpec``. Policies know nothing of
 the run beyond what they are handed: a ``Train`` callable and a ranking of reports.
 """
 
@@ -80,6 +81,38 @@ class SuccessiveHalving(RoundPruning):
 def round_pruning(spec: JobSpec) -> RoundPruning:
     search = spec.search
     return SuccessiveHalving(search.halving_fraction) if search.prune == "halving" else TrainEvery()
+
+
+class SelectionScore(ABC):
+    """Which loss selects a round's winner and ends a search (``search.score``)."""
+
+    name: str  # what the loss is called in messages
+
+    @abstractmethod
+    def loss(self, report: CandidateReport) -> float:
+        """The candidate's selecting loss; NaN when it has none (not eligible)."""
+
+
+class ValLoss(SelectionScore):
+    """``score: val``: the validation loss on held-out samples of the training materials."""
+
+    name = "validation loss"
+
+    def loss(self, report):
+        return report.val_loss
+
+
+class FitScore(SelectionScore):
+    """``score: fit``: the fit score on the materials the job held out (``neuenh.selection``)."""
+
+    name = "fit score"
+
+    def loss(self, report):
+        return float("nan") if report.fit_score is None else report.fit_score
+
+
+def selection_score(spec: JobSpec) -> SelectionScore:
+    return FitScore() if spec.search.score == "fit" else ValLoss()
 
 
 class CostPolicy(ABC):

@@ -6,7 +6,10 @@ from __future__ import annotations
 import pytest
 
 from neuenh_service.orchestrator.executor import CandidateReport, CandidateTask
-from neuenh_service.orchestrator.policies import SuccessiveHalving, TrainEvery, round_pruning
+import math
+
+from neuenh_service.orchestrator.policies import (FitScore, SuccessiveHalving, TrainEvery, ValLoss,
+                                                     round_pruning, selection_score)
 from neuenh_service.orchestrator.spec import parse_spec
 
 LOSS = {"a": 0.4, "b": 0.1, "c": 0.3, "d": 0.2}  # the better half: b and d
@@ -63,3 +66,13 @@ def test_the_spec_names_the_policy(prune, policy):
                        "search": {"prune": prune, "halving_fraction": 0.25}})
     chosen = round_pruning(spec)
     assert type(chosen) is policy and getattr(chosen, "fraction", 0.25) == 0.25
+
+
+def test_the_selecting_loss_is_the_val_loss_or_the_fit_score_a_candidate_without_one_ineligible():
+    scored = CandidateReport(CandidateTask("a", 0, 1), 0.5, 0.25, 1, 1.0, "here", fit_score=0.125)
+    unscored = CandidateReport(CandidateTask("b", 0, 1), 0.5, 0.25, 1, 1.0, "here")
+    assert (ValLoss().loss(scored), FitScore().loss(scored)) == (0.25, 0.125)
+    assert ValLoss().loss(unscored) == 0.25 and math.isnan(FitScore().loss(unscored))
+    data = [{"source": "synthetic_zoo", "materials": 4, "samples": 10, "holdout": 2}]
+    assert type(selection_score(parse_spec({"data": data}))) is ValLoss
+    assert type(selection_score(parse_spec({"data": data, "search": {"score": "fit"}}))) is FitScore
