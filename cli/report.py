@@ -10,7 +10,9 @@ against error with the Pareto front, the search path (from the model's provenanc
 per material, and one render grid per material (truth, enhanced, plain GGX, the best other
 baseline, error maps).
 
-The models (``neuenh.study.registry``): the enhanced GGX (``--model``), the analytical GGX,
+The models (``neuenh.study.registry``): the enhanced GGX (``--model``) fitted twice, at the latent
+capacity (its latent code and analytical parameters) and adaptively (``neuenh fit --capacity auto``:
+module-weight corrections chosen per material by cross-validation), the analytical GGX,
 Cook-Torrance and Ward, NBRDF (a 6-21-21-3 network per material), and three baselines with shared
 weights trained on the enhanced model's data with its budget (``orchestrator.baselines``): GGX plus a
 residual MLP {32,64,64,16} and {32,64,128,128,64}, and the all-positions-neural GGX. They are read
@@ -53,8 +55,8 @@ def add_parser(commands) -> None:
     p.add_argument("--eval-pairs", type=int, default=200_000, help="direction pairs timing each BRDF's evaluation")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--efficiency", type=int, nargs="*", metavar="N", default=None,
-                   help="also fit the enhanced model, GGX, the small residual MLP and NBRDF on N samples per material "
-                        "under both protocols (uniform; half near the mirror direction): the data-efficiency table "
+                   help="also fit the enhanced model (both capacities), GGX, the small residual MLP and NBRDF on N "
+                        "samples per material under both protocols (uniform; half near the mirror direction): the data-efficiency table "
                         "and plot (with no N: 100 300 1000 3000 10000)")
     # the defaults, to print the regenerating command with only the flags that differ
     p.set_defaults(run=run, defaults=vars(p.parse_args([])))
