@@ -4,7 +4,7 @@ the report's own data-efficiency curves (``neuenh.study.efficiency``) and its co
 adaptive capacity, plain GGX and NBRDF, per material, protocol and fit size.
 
     python bench/bench_issue23_targets.py --json OUT.json [--rgl ../shared/data/rgl] [--model enhanced-ggx]
-                                          [--jobs 2] [--stop-at HH:MM] [--write docs/BENCHMARKS.md]
+                                          [--jobs 2] [--sizes N ...] [--stop-at HH:MM] [--write docs/BENCHMARKS.md]
 
 ``neuenh report --efficiency`` measures the same points (same draws, seed 0, 10,000 test pairs),
 plus renders and every other model, in one go; this runs only what the targets need, cheapest and
@@ -72,7 +72,7 @@ def measure(model: str, path: Path, protocol: str, n: int, contenders: tuple[str
 def run(args) -> dict:
     from neuenh.study.report import find_materials
 
-    data = json.loads(args.json.read_text()) if args.json.exists() else {"units": {}}
+    data = _read(args.json)
     stop_at = None
     if args.stop_at:
         hour, minute = map(int, args.stop_at.split(":"))
@@ -80,7 +80,7 @@ def run(args) -> dict:
         stop_at = now.replace(hour=hour, minute=minute, second=0).timestamp()
     paths = find_materials(args.rgl, tuple(args.materials) if args.materials else None)
     todo = [(protocol, n, c, p) for protocol, n, c in UNITS for p in paths
-            if unit_key(protocol, n, c, p.stem) not in data["units"]]
+            if unit_key(protocol, n, c, p.stem) not in data["units"] and (not args.sizes or n in args.sizes)]
     with concurrent.futures.ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("fork")) as pool:
         futures = {pool.submit(measure, args.model, p, protocol, n, c, stop_at): (protocol, n, c, p)
                    for protocol, n, c, p in todo}
@@ -89,12 +89,28 @@ def run(args) -> dict:
             points = future.result()
             if points is None:
                 continue
-            data["units"][unit_key(protocol, n, c, p.stem)] = points
-            data["machine"] = machine()
-            write_json(args.json, data)
+            data = _keep(args.json, unit_key(protocol, n, c, p.stem), points)
             print(f"{dt.datetime.now(dt.timezone.utc):%H:%M} {protocol} {n:>6} {p.stem:24s} "
                   + ", ".join(f"{x['contender']} {x['heldout_log_l1']:.4f} ({x['fit_s']:.0f} s)" for x in points),
                   flush=True)
+    return data
+
+
+def _read(path: Path) -> dict:
+    return json.loads(path.read_text()) if path.exists() else {"units": {}}
+
+
+def _keep(path: Path, key: str, points: list[dict]) -> dict:
+    """Adds one unit to the JSON at ``path`` under a lock, so that runs measuring other units (``--sizes``)
+    can share the file; returns what the file now holds."""
+    import fcntl
+
+    with open(path.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        data = _read(path)
+        data["units"][key] = points
+        data["machine"] = machine()
+        write_json(path, data)
     return data
 
 
@@ -133,6 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", default="enhanced-ggx", help="the enhanced model (default enhanced-ggx)")
     parser.add_argument("--materials", nargs="+", metavar="NAME", help="only these (file stems)")
     parser.add_argument("--jobs", type=int, default=2, help="units measured at once")
+    parser.add_argument("--sizes", type=int, nargs="+", metavar="N", help="only the units of these fit sizes")
     parser.add_argument("--stop-at", metavar="HH:MM", help="start no unit after this time (UTC)")
     parser.add_argument("--json", type=Path, required=True, help="the units measured (read first: resumes)")
     parser.add_argument("--summary", action="store_true", help="measure nothing: summarise --json")
@@ -141,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.rgl.is_dir():
         print(f"skipped: {args.rgl} is absent (the RGL materials of ../shared)")
         return 0
-    data = json.loads(args.json.read_text()) if args.summary else run(args)
+    data = _read(args.json) if args.summary else run(args)
     if not data.get("units"):
         print("nothing measured yet")
         return 0
