@@ -141,8 +141,14 @@ class DrJitOps(EmittingOps):
 
 # -- the material, evaluated ----------------------------------------------------------------------------
 class DrJitMaterial:
-    """A specialized material (``SpecializedBRDF``) evaluated on Dr.Jit arrays: ``f_r(wi, wo)`` ->
-    ``mi.Color3f`` without the cosine factor, neuenh's convention (``wi`` the light)."""
+    """A specialized material (``SpecializedBRDF``) evaluated on Dr.Jit arrays: ``f_r(wi, wo, active)``
+    -> ``mi.Color3f`` without the cosine factor, neuenh's convention (``wi`` the light); zero where
+    ``active`` is false or either direction is below either horizon.
+
+    The formulas and modules run inside a conditional (``dr.if_stmt``) on that mask: in a kernel
+    Dr.Jit compiles it symbolically (a branch taken by a SIMD packet, LLVM, or a warp, CUDA, when any
+    of its lanes needs the value), so lanes whose value is zero anyway — an emitter sample below the
+    surface, a dead path — do not pay for the modules' matrix products."""
 
     def __init__(self, special):
         self.xp = DrJitOps()
@@ -194,7 +200,7 @@ class DrJitMaterial:
             return [value.x, value.y, value.z]
         return [value] * 3
 
-    def __call__(self, wi, wo):
+    def __call__(self, wi, wo, active=True):
         mi, xp = self._mi, self.xp
         s = shade(xp, wi, wo, self._rotate(wi), self._rotate(wo), self.params)
         directions = [s.wi.x, s.wi.y, s.wi.z, s.wo.x, s.wo.y, s.wo.z]
@@ -205,10 +211,12 @@ class DrJitMaterial:
             left, right = operands
             return self._mlp(expr.name, self._flat(left, expr.left.width) + self._flat(right, expr.right.width))
 
-        value = walk(self.expression, self.folded, constant=lambda expr, v: self.constants[expr.name],
-                     formula=lambda term: term.formula(s), module=module)
-        value = mi.Color3f(value)
-        return xp.dr.maximum(xp.dr.select(s.above, value, mi.Color3f(0.0)), 0.0)
+        def value():
+            return mi.Color3f(walk(self.expression, self.folded, constant=lambda expr, v: self.constants[expr.name],
+                                   formula=lambda term: term.formula(s), module=module))
+
+        value = xp.dr.if_stmt((), active & s.above, value, lambda: mi.Color3f(0.0))
+        return xp.dr.maximum(value, 0.0)
 
 
 # -- the plugin -------------------------------------------------------------------------------------------
@@ -281,8 +289,8 @@ def _plugin_class():
             return dr.select(active & above, pdf, 0.0)
 
         def _value(self, si, wo, active):
-            value = self.material(wo, si.wi) * dr.maximum(wo.z, 0.0)  # neuenh's wi is the light: Mitsuba's wo
-            return dr.select(active & (si.wi.z > 0) & (wo.z > 0), value, mi.Color3f(0.0))
+            # neuenh's wi is the light: Mitsuba's wo; the material is zero below either horizon
+            return self.material(wo, si.wi, active) * dr.maximum(wo.z, 0.0)
 
         def eval(self, ctx, si, wo, active=True):
             return self._value(si, wo, active)

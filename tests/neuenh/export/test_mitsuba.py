@@ -106,6 +106,25 @@ def test_eval_is_the_model_times_the_lights_cosine(case, tmp_path):
     assert_within(got, want, bound, case)
 
 
+def test_inactive_lanes_are_zero_and_leave_the_others_alone(tmp_path):
+    """The plugin skips the model where Mitsuba's ``active`` mask is false (``DrJitMaterial``'s
+    conditional): those lanes are zero, every other lane is the unmasked value, bit for bit."""
+    rng = np.random.default_rng(5)
+    model = get_model("ggx")
+    params = material(model, rng, alpha_x=0.3, alpha_y=0.3)
+    bsdf = exported(model, params, tmp_path)
+    light, view = pairs(params, rng, n=512)
+    si = dr.zeros(mi.SurfaceInteraction3f, len(light))
+    si.wi = mi.Vector3f(view.T.astype(np.float32))
+    wo = mi.Vector3f(light.T.astype(np.float32))
+    active = rng.random(len(light)) < 0.5
+    full = np.array(bsdf.eval(mi.BSDFContext(), si, wo)).T
+    masked = np.array(bsdf.eval(mi.BSDFContext(), si, wo, mi.Bool(active))).T
+    assert (full[active] > 0).any()
+    np.testing.assert_array_equal(masked[active], full[active])
+    assert (masked[~active] == 0).all()
+
+
 @pytest.mark.parametrize("fixed, wi", [
     (dict(alpha_x=0.3, alpha_y=0.3), [0.0, 0.0, 1.0]),
     (dict(alpha_x=0.4, alpha_y=0.05, t_theta=0.5), [0.6, 0.0, 0.8]),
