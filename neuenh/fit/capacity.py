@@ -33,7 +33,7 @@ import torch
 
 from ..materials import MaterialTable
 from ..model import BRDFModel
-from .kernel import LayerCorrection, RowKernel, RowLosses, RowSpace, frozen
+from .kernel import LayerCorrection, RowKernel, RowSpace, frozen
 from .layout import fold_masks
 from .optim import Adam, adam_rows, evaluate_rows
 from .protocols import FitProtocol, LatentAdam, PlainLBFGS, Rows, _check, paper_start
@@ -62,37 +62,43 @@ def capacity_space(model: BRDFModel, capacity: str, seed: int = 0) -> tuple[BRDF
 
 
 @dataclass
-class Candidate:
-    """One (capacity, prior strength) of an adaptive fit: every material's fit to all its samples
-    (``x``, rows of ``space``), its cross-validation loss and its fit loss."""
+class Fitted:
+    """One material's fit at its chosen capacity: the model that evaluates it (the analytical
+    state's for ``analytical``), its row ``x`` (``space.dim``,) and its mean log-L1 on its samples."""
 
     capacity: str
     prior: float | None
     model: BRDFModel
     space: RowSpace
-    x: torch.Tensor  # (m, space.dim)
-    cv: torch.Tensor  # (m,) float64; NaN when the candidate was not cross-validated (the only one)
-    fit: torch.Tensor  # (m,) float64
+    x: torch.Tensor
+    loss: float
 
-    @property
-    def label(self) -> str:
-        return self.capacity + ("" if self.prior is None else f"@{self.prior:g}")
+
+def label(capacity: str, prior: float | None) -> str:
+    """A candidate's name in fit details: the capacity, ``@strength`` when it has a prior."""
+    return capacity + ("" if prior is None else f"@{prior:g}")
 
 
 @dataclass(frozen=True)
 class Adaptive(FitProtocol):
-    """Capacity and prior strength per material by ``folds``-fold cross-validation (module doc).
+    """Capacity and prior strength per material by cross-validation on its own fit data (module doc).
 
     ``capacities``: the candidates, from ``CAPACITIES``; ``priors``: the prior strengths tried for
-    each capacity with corrections. Budgets: the analytical candidate by ``PlainLBFGS``
-    (``lbfgs_iterations``), the latent one by ``LatentAdam`` (``latent_epochs``, from
-    ``latent_starts``), corrections by ``correction_epochs`` Adam epochs at lr ``correction_lr``
-    from the latent fit of the same fold. A single candidate is fitted without folds."""
+    each capacity with corrections. The samples are split in ``folds`` folds; the first
+    ``validation_folds`` are held out in turn (1: a single validation split of 1/``folds`` of the
+    samples; ``folds``: k-fold cross-validation), every candidate fitted to the rest and scored on
+    them. Then each material is fitted to all its samples at its chosen candidate only.
+
+    Budgets: the analytical candidate by ``PlainLBFGS`` (``lbfgs_iterations``), the latent one by
+    ``LatentAdam`` (``latent_epochs``, from ``latent_starts``), corrections by ``correction_epochs``
+    Adam epochs at lr ``correction_lr`` from the latent fit of the same samples. A single candidate
+    is fitted without validation."""
 
     name: ClassVar[str] = "adaptive"
     capacities: tuple[str, ...] = ("analytical", "latent", "last-layer", "low-rank")
     priors: tuple[float, ...] = (1e-3, 1e-2)
     folds: int = 3
+    validation_folds: int = 1
     latent_epochs: int = 300
     latent_starts: str = "analytical"
     lbfgs_iterations: int = 300
@@ -103,12 +109,13 @@ class Adaptive(FitProtocol):
         unknown = [c for c in self.capacities if c not in CAPACITIES]
         if unknown or not self.capacities:
             raise ValueError(f"unknown capacities {unknown} (known: {', '.join(CAPACITIES)})")
-        if self.folds < 2 or not self.priors or any(p < 0 for p in self.priors) or self.correction_epochs < 1:
+        if (self.folds < 2 or not 1 <= self.validation_folds <= self.folds or not self.priors
+                or any(p < 0 for p in self.priors) or self.correction_epochs < 1):
             raise ValueError(f"invalid adaptive protocol {self}")
 
     @property
-    def budget_epochs(self) -> int:  # every fold's fit and the fit to all the samples
-        return (self.folds + 1) * self.latent_epochs
+    def budget_epochs(self) -> int:  # the latent fit of every held-out fold and of all the samples
+        return (1 if len(self.grid) == 1 else self.validation_folds + 1) * self.latent_epochs
 
     @property
     def grid(self) -> list[tuple[str, float | None]]:
@@ -116,125 +123,152 @@ class Adaptive(FitProtocol):
                                                           else self.priors)]
 
     def fit(self, model, samples, *, start=None, trained=None, seed=0) -> FitResult:
+        _check(model, samples, start)
         start_time = time.perf_counter()
-        candidates = self.candidates(model, samples, start=start, trained=trained, seed=seed)
-        m = len(samples.names)
-        single = len(candidates) == 1
-        scores = torch.stack([c.cv for c in candidates])  # (candidates, m)
-        choice = torch.zeros(m, dtype=torch.long) if single else scores.argmin(0)
+        rows = Rows(samples, seed)
+        m, grid = rows.materials, self.grid
+        with frozen(model):
+            scores, warm = self.cross_validate(model, rows, start, trained, seed) if len(grid) > 1 else ({}, {})
+            best = torch.stack([scores[g] for g in grid]).argmin(0).tolist() if scores else [0] * m
+            fits = self.fit_chosen(model, rows, [grid[b] for b in best], start, trained, seed, warm)
         table = MaterialTable(model.specs, samples.names, model.latent_dim)
-        losses, details = [], []
-        for i in range(m):
-            chosen = candidates[int(choice[i])]
-            x = chosen.x[i : i + 1]
-            chosen.space.to_table(x, sub := MaterialTable(chosen.model.specs, [samples.names[i]], model.latent_dim))
+        details = []
+        for i, chosen in enumerate(fits):
+            sub = chosen.space.to_table(chosen.x[None], MaterialTable(chosen.model.specs, [samples.names[i]],
+                                                                       model.latent_dim))
             with torch.no_grad():
                 for name in table.raw:
                     table.raw[name][i] = sub.raw[name][0]
                 table.latent[i] = sub.latent[0]
-            corrections = chosen.space.dense_corrections(x[0]) if chosen.space.corrections else {}
+            corrections = chosen.space.dense_corrections(chosen.x) if chosen.space.corrections else {}
             table.set_corrections(i, corrections, chosen.capacity, chosen.space.n_corrections if corrections else None)
-            losses.append(float(chosen.fit[i]))
-            details.append({"prior": chosen.prior, "cv": {c.label: float(c.cv[i]) for c in candidates}})
+            details.append({"prior": chosen.prior, "cv": {label(*g): float(scores[g][i]) for g in scores}})
         table.requires_grad_(False)
-        return FitResult(table, losses, time.perf_counter() - start_time, self.describe(), details)
+        return FitResult(table, [f.loss for f in fits], time.perf_counter() - start_time, self.describe(), details)
 
-    def candidates(self, model: BRDFModel, samples, *, start: MaterialTable | None = None,
-                   trained: MaterialTable | None = None, seed: int = 0) -> list[Candidate]:
-        """Every candidate of the grid fitted to every material, with its cross-validation loss."""
-        _check(model, samples, start)
-        rows = Rows(samples, seed)
-        m = rows.materials
-        k = 0 if len(self.grid) == 1 else self.folds
-        folds = fold_masks(rows.valid, k) if k else torch.zeros(0, m, rows.valid.shape[1], dtype=torch.bool)
-        # the rows of every stage: fold 0..k-1 of every material, then every material on all its samples
-        material = torch.arange(m).repeat(k + 1)
-        train = torch.cat([rows.valid & ~folds[f] for f in range(k)] + [rows.valid])
-        val = torch.cat([folds[f] for f in range(k)] + [torch.zeros_like(rows.valid)])
-        layout = rows.layout(material, train, val)
-        out: list[Candidate] = []
+    def cross_validate(self, model: BRDFModel, rows: Rows, start: MaterialTable | None, trained: MaterialTable | None,
+                       seed: int) -> tuple[dict[tuple[str, float | None], torch.Tensor], dict[tuple[str, float], torch.Tensor]]:
+        """Every candidate of ``grid``'s validation loss per material, (m,) float64: each of the
+        first ``validation_folds`` folds held out in turn, the candidate fitted to the other samples
+        only (``Rows.as_problems``: a fit costs its own samples), then scored on the held-out fold;
+        the held-out losses pooled over folds by their sizes. Also each candidate with corrections'
+        fit on the first fold's other samples, (m, its ``RowSpace`` dim): where the fit to all the
+        samples starts."""
+        m, v = rows.materials, self.validation_folds
+        folds = fold_masks(rows.valid, self.folds)[:v]
+        material = torch.arange(m).repeat(v)
+        held_out = torch.cat(list(folds))
+        problems = rows.as_problems(material, ~held_out)
+        scored_on = rows.as_problems(material, held_out)
+        sizes = folds.sum(2).double()  # (v, m)
 
-        def keep(capacity, prior, cand_model, space, x, scored_val, scored_train):
-            cv = _cv(scored_val, k, m, folds) if k else torch.full((m,), float("nan"), dtype=torch.float64)
-            out.append(Candidate(capacity, prior, cand_model, space, x[k * m:], cv, scored_train[k * m:]))
+        def score(kernel: RowKernel, x: torch.Tensor) -> torch.Tensor:
+            r = len(x) // (v * m)  # candidates stacked as blocks of v * m rows
+            val = evaluate_rows(kernel, x, scored_on.layout(torch.arange(v * m).repeat(r))).train
+            return ((val.reshape(r, v, m) * sizes).sum(1) / sizes.sum(0)).reshape(r * m)
 
-        with frozen(model):
-            if "analytical" in self.capacities:
-                analytical, a_space = capacity_space(model, "analytical", seed)
-                x_a, scored = self._analytical(analytical, a_space, rows, layout, k)
-                keep("analytical", None, analytical, a_space, x_a, scored.val, scored.train)
-            if any(c != "analytical" for c in self.capacities):
-                latent = LatentAdam(self.latent_epochs, starts=self.latent_starts)
-                start_rows = None if start is None else _repeat_table(start, k + 1)
-                x_latent, _ = latent.fit_rows(model, rows.as_problems(material, train), start_rows, trained, seed)
-                space = RowSpace(model)
-                if "latent" in self.capacities:
-                    scored = evaluate_rows(RowKernel(model, space), x_latent, layout)
-                    keep("latent", None, model, space, x_latent, scored.val, scored.train)
-                grid = [(c, p) for c, p in self.grid if c not in ("analytical", "latent")]
-                if grid:
-                    for (capacity, prior), (c_space, x, scored_val, scored_train) in zip(
-                            grid, self._corrections(model, layout, x_latent, grid, seed)):
-                        keep(capacity, prior, model, c_space, x, scored_val, scored_train)
+        scores: dict[tuple[str, float | None], torch.Tensor] = {}
+        warm: dict[tuple[str, float], torch.Tensor] = {}
+        if "analytical" in self.capacities:
+            analytical, a_space = capacity_space(model, "analytical", seed)
+            scores[("analytical", None)] = score(RowKernel(analytical, a_space), self._analytical(model, problems, seed)[0])
+        corrected = [(c, p) for c, p in self.grid if c not in ("analytical", "latent")]
+        if "latent" in self.capacities or corrected:
+            x_latent, _ = self._latent(model, problems, material, start, trained, seed)
+            if "latent" in self.capacities:
+                scores[("latent", None)] = score(RowKernel(model, RowSpace(model)), x_latent)
+            if corrected:
+                r = problems.materials
+                entries = [g for g in corrected for _ in range(r)]
+                kernel, x = self._corrections(model, problems.layout(torch.arange(r).repeat(len(corrected))),
+                                              x_latent.repeat(len(corrected), 1), entries, seed)
+                for g, (entry, val) in enumerate(zip(corrected, score(kernel, x).reshape(len(corrected), m))):
+                    scores[entry] = val
+                    warm[entry] = x[g * r : g * r + m, _columns(kernel.space, CAPACITIES[entry[0]](model))]
+        return scores, warm
+
+    def fit_chosen(self, model: BRDFModel, rows: Rows, chosen: list[tuple[str, float | None]],
+                   start: MaterialTable | None, trained: MaterialTable | None, seed: int,
+                   warm: dict[tuple[str, float], torch.Tensor] | None = None) -> list[Fitted]:
+        """Each material fitted to all its samples at its ``chosen`` (capacity, prior): analytical
+        materials as ``PlainLBFGS`` fits them alone, latent ones by ``LatentAdam`` (the latent fit
+        itself), corrected ones by the corrections' Adam run from their validation fit (``warm``:
+        (m, dim) per candidate, ``cross_validate``'s) or, without one, from their latent fit."""
+        warm = warm or {}
+        out: list[Fitted | None] = [None] * rows.materials
+        analytical = [i for i, (c, _) in enumerate(chosen) if c == "analytical"]
+        if analytical:
+            index = torch.tensor(analytical)
+            a_model, a_space = capacity_space(model, "analytical", seed)
+            x, scored = self._analytical(model, rows.as_problems(index, rows.valid[index]), seed)
+            for j, i in enumerate(analytical):
+                out[i] = Fitted("analytical", None, a_model, a_space, x[j], float(scored.train[j]))
+        cold = [i for i, (c, p) in enumerate(chosen) if c != "analytical" and (c, p) not in warm]
+        starts: dict[int, torch.Tensor] = {i: warm[chosen[i]][i] for i, (c, p) in enumerate(chosen) if (c, p) in warm}
+        if cold:
+            index = torch.tensor(cold)
+            x_latent, losses = self._latent(model, rows.as_problems(index, rows.valid[index]), index, start, trained,
+                                            seed)
+            for j, i in enumerate(cold):
+                if chosen[i][0] == "latent":
+                    out[i] = Fitted("latent", None, model, RowSpace(model), x_latent[j], float(losses[j]))
+                else:
+                    starts[i] = x_latent[j]
+        if starts:
+            corrected = sorted(starts)
+            index = torch.tensor(corrected)
+            entries = [chosen[i] for i in corrected]
+            problems = rows.as_problems(index, rows.valid[index])
+            layout = problems.layout(torch.arange(len(corrected)))
+            kernel, x = self._corrections(model, layout, [starts[i] for i in corrected], entries, seed)
+            train = evaluate_rows(kernel, x, layout).train
+            for n, (i, (capacity, prior)) in enumerate(zip(corrected, entries)):
+                space = RowSpace(model, CAPACITIES[capacity](model))
+                out[i] = Fitted(capacity, prior, model, space, x[n, _columns(kernel.space, space.corrections)],
+                                float(train[n]))
         return out
 
-    def _analytical(self, analytical: BRDFModel, space: RowSpace, rows: Rows, layout, k: int):
-        """The analytical model's fit of every row (``PlainLBFGS.fit_rows``). The rows on all of a
-        material's samples run on their own, exactly as ``PlainLBFGS`` fits the material alone:
-        stacked beside the folds, float32 rounding could send a rough landscape's L-BFGS elsewhere,
-        and the adaptive fit is to end where the analytical-only fit ends when it picks it."""
-        kernel = RowKernel(analytical, space)
-        plain = PlainLBFGS(iterations=self.lbfgs_iterations)
-        m = rows.materials
-        x0 = space.from_table(paper_start(analytical, rows.names))
-        parts = [plain.fit_rows(kernel, x0.repeat(k, 1), layout.select(torch.arange(k * m)))] if k else []
-        parts.append(plain.fit_rows(kernel, x0, layout.select(torch.arange(k * m, (k + 1) * m))))
-        x = torch.cat([p[0] for p in parts])
-        scored = RowLosses(*(torch.cat([getattr(p[1], f) for p in parts]) for f in ("train", "val", "objective")), None)
-        return x, scored
+    def _analytical(self, model: BRDFModel, problems: Rows, seed: int):
+        """The analytical model's fit of every row of ``problems`` from the paper's start, by
+        ``PlainLBFGS.fit_rows``: (rows, dim) and their losses."""
+        analytical, space = capacity_space(model, "analytical", seed)
+        x0 = space.from_table(paper_start(analytical, problems.names))
+        return PlainLBFGS(iterations=self.lbfgs_iterations).fit_rows(
+            RowKernel(analytical, space), x0, problems.layout(torch.arange(problems.materials)))
 
-    def _corrections(self, model, layout, x_latent, grid, seed):
-        """Every (capacity, prior) of ``grid`` as rows of one Adam run from the latent fits; per
-        entry its own space, its rows and their validation and fit losses."""
+    def _latent(self, model: BRDFModel, problems: Rows, material: torch.Tensor, start: MaterialTable | None,
+                trained: MaterialTable | None, seed: int):
+        """``LatentAdam``'s fit of every row of ``problems`` (rows of ``material``): (rows, dim), (rows,) losses."""
+        latent = LatentAdam(self.latent_epochs, starts=self.latent_starts)
+        start_rows = None if start is None else start.subset(material.tolist())
+        return latent.fit_rows(model, problems, start_rows, trained, seed)
+
+    def _corrections(self, model: BRDFModel, layout, starts: torch.Tensor | list[torch.Tensor],
+                     entries: list[tuple[str, float]], seed: int) -> tuple[RowKernel, torch.Tensor]:
+        """Row ``n`` of ``layout`` at capacity and prior ``entries[n]``, all in one Adam run in the
+        union of their corrections (a row's other corrections stay zero), from ``starts[n]``: a
+        latent fit (base dim; its corrections start at zero deltas) or a row of its own capacity's
+        ``RowSpace``. Returns the union's kernel and the fitted rows (rows, its dim)."""
         union: list[LayerCorrection] = []
-        for capacity, _ in grid:
+        for capacity in dict.fromkeys(c for c, _ in entries):
             union += [c for c in CAPACITIES[capacity](model) if c not in union]
         space = RowSpace(model, union)
+        x0 = torch.cat([torch.zeros(layout.rows, space.base_dim), space.initial_corrections(layout.rows, seed)], 1)
+        free = torch.zeros(layout.rows, space.dim, dtype=torch.bool)
+        for n, (capacity, _) in enumerate(entries):
+            own = _columns(space, CAPACITIES[capacity](model))
+            free[n, own] = True
+            x0[n, own[: len(starts[n])]] = starts[n]
         kernel = RowKernel(model, space)
-        r = layout.rows
-        x0 = torch.cat([x_latent, space.initial_corrections(r, seed)], 1).repeat(len(grid), 1)
-        free = torch.zeros(len(grid) * r, space.dim, dtype=torch.bool)
-        free[:, : space.base_dim] = True
-        strength = torch.zeros(len(grid) * r)
-        offsets = (torch.tensor([0, *space.correction_sizes]).cumsum(0) + space.base_dim).tolist()
-        columns = []
-        for g, (capacity, prior) in enumerate(grid):
-            own = CAPACITIES[capacity](model)
-            cols = [torch.arange(space.base_dim)]
-            for c in own:
-                j = union.index(c)
-                free[g * r : (g + 1) * r, offsets[j] : offsets[j + 1]] = True
-                cols.append(torch.arange(offsets[j], offsets[j + 1]))
-            columns.append(torch.cat(cols))
-            strength[g * r : (g + 1) * r] = prior
-        result = adam_rows(kernel, x0, layout.select(torch.arange(r).repeat(len(grid))),
-                           Adam(self.correction_epochs, self.correction_lr), free=free, prior_strength=strength)
-        out = []
-        for g, (capacity, _) in enumerate(grid):
-            part = slice(g * r, (g + 1) * r)
-            out.append((RowSpace(model, CAPACITIES[capacity](model)), result.x[part][:, columns[g]],
-                        result.val[part], result.train[part]))
-        return out
+        result = adam_rows(kernel, x0, layout, Adam(self.correction_epochs, self.correction_lr), free=free,
+                           prior_strength=torch.tensor([p for _, p in entries], dtype=torch.float32))
+        return kernel, result.x
 
 
-def _cv(val: torch.Tensor, k: int, m: int, folds: torch.Tensor) -> torch.Tensor:
-    """(m,) each material's cross-validation loss: its folds' validation losses weighted by size."""
-    sizes = folds.sum(2).double()  # (k, m)
-    per_fold = val[: k * m].reshape(k, m)
-    return (per_fold * sizes).sum(0) / sizes.sum(0)
-
-
-def _repeat_table(table: MaterialTable, times: int) -> MaterialTable:
-    return MaterialTable(table.specs, tuple(table.names) * times, table.latent_dim,
-                         {n: v.detach().repeat(times, 1) for n, v in table.raw.items()},
-                         table.latent.detach().repeat(times, 1))
+def _columns(space: RowSpace, corrections: list[LayerCorrection] | tuple[LayerCorrection, ...]) -> torch.Tensor:
+    """The columns of ``space``'s rows that a space of ``corrections`` (a subset of its own) has,
+    in that space's order: the base columns, then each correction's."""
+    offsets = (torch.tensor([0, *space.correction_sizes]).cumsum(0) + space.base_dim).tolist()
+    own = [torch.arange(offsets[space.corrections.index(c)], offsets[space.corrections.index(c) + 1])
+           for c in corrections]
+    return torch.cat([torch.arange(space.base_dim), *own])

@@ -99,6 +99,24 @@ def padded(samples: Samples, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor,
     return samples.wi[index], samples.wo[index], samples.f_r[index], valid
 
 
+def compacted(wi: torch.Tensor, wo: torch.Tensor, f_r: torch.Tensor, keep: torch.Tensor
+              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Rows of ``padded``'s arrays (rows, slots, 3) narrowed to the slots ``keep`` (rows, slots) bool
+    marks: each row's kept slots moved to its front in their order, the grid as wide as the row
+    with the most, padded with copies of the row's first kept slot. Returns ``wi, wo, f_r`` and
+    ``valid`` (rows, width) bool. A fit of a subset then costs what its samples cost, not the
+    whole grid (a fold's other samples: two thirds of the slots at three folds)."""
+    counts = keep.sum(1)
+    if int(counts.min()) == 0:
+        raise ValueError("every row must keep at least one slot")
+    width = int(counts.max())
+    order = torch.argsort((~keep).to(torch.uint8), dim=1, stable=True)[:, :width]  # kept slots first, in order
+    valid = torch.arange(width)[None, :] < counts[:, None]
+    order = torch.where(valid, order, order[:, :1])
+    gather = lambda t: torch.gather(t, 1, order[..., None].expand(-1, -1, t.shape[-1]))
+    return gather(wi), gather(wo), gather(f_r), valid
+
+
 def fold_masks(valid: torch.Tensor, folds: int) -> torch.Tensor:
     """(folds, m, slots) bool: fold ``k`` of each material holds every ``folds``-th of its valid
     slots starting at ``k`` (slots are already shuffled, so folds are random and balanced)."""

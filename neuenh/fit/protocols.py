@@ -46,7 +46,7 @@ from ..materials import LATENT_INIT, MaterialTable
 from ..model import BRDFModel
 from ..train import log_l1, predict
 from .kernel import RowKernel, RowLosses, RowSpace, frozen
-from .layout import layout_rows, padded
+from .layout import compacted, layout_rows, padded
 from .optim import Adam, adam_rows, evaluate_rows, lbfgs_rows
 from .result import FitResult, per_material_loss
 
@@ -101,11 +101,12 @@ class Rows:
 
     def as_problems(self, material: torch.Tensor, train: torch.Tensor) -> "Rows":
         """Rows whose i-th "material" is material ``material[i]`` seen through the slots ``train[i]``
-        (e.g. every cross-validation fold of every material as a problem of its own)."""
+        only (e.g. every cross-validation fold of every material as a problem of its own), those
+        slots moved to the front of a narrower grid (``layout.compacted``)."""
         out = Rows.__new__(Rows)
         out.names = tuple(self.names[i] for i in material.tolist())
-        out.wi, out.wo, out.f_r = self.wi[material], self.wo[material], self.f_r[material]
-        out.valid = train & self.valid[material]
+        out.wi, out.wo, out.f_r, out.valid = compacted(self.wi[material], self.wo[material], self.f_r[material],
+                                                       train & self.valid[material])
         return out
 
     def layout(self, material: torch.Tensor, train: torch.Tensor | None = None, val: torch.Tensor | None = None):

@@ -214,9 +214,12 @@ def test_options_name_one_protocol_with_its_own_budget():
     assert isinstance(adaptive, Adaptive) and "analytical" in adaptive.capacities
     assert FitOptions(capacity="last-layer").protocol_for(enhanced).capacities == ("last-layer",)
     assert PaperRMSProp() == PaperRMSProp(epochs=1000, lr=1e-3)
-    # the budget a service's work limit counts: each protocol's own epochs, an adaptive fit's on every fold too
+    # the budget a service's work limit counts: each protocol's own epochs, an adaptive fit's on every
+    # held-out fold too (one by default, a single validation split), a single candidate's once
     assert (PlainLBFGS(iterations=7).budget_epochs, LatentAdam(epochs=9).budget_epochs,
-            Adaptive(folds=3, latent_epochs=10).budget_epochs) == (7, 9, 40)
+            Adaptive(folds=3, latent_epochs=10).budget_epochs,
+            Adaptive(folds=3, validation_folds=3, latent_epochs=10).budget_epochs,
+            Adaptive(capacities=("latent",), latent_epochs=10).budget_epochs) == (7, 9, 20, 40, 10)
     for bad, match in (({"method": "newton"}, "fit method"), ({"capacity": "huge"}, "capacity"),
                        ({"epochs": 0}, "epochs"), ({"starts": "random"}, "starts")):
         with pytest.raises(ValueError, match=match):
