@@ -10,9 +10,12 @@ from neuenh.data.samples import sample_materials
 from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
 from neuenh.fit import (SURROGATE_EPS, Adaptive, FitOptions, LatentAdam, PaperRMSProp, PlainLBFGS, fit_materials,
                         per_material_loss)
+from neuenh.data.samples import Samples
+from neuenh.fit.capacity import capacity_space
 from neuenh.fit.kernel import LayerCorrection, RowKernel, RowSpace
-from neuenh.fit.layout import fold_masks, layout_rows, padded
+from neuenh.fit.layout import compacted, fold_masks, layout_rows, padded
 from neuenh.fit.optim import Adam, adam_rows
+from neuenh.fit.protocols import Rows
 from neuenh.materials import MaterialTable
 from neuenh.models import get_model
 from neuenh.train import log_l1
@@ -180,6 +183,26 @@ def test_padding_carries_no_weight_and_folds_partition_each_materials_samples():
     assert losses.train.tolist() == pytest.approx(per_material_loss(model, table, samples), rel=1e-5)
 
 
+def test_compacting_keeps_each_rows_own_slots_in_order_at_the_front():
+    """``compacted`` against a plain loop over rows: the kept slots first in their order, the rest
+    copies of the row's first kept slot marked invalid, the grid as wide as the row keeping most."""
+    generator = torch.Generator().manual_seed(0)
+    wi, wo, f_r = (torch.randn(3, 7, 3, generator=generator) for _ in range(3))
+    keep = torch.rand(3, 7, generator=generator) < 0.5
+    keep[:, 2] = True
+    c_wi, c_wo, c_f, valid = compacted(wi, wo, f_r, keep)
+    width = int(keep.sum(1).max())
+    assert valid.shape == (3, width)
+    for r in range(3):
+        own = [j for j in range(7) if keep[r, j]]
+        slots = own + [own[0]] * (width - len(own))
+        assert valid[r].tolist() == [True] * len(own) + [False] * (width - len(own))
+        for got, whole in ((c_wi, wi), (c_wo, wo), (c_f, f_r)):
+            assert torch.equal(got[r], whole[r, slots])
+    with pytest.raises(ValueError, match="at least one slot"):
+        compacted(wi, wo, f_r, torch.zeros_like(keep))
+
+
 # -- what each protocol promises -------------------------------------------------------------------
 def test_plain_lbfgs_recovers_a_ggx_material(clean_ggx):
     material, samples = clean_ggx
@@ -288,6 +311,27 @@ def test_adaptive_never_ends_worse_held_out_than_the_analytical_fit(enhanced):
     analytical = Adaptive(capacities=("analytical",), lbfgs_iterations=ADAPTIVE["lbfgs_iterations"]).fit(enhanced, samples)
     for mine, theirs, i in zip(adaptive.losses_on(enhanced, test), analytical.losses_on(enhanced, test), range(2)):
         assert mine <= theirs * (1.0 if adaptive.capacity(i) == "analytical" else 1.02)
+
+
+def test_a_candidates_validation_loss_is_its_fit_of_the_other_samples_scored_on_the_held_out_fold(enhanced):
+    """The analytical candidate's validation loss against an independent path: the held-out fold's
+    samples taken out of the table by hand, ``PlainLBFGS`` fitted to the rest as a material of its
+    own, its loss measured on the fold. Equal up to where L-BFGS ends on a differently ordered sum:
+    its last surrogate phase resolves the loss to ``SURROGATE_EPS[-1]`` (noisy GGX materials, so the
+    analytical model's minimum is unique); scoring the fit's own samples instead would be off by
+    the noise's generalisation gap, several times that."""
+    samples = sample_materials(synthetic_ggx(2, seed=4), 150, seed=0)
+    protocol = Adaptive(capacities=("analytical",), lbfgs_iterations=100, folds=3)
+    rows = Rows(samples, seed=0)
+    scores, _ = protocol.cross_validate(enhanced, rows, None, None, seed=0)
+    analytical, _ = capacity_space(enhanced, "analytical")
+    held_out = fold_masks(rows.valid, 3)[0]
+    for i, name in enumerate(samples.names):
+        part = lambda mask: Samples(rows.wi[i][mask], rows.wo[i][mask], rows.f_r[i][mask],
+                                    torch.zeros(int(mask.sum()), dtype=torch.long), (name,))
+        fitted = PlainLBFGS(iterations=100).fit(analytical, part(rows.valid[i] & ~held_out[i]))
+        expected = per_material_loss(analytical, fitted.materials, part(held_out[i]))[0]
+        assert float(scores[("analytical", None)][i]) == pytest.approx(expected, abs=SURROGATE_EPS[-1])
 
 
 def test_corrections_are_the_materials_own_keyed_like_the_module_weights(enhanced, two_zoo_materials):
