@@ -14,13 +14,19 @@ weights by an L2 prior (``kernel.RowSpace.prior``, relative to each corrected la
 ``full``        + every layer of every module, dense
 ==============  =================================================================================
 
-``Adaptive`` fits each material at every capacity (and every prior strength of a grid) and keeps
-the one with the lowest cross-validation loss on its own fit data (k folds: each fold's samples are
-scored by a fit to the other folds); the chosen capacity's fit to all the samples is the result.
-Every capacity, strength and fold is a row of one batch (``layout``), so the search is one fit of
-many rows, not many fits: the analytical candidate is one stacked L-BFGS run, the latent one one
-stacked multi-start Adam run (``LatentAdam``), the corrections one Adam run from the latent fits of
-the same folds.
+``Adaptive`` chooses, per material, the candidate (capacity and prior strength) of lowest
+validation loss on its own fit data, then fits that candidate alone to all the samples:
+
+1. *validation*: the samples are split in folds; a candidate is fitted to the samples outside a
+   held-out fold and scored on it (by default one fold of three: a single validation split; k-fold
+   cross-validation when ``validation_folds`` says so). Every candidate and fold is a row of one
+   batch per stage, each row on a grid holding only its own fit samples (``Rows.as_problems``):
+   the analytical candidate one L-BFGS run (``PlainLBFGS``), the latent one one stacked multi-start
+   Adam run (``LatentAdam``), every candidate with corrections one Adam run from those latent fits.
+2. *the fit to all the samples*, at each material's chosen candidate only: ``PlainLBFGS`` for
+   ``analytical`` (the analytical-only fit), ``LatentAdam`` for ``latent`` (the latent fit), and for
+   corrections the same Adam run started from the candidate's fit of the first fold's other samples
+   (a start near the end, instead of a second latent fit to start from).
 """
 
 from __future__ import annotations
