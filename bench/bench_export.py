@@ -202,13 +202,15 @@ def main() -> int:
     if args.json:
         write_json(args.json, {"mitsuba": mitsuba, "glsl": evals, "before": before})
     lines = [TITLE, "", f"Command: `{' '.join(['python bench/bench_export.py', *sys.argv[1:]])}`  ",
-             machine_line(env) + "  ", f"Method: Mitsuba {mitsuba_timer.method()}; llvmpipe {timer.method()} (waited {waited:.0f} s for a quiet machine).", "",
+             machine_line(env) + "  ",
+             f"Method: Mitsuba {mitsuba_timer.method()}; llvmpipe {timer.method()} (waited {waited:.0f} s for a quiet "
+             "machine).", "",
              f"The RGL material {args.material} fitted (10,000 measurements) by the shipped enhanced GGX and by plain "
              "GGX, each exported and run in the runtime, one interleaved run. *Mitsuba*: the exported scene (ball "
-             f"under the studio environment, path tracer) at {SIZE}² and {SPP} spp, `llvm_ad_rgb` on the CPU, camera "
-             "rays per second of `mi.render` and of its kernels alone (without tracing the integrator and the plugin "
-             "in Python). *llvmpipe*: the exported GLSL function over "
-             f"{PAIRS:,} pairs in a compute shader.", "",
+             f"under the studio environment, path tracer) at {SIZE}² and {SPP} spp, `llvm_ad_rgb` on the CPU, each scene "
+             "in its own process, camera rays per second of `mi.render` and of its kernels alone (without tracing "
+             f"the integrator and the plugin in Python). *llvmpipe*: the exported GLSL function over {PAIRS:,} pairs "
+             "in a compute shader.", "",
              "| model | Mitsuba rays/s | of its kernels | llvmpipe evaluations/s |", "|---|---:|---:|---:|"]
     cases = [(label, mitsuba[label], fmt_rate(evals[label])) for label in models]
     if before:
