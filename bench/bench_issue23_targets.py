@@ -140,6 +140,18 @@ def section(data: dict, command: str) -> list[str]:
         chosen = ", ".join(f"{c} {k}" for c, k in Counter(p.capacity for p in adaptive).most_common()) or "—"
         lines.append(f"| {protocol} | {n:,} | {len({p.material for p in at})} | {med(ENHANCED)} | "
                      f"{med(ENHANCED_ADAPTIVE)} | {med('nbrdf')} | {params} | {chosen} |")
+    lines += ["", "Per material, held-out log-L1 (the adaptive fit's capacity and parameters):", "",
+              "| protocol | samples | material | latent | adaptive | GGX | NBRDF |", "|---|---:|---|---:|---:|---:|---:|"]
+    for protocol, n in cells:
+        for material in materials:
+            by = {p.contender: p for p in points if (p.protocol, p.n_fit, p.material) == (protocol, n, material)}
+            if not by:
+                continue
+            cell = lambda c: f"{by[c].heldout_log_l1:.4f}" if c in by else "—"  # noqa: E731
+            adaptive = by.get(ENHANCED_ADAPTIVE)
+            lines.append(f"| {protocol} | {n:,} | {material.removesuffix('_rgb')} | {cell(ENHANCED)} | "
+                         + (f"{adaptive.heldout_log_l1:.4f} ({adaptive.capacity}, {adaptive.params_per_material})"
+                            if adaptive else "—") + f" | {cell('ggx')} | {cell('nbrdf')} |")
     return [*lines, ""]
 
 
