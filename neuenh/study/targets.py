@@ -46,7 +46,7 @@ def _ratio(points: Sequence[CurvePoint], protocol: str, n: int, a: str, b: str, 
     if n not in table.get(a, {}) or n not in table.get(b, {}):
         return Target(figure, "not measured", target, None)
     ratio = table[a][n] / table[b][n]
-    return Target(figure, f"{ratio:.2f}× ({table[a][n]:.4f} / {table[b][n]:.4f})", target, ratio <= at_most)
+    return Target(figure, f"{ratio:.3f}× ({table[a][n]:.4f} / {table[b][n]:.4f})", target, ratio <= at_most)
 
 
 def _ahead(points: Sequence[CurvePoint], contender: str, label: str) -> Target:
