@@ -6,9 +6,10 @@
 Each table is one material (``.npz`` with ``wi``, ``wo``, ``f_r``, or CSV; see neuenh.data.table). The
 module weights of a bundle stay frozen; only per-material parameters are optimised (neuenh.fit). A
 model with modules fits each material at the capacity ``--capacity`` names: ``latent`` (default),
-its latent code and analytical parameters; ``auto`` chooses per material, by cross-validation on
-its own measurements, between the analytical model, the latent code, and per-material corrections
-of module weights (last layer, low rank). The capacity and the material's parameter count are
+its latent code and analytical parameters; ``auto`` chooses per material, by validation on a
+held-out third of its own measurements, between the analytical model, the latent code, and
+per-material corrections of module weights (last layer, low rank), then fits the chosen one to
+all of them (about twice the time of ``latent``). The capacity and the material's parameter count are
 reported. ``-o DIR`` writes a bundle of the
 model with the fitted materials.
 
@@ -57,7 +58,7 @@ def add_parser(commands) -> None:
                    help="fast (default): a plain model by L-BFGS, a model with modules at --capacity; paper: "
                         "RMSProp lr 1e-3, 1000 epochs, latent capacity")
     p.add_argument("--capacity", choices=("auto", *CAPACITIES), default="latent",
-                   help="a model with modules: latent (default); auto chooses per material by cross-validation; "
+                   help="a model with modules: latent (default); auto chooses per material on a validation split; "
                         "or fit exactly one capacity")
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs of the first-order fits (Adam, RMSProp; default each protocol's own); a plain "

@@ -24,12 +24,14 @@ CAPACITY_CHOICES = ("auto", *CAPACITIES)
 @dataclass(frozen=True)
 class FitOptions:
     """``method``: ``fast`` (default) or ``paper`` (the paper's RMSProp protocol, latent capacity).
-    ``capacity`` (models with modules, fast method): ``auto`` chooses per material by
-    cross-validation (``capacity.Adaptive``), a capacity name fits that capacity only.
+    ``capacity`` (models with modules, fast method): ``auto`` chooses per material by validation on
+    its own samples (``capacity.Adaptive``), a capacity name fits that capacity only.
     ``epochs``/``lbfgs_iterations``: budgets (module doc), None for each protocol's own."""
 
     method: str = "fast"
-    capacity: str = "latent"  # "auto" once bundles, plans and exports carry corrections
+    # not "auto" yet: it costs about twice the latent fit (three times at a few hundred samples), and
+    # a bundle cannot hold a material it fits at the analytical capacity (docs/BENCHMARKS.md, issue 23)
+    capacity: str = "latent"
     epochs: int | None = None
     lbfgs_iterations: int | None = None
     starts: str = "analytical"
