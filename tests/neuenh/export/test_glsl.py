@@ -1,5 +1,10 @@
-"""The GLSL export, run for real: every model's exported material, compiled by glslangValidator
-and executed on Mesa's llvmpipe, against the torch model on the hard cases and random directions."""
+"""The GLSL export, run for real: compiled by glslangValidator and executed on Mesa's llvmpipe.
+
+Every material equals the specialized evaluator in the contract test over every format
+(``test_equals_specialized``); here, what is GLSL's own: every case's source compiles with Khronos'
+reference compiler, file names and literals, two materials in one shader by their names, a sphere
+shaded by the export equals the renderer, and the generic model function equals the model.
+"""
 
 from __future__ import annotations
 
@@ -7,21 +12,21 @@ import copy
 
 import numpy as np
 import pytest
-import reference_brdfs as ref
 import torch
 
 from gl_runtime import gl_context, run_brdf, shade_sphere, validate
 from neuenh.export import identifier
 from neuenh.export.glsl import literal, material_source, write
-from neuenh.checkpoint import Bundle
 from neuenh.materials import MaterialParams
-from neuenh.models import available_models, get_model
-from neuenh.pretrained import bundle_path
-from test_models import DIRECTIONS, FRAMES, random_directions, random_params, spec_values, torch_params
+from neuenh.models import get_model
+from float32_bounds import assert_within, moved_shading, relative_bound
+from test_equals_specialized import ADAPTERS, CASES, GLSL_450, case_materials
+from test_models import torch_params
 
 from ggx_states import ALTERNATIVES_STATE, PAPER_STATE
 
-N_RANDOM = 8192  # random pairs per material, besides every hard case in every frame
+
+GLSL = next(adapter for adapter in ADAPTERS if adapter.name == "glsl")
 
 
 @pytest.fixture(scope="module")
@@ -31,93 +36,14 @@ def gl():
     ctx.release()
 
 
-def materials(model, rng) -> list[dict[str, np.ndarray]]:
-    """The extremes of the stability grid (roughness 1e-4 and 1, a tilted and rotated frame) and two
-    random materials, each as one row of parameters."""
-    lobe = ([dict(alpha_x=1e-4, alpha_y=1e-4), dict(alpha_x=0.3, alpha_y=0.05), dict(alpha_x=1.0, alpha_y=1.0)]
-            if "alpha_x" in model.param_names else [dict(shininess=1e4), dict(shininess=30.0), dict(shininess=1.0)])
-    fixed = [spec_values(model, 1, **{k: v for k, v in {**frame, **rough}.items() if k in model.param_names},
-                         rho_d=(0.25, 0.5, 0.0), rho_s=(1.0, 0.5, 0.25))
-             for frame, rough in zip(FRAMES, lobe)]
-    return fixed + [{k: v[i : i + 1] for k, v in random_params(model, 2, rng).items()} for i in range(2)]
-
-
-def directions(model, params, rng) -> tuple[np.ndarray, np.ndarray]:
-    """Every hard case of the stability grid (grazing, below either horizon, mirror, into the
-    surface) about this material's normal, then random pairs, half of them near its peak."""
-    normal = ref.frame(params, 1)[2][0]
-    hard = [make(normal) for make in DIRECTIONS.values()]
-    wi, wo = random_directions({k: np.repeat(v, N_RANDOM, 0) for k, v in params.items()}, N_RANDOM, rng)
-    unit = lambda w: w / np.linalg.norm(w, axis=-1, keepdims=True)  # noqa: E731
-    return (np.vstack([unit(np.array([h[0] for h in hard])), wi]),
-            np.vstack([unit(np.array([h[1] for h in hard])), wo]))
-
-
-# Every model's analytical terms; the module code on the paper's state (a term module reading
-# directions, operator modules) and on every position of Ward neural (modules over constants and
-# RGB operands too). Each neural shader takes llvmpipe seconds to compile, so not every model's.
-# And GGX with alternative terms beside a module (ALTERNATIVES_STATE: an RGB Fresnel, Oren-Nayar).
-CASES = [(m, "0" * len(get_model(m).positions)) for m in available_models()] + [
-    ("ggx", PAPER_STATE), ("ward", "1111111"), ("ggx-alternatives", ALTERNATIVES_STATE)]
-
-
-def model_for(name: str, state: str):
-    if name == "ggx-alternatives":
-        return get_model("ggx", alternatives=True, state=state)
-    return get_model(name, state=state)
-
-
-def check_export(gl, model, material: MaterialParams, wi: np.ndarray, wo: np.ndarray, what: str) -> None:
-    """The exported material on llvmpipe against the float64 model at the same float32 directions."""
-    special = model.specialize(material)
-    wi, wo = wi.astype(np.float32), wo.astype(np.float32)  # what the shader reads
-    got = run_brdf(gl, material_source(special, "m"), wi, wo).astype(np.float64)
-    wi64, wo64 = torch.as_tensor(wi, dtype=torch.float64), torch.as_tensor(wo, dtype=torch.float64)
-    with torch.no_grad():
-        want = copy.deepcopy(model).double().evaluate(wi64, wo64, material.to(torch.float64)).numpy()
-    want32 = special(wi64.float(), wo64.float()).double().numpy()  # torch's own float32 path
-    assert np.isfinite(got).all(), what
-    assert (got[(want == 0).all(1)] == 0).all(), f"{what}: non-zero below a horizon"
-    scale = np.maximum(np.abs(want), 1e-3 * want.max())  # relative where f_r >= 1e-3 of its max
-    error, own = np.abs(got - want) / scale, np.abs(want32 - want) / scale
-    # float32 itself is off by more than 1e-4 at the sharpest lobes (an ulp of direction moves a
-    # roughness-1e-4 peak; exp(1e4 log cos) amplifies log's rounding): there the export must be
-    # about as good as torch's own float32 path
-    bound = max(1e-4, 2.5 * float(own.max()))
-    assert error.max() <= bound, f"{what}: max relative error {error.max():.3g} > {bound:.3g}"
-
-
-@pytest.mark.parametrize("name, state", CASES)
-def test_exported_glsl_equals_the_torch_model_on_llvmpipe(gl, name, state, tmp_path):
-    rng = np.random.default_rng(7)
-    torch.manual_seed(0)
-    model = model_for(name, state)
-    checked, chosen = 0, materials(model, rng)
-    if "1" in state:  # a neural shader takes llvmpipe a second or more to compile: the extremes and one random
-        chosen = [chosen[0], chosen[2], chosen[3]]
-    for i, params in enumerate(chosen):
-        latent = torch.as_tensor(rng.random(model.latent_dim)) if model.uses_latent else None
-        material = MaterialParams(torch_params({k: v[0] for k, v in params.items()}, torch.float64), latent)
-        if i == 0:
-            validate(material_source(model.specialize(material), "m"), tmp_path)
-        wi, wo = directions(model, params, rng)
-        check_export(gl, model, material, wi, wo, f"{name} {state} material {i}")
-        checked += len(wi)
-    assert checked >= 3 * N_RANDOM
-
-
-def test_the_shipped_model_exports_each_of_its_materials(gl, tmp_path):
-    path = bundle_path("enhanced-ggx")
-    if path is None:
-        pytest.skip("no shipped models/enhanced-ggx in this tree")
-    bundle = Bundle.load(path)
-    rng = np.random.default_rng(3)
-    for index in (0, len(bundle.materials) - 1):
-        material = bundle.materials.as_params(index)
-        params = {k: v.double().numpy()[None] for k, v in material.values.items()}
-        wi, wo = directions(bundle.model, params, rng)
-        check_export(gl, bundle.model, material, wi, wo, f"enhanced-ggx {bundle.materials.names[index]}")
-    validate(material_source(bundle.model.specialize(bundle.materials.as_params(0)), "m"), tmp_path)
+@pytest.mark.parametrize("case", [case for case in CASES if case not in GLSL.skips])
+def test_every_case_compiles_with_glslang(case, tmp_path):
+    """A random material of each case the GLSL adapter runs (and the shipped model's own) in the
+    compute harness."""
+    model, shipped = CASES[case]()
+    materials = case_materials(model, shipped, np.random.default_rng(7))
+    for m in [m for m in materials if m.extreme][3:]:
+        validate(material_source(model.specialize(m.params), "m"), tmp_path)
 
 
 def test_write_names_files_and_refuses_clashes(tmp_path):
@@ -181,37 +107,40 @@ GENERIC_CASES = [("ggx", "00000000000"), ("ggx", PAPER_STATE), ("ggx-alternative
                  ("cook_torrance", "00000000000")]
 
 
+def model_for(name: str, state: str):
+    if name == "ggx-alternatives":
+        return get_model("ggx", alternatives=True, state=state)
+    return get_model(name, state=state)
+
+
 @pytest.mark.parametrize("name, state", GENERIC_CASES)
 def test_the_generic_model_function_equals_the_model_for_any_material(gl, name, state, tmp_path):
     """``neuenh_MODEL_brdf(wi, wo, p)``, the model for any material: compiled by glslangValidator, run
-    on llvmpipe with several materials' parameters packed into ``p`` (``pack_parameters``), against
-    the float64 model on the hard cases and random pairs."""
+    on llvmpipe with several materials' parameters packed into ``p`` (``pack_parameters``): finite,
+    exactly 0 below either horizon, and within ``float32_bounds``' bound of the float64 model with
+    GLSL's documented function accuracy (``GLSL_450``), on two grid extremes and a random material."""
     from neuenh.export.glsl import model_source, pack_parameters, parameter_layout
 
     torch.manual_seed(0)
     model = model_for(name, state)
+    model64 = copy.deepcopy(model).double()
     source = model_source(model)
-    rng = np.random.default_rng(3)
-    ident = model.name
     n = sum(width for _, _, width in parameter_layout(model))
-    for i, params in enumerate(materials(model, rng)[1:4]):
-        latent = torch.as_tensor(rng.random(model.latent_dim)) if model.uses_latent else None
-        material = MaterialParams(torch_params({k: v[0] for k, v in params.items()}, torch.float64), latent)
-        packed = ", ".join(literal(v) for v in pack_parameters(model, material))
+    chosen = [m for m in case_materials(model, [], np.random.default_rng(3)) if m.extreme][1:4]
+    for i, m in enumerate(chosen):
+        packed = ", ".join(literal(v) for v in pack_parameters(model, m.params))
         wrapper = source + (f"vec3 call(vec3 wi, vec3 wo) {{ float p[{n}] = float[{n}]({packed}); "
-                            f"return neuenh_{ident}_brdf(wi, wo, p); }}\n")
+                            f"return neuenh_{model.name}_brdf(wi, wo, p); }}\n")
         if i == 0:
             validate(wrapper, tmp_path, call="call")
-        wi, wo = directions(model, params, rng)
-        wi32, wo32 = wi.astype(np.float32), wo.astype(np.float32)
-        got = run_brdf(gl, wrapper, wi32, wo32, call="call").astype(np.float64)
+        got = run_brdf(gl, wrapper, m.wi, m.wo, call="call")
+        what = f"{name} {state} material {i}"
+        assert np.isfinite(got).all() and (got >= 0).all() and (got[~m.above] == 0).all(), what
+        wi, wo, material32 = torch.as_tensor(m.wi), torch.as_tensor(m.wo), m.params.to(torch.float32)
         with torch.no_grad():
-            want = copy.deepcopy(model).double().evaluate(torch.as_tensor(wi32, dtype=torch.float64),
-                                                          torch.as_tensor(wo32, dtype=torch.float64), material).numpy()
-            own = model.float().evaluate(torch.as_tensor(wi32), torch.as_tensor(wo32),
-                                         material.to(torch.float32)).double().numpy()
-        assert np.isfinite(got).all() and (got[(want == 0).all(1)] == 0).all()
-        scale = np.maximum(np.abs(want), 1e-3 * want.max())
-        bound = max(1e-4, 2.5 * float((np.abs(own - want) / scale).max()))  # as float32 torch can do
-        assert (np.abs(got - want) / scale).max() <= bound, f"{name} {state} material {i}"
+            truth, bound = relative_bound(lambda a, b, p=m.params: model64.evaluate(a, b, p).numpy(),
+                                          lambda a, b, p=material32: model.float().evaluate(a, b, p).double().numpy(),
+                                          wi, wo, model.specialize(m.params).flops_per_evaluation + 2 * model.n_weights(),
+                                          moved_intermediates=moved_shading, functions=GLSL_450)
+        assert_within(got, truth, bound, what)
     assert "uniform Neuenh" in source and "material_brdf" in source

@@ -1,9 +1,7 @@
 """The Mitsuba 3 export (``neuenh.export.mitsuba``), run in Mitsuba itself (``llvm_ad_rgb``):
 
-1. the plugin's ``eval`` equals neuenh's model (f_r times the light's cosine, Mitsuba's convention)
-   on the hard cases and on random pairs, for plain GGX, the paper's enhanced state, GGX with
-   alternative terms and the shipped model's materials (as close as torch's own float32 path where float32 cannot
-   reach 1e-4);
+1. the plugin's ``eval`` equals the specialized evaluator times the light's cosine (Mitsuba's
+   convention): the contract test over every format, ``test_equals_specialized``;
 2. its sampling passes Mitsuba's own chi-square test (``mitsuba.chi2``) for rough, anisotropic and
    tilted materials and several incident directions;
 3. the exported *plain* GGX (f0 = 1, ρs = 1, ρd = 0) equals Mitsuba's built-in ``roughconductor``
@@ -23,11 +21,10 @@ mi_module = pytest.importorskip("mitsuba", reason="the mitsuba package (neuenh[e
 from neuenh.export import mitsuba as nm  # noqa: E402
 from neuenh.models import get_model  # noqa: E402
 from neuenh.materials import MaterialParams  # noqa: E402
-from neuenh.pretrained import load_model  # noqa: E402
-from float32_bounds import assert_within, relative_bound  # noqa: E402
-from test_models import DIRECTIONS, random_directions, random_params  # noqa: E402
+from test_equals_specialized import hard_and_random  # noqa: E402
+from test_models import random_params  # noqa: E402
 
-from ggx_states import ALTERNATIVES_STATE, PAPER_STATE  # noqa: E402
+from ggx_states import PAPER_STATE  # noqa: E402
 
 if nm.find_libllvm() is None:
     pytest.skip(f"Mitsuba's LLVM variant needs libLLVM {nm.LLVM_MIN}+ (Debian: apt-get install libllvm19; "
@@ -54,58 +51,6 @@ def eval_mitsuba(bsdf, light: np.ndarray, view: np.ndarray) -> np.ndarray:
     return np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(light.T.astype(np.float32)))).T.astype(np.float64)
 
 
-def pairs(params, rng, n=4096) -> tuple[np.ndarray, np.ndarray]:
-    """The hard cases about the material's normal, then random pairs, half near its peak."""
-    import reference_brdfs as ref
-
-    rows = {k: v.numpy().reshape(1, -1) for k, v in MaterialParams.of(params).values.items()}
-    normal = ref.frame(rows, 1)[2][0]
-    hard = [make(normal) for make in DIRECTIONS.values()]
-    wi, wo = random_directions({k: np.repeat(v, n, 0) for k, v in rows.items()}, n, rng)
-    unit = lambda w: w / np.linalg.norm(w, axis=-1, keepdims=True)  # noqa: E731
-    return (np.vstack([unit(np.array([h[0] for h in hard])), wi]), np.vstack([unit(np.array([h[1] for h in hard])), wo]))
-
-
-def shipped():
-    try:
-        model, table = load_model("enhanced-ggx")
-    except ValueError:
-        pytest.skip("no shipped models/enhanced-ggx")
-    return model, table.as_params(0).to(torch.float64)
-
-
-CASES = {
-    "ggx": lambda rng: (get_model("ggx"), None),
-    "paper-state": lambda rng: (get_model("ggx", state=PAPER_STATE, seed=2), None),
-    "alternatives": lambda rng: (get_model("ggx", alternatives=True, state=ALTERNATIVES_STATE, seed=2), None),
-    "shipped": lambda rng: shipped(),
-}
-
-
-@pytest.mark.parametrize("case", CASES)
-def test_eval_is_the_model_times_the_lights_cosine(case, tmp_path):
-    rng = np.random.default_rng(4)
-    model, params = CASES[case](rng)
-    model = model.double()
-    params = params or material(model, rng, alpha_x=0.3, alpha_y=0.08, normal=[0.3, -0.2], t_theta=0.7)
-    bsdf = exported(model, params, tmp_path)
-    light, view = pairs(params, rng)
-    got = eval_mitsuba(bsdf, light, view)
-    light32, view32 = (torch.as_tensor(w, dtype=torch.float32) for w in (light, view))  # what Mitsuba reads
-    special = model.specialize(params)
-
-    def f_cos64(i, o):  # f_r times the light's cosine, as Mitsuba's eval
-        return (model.evaluate(i, o, params) * i[:, 2:3].clamp_min(0)).numpy()
-
-    def f_cos32(i, o):  # the same through torch's float32 specialized path
-        return (special(i, o) * i[:, 2:3].clamp_min(0)).double().numpy()
-
-    with torch.no_grad():
-        want, bound = relative_bound(f_cos64, f_cos32, light32, view32, special.flops_per_evaluation + 1)
-    assert np.isfinite(got).all() and (got[(want == 0).all(1)] == 0).all()
-    assert_within(got, want, bound, case)
-
-
 def test_inactive_lanes_are_zero_and_leave_the_others_alone(tmp_path):
     """The plugin skips the model where Mitsuba's ``active`` mask is false (``DrJitMaterial``'s
     conditional): those lanes are zero, every other lane is the unmasked value, bit for bit."""
@@ -113,7 +58,7 @@ def test_inactive_lanes_are_zero_and_leave_the_others_alone(tmp_path):
     model = get_model("ggx")
     params = material(model, rng, alpha_x=0.3, alpha_y=0.3)
     bsdf = exported(model, params, tmp_path)
-    light, view = pairs(params, rng, n=512)
+    light, view = hard_and_random({k: v.numpy().reshape(1, -1) for k, v in params.values.items()}, rng, n=512)
     si = dr.zeros(mi.SurfaceInteraction3f, len(light))
     si.wi = mi.Vector3f(view.T.astype(np.float32))
     wo = mi.Vector3f(light.T.astype(np.float32))
