@@ -25,7 +25,7 @@ of its own materials. Materials of a case (``case_materials``): every material o
 (frames, roughness 1e-4..1, f0 0 and 1) on its 16 hard direction pairs (grazing, mirror, below
 either horizon, into the surface), then two random materials and the shipped ones on the hard pairs
 about their normal and ``N_RANDOM`` random pairs, half of them near the peak. An adapter whose
-runtime compiles each material slowly runs only the grid's extremes (``Grid``).
+runtime compiles each material slowly runs fewer of them (``Tier``).
 """
 
 from __future__ import annotations
@@ -54,15 +54,13 @@ N_RANDOM = 8192  # random pairs per random material, besides the hard pairs abou
 
 
 # -- the adapters ---------------------------------------------------------------------------------
-class Grid(enum.Enum):
-    """Which of a case's stability-grid materials an adapter runs (the random ones it always runs)."""
+class Tier(enum.IntEnum):
+    """How widely a material of a case is run: an adapter runs its case's materials up to a tier
+    (``Adapter.tiers``), as its runtime's cost per material allows."""
 
-    EVERY = "every grid material"
-    EVERY_WITHOUT_MODULES = "every grid material of a model without modules, else the extremes"
-    EXTREMES = "the grid's extremes (Material.extreme)"
-
-    def keeps(self, material: "Material", has_modules: bool) -> bool:
-        return material.extreme or self is Grid.EVERY or (self is Grid.EVERY_WITHOUT_MODULES and not has_modules)
+    FIRST = 0  # the first random material and the first shipped one: every adapter runs them
+    EXTREMES = 1  # the grid's extremes (``EXTREMES``), the other random and shipped materials
+    GRID = 2  # every other material of the stability grid
 
 
 @dataclasses.dataclass
@@ -74,8 +72,9 @@ class Adapter:
     (n, 3), neuenh's convention (``wi`` the light, no cosine factor); ``suffix``: a material's file;
     ``factor``: C of ``float32_bounds``; ``functions``: the runtime's documented accuracy of exp, log
     and sqrt where it is worse than a few ulps (``float32_bounds.FunctionAccuracy``); ``extra_ops``:
-    operations the adapter adds after the artifact (they round too); ``grid``: which of a case's grid
-    materials it runs (its runtime's cost per material); ``skips``: cases it cannot run, and why."""
+    operations the adapter adds after the artifact (they round too); ``tiers``: which of a case's
+    materials it runs: the highest ``Tier`` for a model without modules and for one with (its
+    runtime's cost per material); ``skips``: cases it cannot run, and why."""
 
     name: str
     suffix: str
@@ -84,7 +83,7 @@ class Adapter:
     factor: float = CONDITION_FACTOR
     functions: FunctionAccuracy | None = None
     extra_ops: int = 0
-    grid: Grid = Grid.EVERY
+    tiers: tuple[Tier, Tier] = (Tier.GRID, Tier.GRID)
     skips: dict[str, str] = dataclasses.field(default_factory=dict)  # case -> why this runtime cannot run it
 
 
@@ -174,11 +173,13 @@ GLSL_450 = FunctionAccuracy(exp_ulps=3.0, exp_ulps_per_x=2.0, log_absolute=2.0**
 ADAPTERS = [
     Adapter("onnx", ".onnx", _onnx_start, _onnx_run),
     # llvmpipe compiles a material with modules in about a second
-    Adapter("glsl", ".glsl", _glsl_start, _glsl_run, functions=GLSL_450, grid=Grid.EVERY_WITHOUT_MODULES,
+    Adapter("glsl", ".glsl", _glsl_start, _glsl_run, functions=GLSL_450, tiers=(Tier.GRID, Tier.EXTREMES),
             skips={"ggx-all-neural": "llvmpipe takes minutes to compile GGX's eleven modules; ward-all-neural "
                                      "runs every kind of module (term, operator, constant) in GLSL"}),
-    # each plugin traces and compiles its own Dr.Jit kernel, 0.3 s a material
-    Adapter("mitsuba", ".json", _mitsuba_start, _mitsuba_run, extra_ops=2, grid=Grid.EXTREMES),
+    # each plugin traces and compiles its own Dr.Jit kernel: 0.3 s a material, seconds with modules
+    Adapter("mitsuba", ".json", _mitsuba_start, _mitsuba_run, extra_ops=2, tiers=(Tier.EXTREMES, Tier.FIRST),
+            skips={"ggx-all-neural": "the plugin's kernel of eleven modules compiles for over a minute; the paper "
+                                     "state, the alternatives and Ward all-neural run modules in Mitsuba"}),
 ]
 
 
@@ -217,7 +218,7 @@ class Material:
     wi: np.ndarray  # its direction pairs, float32 (what every artifact reads)
     wo: np.ndarray
     above: np.ndarray  # both directions above both horizons
-    extreme: bool  # a grid extreme or a random material: what every adapter runs (``Grid``)
+    tier: Tier  # which adapters run it
 
 
 #: The stability grid's extremes, (frame, lobe) indices into test_models' FRAMES and ROUGHNESS: the
@@ -249,19 +250,21 @@ def case_materials(model, shipped_materials: list[MaterialParams], rng) -> list[
         rows = slice(start, start + len(DIRECTIONS))
         frame, rough, f0 = j // (len(ROUGHNESS[lobe]) * n_f0), j // n_f0 % len(ROUGHNESS[lobe]), j % n_f0
         params = MaterialParams(torch_params({k: v[start] for k, v in grid.items()}), latent)
-        chosen.append((params, wi[rows], wo[rows], (frame, rough) in EXTREMES[lobe] and f0 == n_f0 - 1))
+        extreme = (frame, rough) in EXTREMES[lobe] and f0 == n_f0 - 1
+        chosen.append((params, wi[rows], wo[rows], Tier.EXTREMES if extreme else Tier.GRID))
     randoms = [MaterialParams(torch_params({k: v[0] for k, v in random_params(model, 1, rng).items()}), latent)
                for _ in range(2)]
-    for params in randoms + shipped_materials:
-        rows = {k: v.double().numpy().reshape(1, -1) for k, v in params.values.items()}
-        chosen.append((params, *hard_and_random(rows, rng), True))
+    for group in (randoms, shipped_materials):
+        for i, params in enumerate(group):
+            rows = {k: v.double().numpy().reshape(1, -1) for k, v in params.values.items()}
+            chosen.append((params, *hard_and_random(rows, rng), Tier.FIRST if i == 0 else Tier.EXTREMES))
     materials = []
-    for params, wi, wo, extreme in chosen:
+    for params, wi, wo, tier in chosen:
         wi32, wo32 = wi.astype(np.float32), wo.astype(np.float32)
         rows = {k: np.broadcast_to(v.double().numpy().reshape(1, -1), (len(wi), v.numel()))
                 for k, v in params.values.items()}
         above = above_mask(model, wi32.astype(np.float64), wo32.astype(np.float64), rows)
-        materials.append(Material(params, wi32, wo32, above, extreme))
+        materials.append(Material(params, wi32, wo32, above, tier))
     return materials
 
 
@@ -277,7 +280,7 @@ def test_the_artifact_equals_the_specialized_evaluator(adapter, case, tmp_path):
     (fmt, runtime), (name, model, materials) = adapter, case
     if name in fmt.skips:
         pytest.skip(fmt.skips[name])
-    materials = [m for m in materials if fmt.grid.keeps(m, model.n_weights() > 0)]
+    materials = [m for m in materials if m.tier <= fmt.tiers[model.n_weights() > 0]]
     names = {f"m{i}": m.params for i, m in enumerate(materials)}
     export(model, names, fmt.name, tmp_path)
     got = fmt.run(runtime, [tmp_path / f"{n}{fmt.suffix}" for n in names],
