@@ -162,18 +162,28 @@ def row_error(got: np.ndarray, truth: np.ndarray, scale: np.ndarray) -> np.ndarr
     return (np.abs(np.asarray(got, np.float64) - truth) / scale).max(1)
 
 
-def relative_bound(float64: Evaluate, float32: Evaluate, wi: torch.Tensor, wo: torch.Tensor,
-                   n_ops: int, factor: float = CONDITION_FACTOR,
-                   moved_intermediates: Callable[[int], ContextManager] | None = None,
-                   functions: FunctionAccuracy | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(float64 f_r at the float32 directions ``wi, wo`` (n, 3), the per-row relative bound (n,)).
-    ``float64(wi, wo)``: the reference evaluation in float64; ``float32(wi, wo)``: the reference
-    float32 path (torch's) at float32 directions; both return (n, 3) numpy. ``factor``: C above (the
-    evaluation under test's functions round to that many times the reference path's). ``moved_intermediates(seed)``:
+@dataclasses.dataclass(frozen=True)
+class Measured:
+    """What ``measure`` finds at a set of float32 directions, per row: float64 f_r (``truth``), what
+    errors are relative to (``scale_of(truth)``), kappa, kappa_s and e32 (the module docstring)."""
+
+    truth: np.ndarray
+    scale: np.ndarray
+    kappa: np.ndarray
+    kappa_s: np.ndarray
+    own: np.ndarray
+
+    def bound(self, n_ops: int, factor: float = CONDITION_FACTOR, e_fn: np.ndarray | float = 0.0) -> np.ndarray:
+        """The per-row relative bound u (C (kappa + kappa_s) + n) + C e32 + e_fn."""
+        return U32 * (factor * (self.kappa + self.kappa_s) + n_ops) + factor * self.own + e_fn
+
+
+def measure(float64: Evaluate, float32: Evaluate, wi: torch.Tensor, wo: torch.Tensor,
+            moved_intermediates: Callable[[int], ContextManager] | None = None) -> Measured:
+    """``float64(wi, wo)``: the reference evaluation in float64; ``float32(wi, wo)``: the reference
+    float32 path (torch's) at float32 directions; both return (n, 3) numpy. ``moved_intermediates(seed)``:
     a context within which ``float64`` runs with its intermediates moved (``moved_shading``), for
-    kappa_s; without it kappa_s = 0 (the evaluation under test rounds as the reference path does).
-    ``functions``: the evaluation under test's functions' documented accuracy, when it is worse than
-    a few ulps; adds e_fn, float64's largest change with its functions moved that far."""
+    kappa_s; without it kappa_s = 0 (the evaluation under test rounds as the reference path does)."""
     truth = float64(wi.double(), wo.double())
     scale = scale_of(truth)
     move = NUDGE_ULPS * 2.0**-23  # the relative move of each component
@@ -188,11 +198,31 @@ def relative_bound(float64: Evaluate, float32: Evaluate, wi: torch.Tensor, wo: t
                 kappa_s = np.maximum(kappa_s, row_error(float64(wi.double(), wo.double()), truth, scale) / move)
         wi32, wo32 = wi_moved.float(), wo_moved.float()  # another rounding of nearly the same point
         own = np.maximum(own, row_error(float32(wi32, wo32), float64(wi32.double(), wo32.double()), scale))
-    e_fn = np.zeros(len(truth))
-    for trial, sign in enumerate((1.0, -1.0, None) if functions is not None else ()):
+    return Measured(truth, scale, kappa, kappa_s, own)
+
+
+def function_error(float64: Evaluate, wi: torch.Tensor, wo: torch.Tensor, measured: Measured,
+                   functions: FunctionAccuracy) -> np.ndarray:
+    """e_fn: float64's largest relative change, per row, with its functions moved by ``functions``'
+    worst case (``moved_functions``: all up, all down, random signs)."""
+    e_fn = np.zeros(len(measured.truth))
+    for trial, sign in enumerate((1.0, -1.0, None)):
         with moved_functions(functions, sign, seed=trial):
-            e_fn = np.maximum(e_fn, row_error(float64(wi.double(), wo.double()), truth, scale))
-    return truth, U32 * (factor * (kappa + kappa_s) + n_ops) + factor * own + e_fn
+            e_fn = np.maximum(e_fn, row_error(float64(wi.double(), wo.double()), measured.truth, measured.scale))
+    return e_fn
+
+
+def relative_bound(float64: Evaluate, float32: Evaluate, wi: torch.Tensor, wo: torch.Tensor,
+                   n_ops: int, factor: float = CONDITION_FACTOR,
+                   moved_intermediates: Callable[[int], ContextManager] | None = None,
+                   functions: FunctionAccuracy | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(float64 f_r at the float32 directions ``wi, wo`` (n, 3), the per-row relative bound (n,)):
+    ``measure``, then ``Measured.bound`` with ``factor`` as C (the evaluation under test's functions
+    round to that many times the reference path's) and, with ``functions`` (the evaluation under
+    test's documented function accuracy, where it is worse than a few ulps), ``function_error``."""
+    measured = measure(float64, float32, wi, wo, moved_intermediates)
+    e_fn = 0.0 if functions is None else function_error(float64, wi, wo, measured, functions)
+    return measured.truth, measured.bound(n_ops, factor, e_fn)
 
 
 def assert_within(got: np.ndarray, truth: np.ndarray, bound: np.ndarray, what: str) -> None:
