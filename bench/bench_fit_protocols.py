@@ -2,7 +2,7 @@
 materials (issues 23 and 24), and the previous default fit of ``--before-rev`` in the same run.
 
     python bench/bench_fit_protocols.py [--model SPEC] [--before-rev REV] [--materials N] [--sizes 3000 10000]
-                                        [--no-adaptive] [--json OUT.json] [--write docs/BENCHMARKS.md]
+                                        [--json OUT.json] [--write docs/BENCHMARKS.md]
 
 Materials: ``--materials`` NBRDF stand-ins of MERL (``../shared/data/merl_nbrdf``, a training source;
 every 12th name in sorted order — the shipped modules may have seen them; never RGL). Per material
@@ -11,8 +11,8 @@ half the pairs near the mirror direction, 10,000 test pairs drawn the same way),
 
 * **default**: ``fit_materials(model, fit)`` with the checkout's default protocol — in the checkout
   ``--before-rev`` names too (``git archive`` to a temporary folder, this file run there first);
-* **adaptive** (this checkout, unless ``--no-adaptive``): ``FitOptions(capacity="auto")``, the
-  capacity chosen per material by cross-validation;
+* **adaptive** (this checkout): ``FitOptions(capacity="auto")``, the capacity chosen per material
+  by cross-validation;
 * **NBRDF**: ``NBRDFContender`` (a 6-21-21-3 network per material, its defaults);
 
 each for the enhanced model (``--model``) and plain GGX (default only). Recorded: the wall time of
@@ -51,10 +51,8 @@ def materials(count: int, weights: Path) -> list:
     return [nbrdf_material(str(weights), name) for name in names[::12][:count]]
 
 
-def run(spec: str, weights: Path, count: int, sizes: list[int], default_only: bool, clock=time.perf_counter,
-        adaptive: bool = True) -> dict:
-    """{case: {material: (held-out log-L1, seconds of ``clock``)}}; ``default_only``: the default fits
-    alone (a ``--before-rev`` run), ``adaptive``: also the adaptive-capacity fit."""
+def run(spec: str, weights: Path, count: int, sizes: list[int], default_only: bool, clock=time.perf_counter) -> dict:
+    """{case: {material: (held-out log-L1, seconds of ``clock``)}}."""
     from neuenh.fit import fit_materials
     from neuenh.models import get_model
     from neuenh.pretrained import load_model
@@ -82,13 +80,12 @@ def run(spec: str, weights: Path, count: int, sizes: list[int], default_only: bo
             from neuenh.fit import FitOptions
             from neuenh.study.contenders import NBRDFContender
 
-            if adaptive:
-                start = clock()
-                result = fit_materials(enhanced, fit, FitOptions(capacity="auto").protocol_for(enhanced), seed=0,
-                                       trained=trained)
-                seconds = clock() - start
-                record(f"enhanced adaptive, {n}", material.name, heldout_log_l1(enhanced, result, test)[0], seconds)
-                print("   capacity", result.capacity(0), flush=True)
+            start = clock()
+            result = fit_materials(enhanced, fit, FitOptions(capacity="auto").protocol_for(enhanced), seed=0,
+                                   trained=trained)
+            seconds = clock() - start
+            record(f"enhanced adaptive, {n}", material.name, heldout_log_l1(enhanced, result, test)[0], seconds)
+            print("   capacity", result.capacity(0), flush=True)
             start = clock()
             fitted = NBRDFContender().fit(fit)
             seconds = clock() - start
@@ -116,8 +113,8 @@ def markdown_section(env: dict, now: dict, before: dict | None, command: str, mo
         nbrdf = now[f"NBRDF, {n}"]
         for label, table in [(f"{c} (before)", before.get(f"{c}, {n}") if before else None)
                              for c in ("enhanced default", "GGX default")] + \
-                            [(c, now.get(f"{c}, {n}")) for c in ("enhanced default", "enhanced adaptive",
-                                                                "GGX default", "NBRDF")]:
+                            [(c, now[f"{c}, {n}"]) for c in ("enhanced default", "enhanced adaptive", "GGX default",
+                                                            "NBRDF")]:
             if not table:
                 continue
             base = label.removesuffix(" (before)")
@@ -144,7 +141,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--materials", type=int, default=6, help="how many NBRDF stand-ins (default 6)")
     parser.add_argument("--sizes", type=int, nargs="+", default=[3000, 10000], help="fit sizes")
     parser.add_argument("--nbrdf", type=Path, default=NBRDF_WEIGHTS, help=f"the NBRDF weights (default {NBRDF_WEIGHTS})")
-    parser.add_argument("--no-adaptive", action="store_true", help="skip the adaptive-capacity fit (the slowest)")
     parser.add_argument("--default-only", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--json", type=Path, help="write the raw numbers here")
     parser.add_argument("--write", metavar="PATH", help="write/replace this section of PATH (docs/BENCHMARKS.md)")
@@ -163,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     env = machine()
     before = run_before(args.before_rev, args) if args.before_rev else None
     now = run(args.model, args.nbrdf, args.materials, args.sizes, args.default_only,
-              time.process_time if args.clock == "cpu" else time.perf_counter, not args.no_adaptive)
+              time.process_time if args.clock == "cpu" else time.perf_counter)
     if args.json:
         write_json(args.json, {"now": now, "before": before} if not args.default_only else now)
     if args.default_only:

@@ -8,8 +8,7 @@ Alg. 7.4 two-loop recursion and Alg. 7.5, with the initial Hessian scaling of eq
 per-row backtracking Armijo line search (their Alg. 3.1), so a row's step length, curvature history
 and convergence never depend on another row's. A row stops once its loss has fallen by less than
 ``rel_tol`` of itself for ``patience`` iterations in a row; the whole minimisation stops when every
-row has, or after ``max_iter`` iterations. Each row reports why it stopped (``RowResult.stop``):
-converged (the quiet criterion), its line search found no decrease, or the iteration cap.
+row has, or after ``max_iter`` iterations.
 
 Everything is vectorised over rows and deterministic (same inputs, same iterates).
 """
@@ -31,22 +30,12 @@ ARMIJO = 1e-4  # sufficient-decrease constant c1 (Nocedal & Wright, Sec. 3.1)
 CURVATURE_EPS = 1e-10  # a pair with s.y below this (relative) is skipped, keeping H positive definite
 
 
-# Why a row stopped (``RowResult.stop``).
-CONVERGED, LINE_SEARCH_FAILED, ITERATION_CAP, NOT_FINITE = 0, 1, 2, 3
-
-
 @dataclass
 class RowResult:
     x: torch.Tensor  # (R, d) the minimiser found per row
     loss: torch.Tensor  # (R,) its loss
     iterations: torch.Tensor  # (R,) iterations each row ran before it stopped
     evaluations: int  # objective evaluations (batched: one per forward + backward)
-    stop: torch.Tensor  # (R,) long: CONVERGED, LINE_SEARCH_FAILED, ITERATION_CAP or NOT_FINITE (its start's loss)
-    grad: torch.Tensor  # (R, d) the gradient at ``x``
-    # (R,) the decrease a full quasi-Newton step from ``x`` predicts, g.H.g / 2 with the row's last
-    # inverse-Hessian estimate H (half the squared Newton decrement; Nocedal & Wright eq. 3.29 with
-    # H for the inverse Hessian); inf for a row that never gathered curvature
-    predicted_decrease: torch.Tensor
 
 
 def minimize_rows(
@@ -71,10 +60,8 @@ def minimize_rows(
     rho = torch.zeros(history, rows, dtype=x.dtype)  # 0 marks an empty or skipped pair: a no-op
     gamma = torch.zeros(rows, dtype=x.dtype)  # initial Hessian scale s.y / y.y; 0 = no curvature yet
     active = torch.isfinite(loss)
-    stop = torch.where(active, ITERATION_CAP, NOT_FINITE)
     quiet = torch.zeros(rows, dtype=torch.long)  # iterations in a row with a negligible decrease
     iterations = torch.zeros(rows, dtype=torch.long)
-    completed = 0  # iterations whose curvature pair is stored
     for it in range(max_iter):
         if not active.any():
             break
@@ -124,13 +111,8 @@ def minimize_rows(
         quiet = torch.where(decrease <= rel_tol * new_loss.abs().clamp_min(1e-12), quiet + 1, 0)
         iterations += active.long()
         x, loss, grad = new_x, new_loss, new_grad
-        stop = torch.where(active & failed, LINE_SEARCH_FAILED,
-                           torch.where(active & (quiet >= patience), CONVERGED, stop))
         active &= ~failed & (quiet < patience)
-        completed = it + 1
-    hg = _two_loop(grad, s_hist, y_hist, rho, gamma, completed, history)
-    predicted = torch.where(gamma > 0, 0.5 * (grad * hg).sum(1), torch.inf)
-    return RowResult(x, loss, iterations, evaluations, stop, grad, predicted)
+    return RowResult(x, loss, iterations, evaluations)
 
 
 def _two_loop(grad: torch.Tensor, s_hist: torch.Tensor, y_hist: torch.Tensor, rho: torch.Tensor,

@@ -128,18 +128,9 @@ def _best_of_groups(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, group
     return torch.tensor(keep, dtype=torch.long)
 
 
-@dataclass
-class LBFGSRun:
-    x: torch.Tensor  # (rows, dim) float32 end points
-    iterations: int  # the iterations the slowest row ran, summed over the phases
-    stop: torch.Tensor  # (rows,) why each row stopped in the last phase (``neuenh.lbfgs`` CONVERGED, ...)
-    predicted_decrease: torch.Tensor  # (rows,) float64 what a quasi-Newton step from ``x`` would still gain
-    # on the last phase's surrogate (``neuenh.lbfgs.RowResult.predicted_decrease``)
-
-
-def lbfgs_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, max_iter: int) -> LBFGSRun:
-    """Row-wise L-BFGS of every row of ``x`` on ``layout``, one phase per ``SURROGATE_EPS``, each
-    phase at most ``max_iter`` iterations."""
+def lbfgs_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, max_iter: int) -> tuple[torch.Tensor, int]:
+    """Row-wise L-BFGS of every row of ``x`` on ``layout``, one phase per ``SURROGATE_EPS``.
+    Returns the end points and the iterations the slowest row ran."""
     x = x.detach().double()
     iterations = 0
     for eps in SURROGATE_EPS:
@@ -157,7 +148,7 @@ def lbfgs_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, max_iter: 
         result = minimize_rows(objective, x, max_iter=max_iter)
         x = result.x
         iterations += int(result.iterations.max())
-    return LBFGSRun(x.float(), iterations, result.stop, result.predicted_decrease)
+    return x.float(), iterations
 
 
 def evaluate_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, batch_slots: int = 50_000) -> RowLosses:

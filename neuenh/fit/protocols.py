@@ -20,8 +20,7 @@ The protocols:
   minibatches of ``batch_size`` samples, from the paper's start (range means, latent 0.5).
 * ``PlainLBFGS`` — for analytical models: row-wise L-BFGS on a Charbonnier surrogate
   (``optim.lbfgs_rows``), at most ``iterations`` per surrogate phase; a second start (where
-  ``warmup_epochs`` Adam epochs took the paper's start) only when the first end point is suspect
-  (it hit the iteration cap, or its own curvature predicts a further decrease that matters).
+  ``warmup_epochs`` Adam epochs took the paper's start) when the first end point is suspect.
 * ``LatentAdam`` — an enhanced model's latent code and analytical parameters by row-wise Adam
   (``epochs``, lr ``lr`` with cosine decay), from several starts stacked as rows of one batch and
   narrowed to each material's best after a quarter of the epochs (module doc of ``latent``).
@@ -43,13 +42,12 @@ from typing import ClassVar
 import torch
 
 from ..data.samples import Samples
-from ..lbfgs import ITERATION_CAP
 from ..materials import LATENT_INIT, MaterialTable
 from ..model import BRDFModel
 from ..train import log_l1, predict
 from .kernel import RowKernel, RowLosses, RowSpace, frozen
 from .layout import compacted, layout_rows, padded
-from .optim import SURROGATE_EPS, Adam, adam_rows, evaluate_rows, lbfgs_rows
+from .optim import Adam, adam_rows, evaluate_rows, lbfgs_rows
 from .result import FitResult, per_material_loss
 
 
@@ -175,23 +173,17 @@ def _copy(table: MaterialTable) -> MaterialTable:
 @dataclass(frozen=True)
 class PlainLBFGS(FitProtocol):
     """Row-wise L-BFGS (at most ``iterations`` per surrogate phase) from the paper's start (or
-    ``start``). A material whose end point is *suspect* is fitted again from where
-    ``warmup_epochs`` Adam epochs (lr ``warmup_lr``) took that start, and keeps the lower loss.
-    Suspect, by the first run's own numbers: its last phase stopped at the iteration cap, or a
-    quasi-Newton step from its end point (its own curvature estimate) predicts a decrease above
-    ``suspect_decrease`` of its loss (of ``SURROGATE_EPS[-1]`` for a loss below that, the last
-    phase's resolution) — or it has no curvature estimate at all. A line search that finds no
-    decrease where none is predicted is the float32 loss's rounding floor: converged. Meant for
-    analytical models (an enhanced model's landscape is rough for L-BFGS)."""
+    ``start``); a material whose end point is suspect (``suspect``) is fitted again from where
+    ``warmup_epochs`` Adam epochs (lr ``warmup_lr``) took the paper's start, and keeps the lower
+    loss. Meant for analytical models (an enhanced model's landscape is rough for L-BFGS)."""
 
     name: ClassVar[str] = "plain"
     iterations: int = 300
     warmup_epochs: int = 100
     warmup_lr: float = 0.05
-    suspect_decrease: float = 1e-3
 
     def __post_init__(self) -> None:
-        if self.iterations < 1 or self.warmup_epochs < 0 or self.warmup_lr <= 0 or self.suspect_decrease < 0:
+        if self.iterations < 1 or self.warmup_epochs < 0 or self.warmup_lr <= 0:
             raise ValueError(f"invalid plain protocol {self}")
 
     @property
@@ -210,29 +202,16 @@ class PlainLBFGS(FitProtocol):
         return FitResult(table, scored.train.tolist(), time.perf_counter() - start_time, self.describe())
 
     def fit_rows(self, kernel: RowKernel, first: torch.Tensor, layout) -> tuple[torch.Tensor, "RowLosses"]:
-        """Every row of ``layout`` from ``first`` (rows, dim), a suspect row (class doc) also from
-        its Adam warm-up, keeping the end point of lower fit loss: (rows, dim) and their losses."""
-        run = lbfgs_rows(kernel, first, layout, self.iterations)
-        x, scored = run.x, evaluate_rows(kernel, run.x, layout)
-        resolution = scored.train.clamp_min(SURROGATE_EPS[-1])
-        suspect = (run.stop == ITERATION_CAP) | ~(run.predicted_decrease <= self.suspect_decrease * resolution)
-        if not bool(suspect.any()):
-            return x, scored
-        again = torch.nonzero(suspect).squeeze(1)
-        part = layout.select(again)
-        warmed = adam_rows(kernel, first[again], part, Adam(self.warmup_epochs, self.warmup_lr)).x
-        second = lbfgs_rows(kernel, warmed, part, self.iterations).x
-        rescored = evaluate_rows(kernel, second, part)
-        won = rescored.train < scored.train[again]
-        better = again[won]
-        x = x.clone()
-        x[better] = second[won]
-        merged = []
-        for name in ("train", "val", "objective"):
-            values = getattr(scored, name).clone()
-            values[better] = getattr(rescored, name)[won]
-            merged.append(values)
-        return x, RowLosses(*merged, None)
+        """Every row of ``layout`` from ``first`` (rows, dim) and from its Adam warm-up, each row
+        keeping the end point of lower fit loss: (rows, dim) and their losses."""
+        warmed = adam_rows(kernel, first, layout, Adam(self.warmup_epochs, self.warmup_lr)).x
+        r = layout.rows
+        both = layout.select(torch.arange(r).repeat(2))
+        x, _ = lbfgs_rows(kernel, torch.cat([first, warmed]), both, self.iterations)
+        scored = evaluate_rows(kernel, x, both)
+        best = scored.train.reshape(2, r).argmin(0)
+        pick = lambda t: t.reshape(2, r, *t.shape[1:])[best, torch.arange(r)]
+        return pick(x), RowLosses(pick(scored.train), pick(scored.val), pick(scored.objective), None)
 
 
 @dataclass(frozen=True)

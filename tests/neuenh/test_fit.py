@@ -348,35 +348,3 @@ def test_corrections_are_the_materials_own_keyed_like_the_module_weights(enhance
     assert enhanced.used_params(record).n_params == enhanced.n_material_params() + sum(
         shapes[k].numel() for k in record.corrections)
     assert result.losses_on(enhanced, samples) == pytest.approx(result.losses, rel=1e-4)
-
-
-def test_plain_lbfgs_starts_again_only_where_the_first_end_point_is_suspect(clean_ggx):
-    """A clean GGX material converges from the paper's start (or stops at the float32 loss's
-    floor, where no line search finds a decrease and none is predicted): one L-BFGS run, exactly
-    the protocol's result without a second start. With a budget of 2 iterations per phase it cannot
-    converge (the iteration cap): the second start runs, and the material keeps the lower of
-    the two end points' losses."""
-    from neuenh.fit.optim import evaluate_rows, lbfgs_rows
-    from neuenh.fit.protocols import Rows, paper_start
-    from neuenh.lbfgs import CONVERGED, ITERATION_CAP, LINE_SEARCH_FAILED
-
-    _, samples = clean_ggx
-    model = get_model("ggx")
-    space = RowSpace(model)
-    kernel = RowKernel(model, space)
-    layout = Rows(samples).layout(torch.arange(1))
-    first = space.from_table(paper_start(model, samples.names))
-    converged = lbfgs_rows(kernel, first, layout, 300)
-    loss = evaluate_rows(kernel, converged.x, layout).train
-    assert converged.stop.tolist() in ([CONVERGED], [LINE_SEARCH_FAILED])
-    assert float(converged.predicted_decrease[0]) < PlainLBFGS().suspect_decrease * max(float(loss[0]), SURROGATE_EPS[-1])
-    x, losses = PlainLBFGS().fit_rows(kernel, first, layout)
-    assert torch.equal(x, converged.x)
-    capped = PlainLBFGS(iterations=2, warmup_epochs=30)
-    alone = lbfgs_rows(kernel, first, layout, 2)
-    assert alone.stop.tolist() == [ITERATION_CAP]
-    warmed = adam_rows(kernel, first, layout, Adam(30, capped.warmup_lr)).x
-    second = evaluate_rows(kernel, lbfgs_rows(kernel, warmed, layout, 2).x, layout).train
-    x, losses = capped.fit_rows(kernel, first, layout)
-    assert float(losses.train[0]) == min(float(evaluate_rows(kernel, alone.x, layout).train[0]), float(second[0]))
-    assert float(losses.train[0]) == pytest.approx(float(evaluate_rows(kernel, x, layout).train[0]), rel=1e-6)
