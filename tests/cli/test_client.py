@@ -43,9 +43,12 @@ def client(*args, url=None, token=TOKEN, cwd=None):
 
 
 def popen(*args, url, token=TOKEN):
-    """Start ``neuenh-client ARGS`` (stdout and stderr piped)."""
+    """Start ``neuenh-client ARGS`` (stdout and stderr piped) with Ctrl-C's default disposition, as
+    on a terminal: a suite started in the background (``cmd &``) inherits SIGINT ignored, and Python
+    then never raises KeyboardInterrupt."""
     return subprocess.Popen([sys.executable, "-m", "neuenh_service.cli.client", *map(str, args)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=environ(url, token))
+                            stderr=subprocess.PIPE, text=True, env=environ(url, token),
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def one_line_error(out, *fragments):
