@@ -3,8 +3,8 @@ its candidates (``search.prune``), which loss selects (``search.score``) and wha
 complexity costs (``search.cost``).
 
 ``JobRun`` builds one of each from the spec when it starts (``round_pruning``, ``selection_score``,
-``cost_policy``) and asks it; a new policy is a class here and a name in ``spec.SearchSpec``. Policies know nothing of
-the run beyond what they are handed: a ``Train`` callable and a ranking of reports.
+``cost_policy``) and asks it; a new policy is a class here and a name in ``spec.SearchSpec``.
+Policies know nothing of the run beyond what they are handed: a ``Train`` callable and a ranking of reports.
 """
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ class SelectionScore(ABC):
         """The candidate's selecting loss; NaN when it has none (not eligible)."""
 
 
-class ValLoss(SelectionScore):
+class ByValLoss(SelectionScore):
     """``score: val``: the validation loss on held-out samples of the training materials."""
 
     name = "validation loss"
@@ -102,7 +102,7 @@ class ValLoss(SelectionScore):
         return report.val_loss
 
 
-class FitScore(SelectionScore):
+class ByFitScore(SelectionScore):
     """``score: fit``: the fit score on the materials the job held out (``neuenh.selection``)."""
 
     name = "fit score"
@@ -112,7 +112,7 @@ class FitScore(SelectionScore):
 
 
 def selection_score(spec: JobSpec) -> SelectionScore:
-    return FitScore() if spec.search.score == "fit" else ValLoss()
+    return ByFitScore() if spec.search.score == "fit" else ByValLoss()
 
 
 class CostPolicy(ABC):

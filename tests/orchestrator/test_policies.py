@@ -8,7 +8,7 @@ import pytest
 from neuenh_service.orchestrator.executor import CandidateReport, CandidateTask
 import math
 
-from neuenh_service.orchestrator.policies import (FitScore, SuccessiveHalving, TrainEvery, ValLoss,
+from neuenh_service.orchestrator.policies import (ByFitScore, SuccessiveHalving, TrainEvery, ByValLoss,
                                                      round_pruning, selection_score)
 from neuenh_service.orchestrator.spec import parse_spec
 
@@ -71,8 +71,8 @@ def test_the_spec_names_the_policy(prune, policy):
 def test_the_selecting_loss_is_the_val_loss_or_the_fit_score_a_candidate_without_one_ineligible():
     scored = CandidateReport(CandidateTask("a", 0, 1), 0.5, 0.25, 1, 1.0, "here", fit_score=0.125)
     unscored = CandidateReport(CandidateTask("b", 0, 1), 0.5, 0.25, 1, 1.0, "here")
-    assert (ValLoss().loss(scored), FitScore().loss(scored)) == (0.25, 0.125)
-    assert ValLoss().loss(unscored) == 0.25 and math.isnan(FitScore().loss(unscored))
+    assert (ByValLoss().loss(scored), ByFitScore().loss(scored)) == (0.25, 0.125)
+    assert ByValLoss().loss(unscored) == 0.25 and math.isnan(ByFitScore().loss(unscored))
     data = [{"source": "synthetic_zoo", "materials": 4, "samples": 10, "holdout": 2}]
-    assert type(selection_score(parse_spec({"data": data}))) is ValLoss
-    assert type(selection_score(parse_spec({"data": data, "search": {"score": "fit"}}))) is FitScore
+    assert type(selection_score(parse_spec({"data": data}))) is ByValLoss
+    assert type(selection_score(parse_spec({"data": data, "search": {"score": "fit"}}))) is ByFitScore
