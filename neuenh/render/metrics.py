@@ -50,12 +50,11 @@ float.
 
 from __future__ import annotations
 
+import importlib
 from typing import Any
 
-import colour
 import numpy as np
 import torch
-from skimage.metrics import structural_similarity
 
 from neuenh import train as _train
 
@@ -68,6 +67,18 @@ DEFAULT_PEAK_NITS = 100.0
 _SSIM_KWARGS = {"gaussian_weights": True, "sigma": 1.5, "use_sample_covariance": False}
 _SSIM_WINDOW = 11  # skimage: 2 * int(truncate * sigma + 0.5) + 1 with truncate = 3.5, sigma = 1.5
 _SSIM_PAD = (_SSIM_WINDOW - 1) // 2
+
+
+def _colour() -> Any:
+    """colour-science, imported on first use: importing it costs ~2 s of CPU (it loads scipy and
+    matplotlib), which every process that imports the renderer, the planner or the API would
+    otherwise pay before its first metric (each `neuenh` command, each service start)."""
+    return importlib.import_module("colour")
+
+
+def _structural_similarity(*args: Any, **kwargs: Any) -> Any:
+    """``skimage.metrics.structural_similarity``, imported on first use (as :func:`_colour`)."""
+    return importlib.import_module("skimage.metrics").structural_similarity(*args, **kwargs)
 
 
 def _as_array(x: Any, name: str) -> np.ndarray:
@@ -113,7 +124,7 @@ def _check_mask(mask: Any, shape: tuple[int, ...]) -> np.ndarray | None:
 def tone_map(image: Any, exposure: float = 0.0) -> np.ndarray:
     """The SSIM protocol's display encoding: ``clip(sRGB_OETF(max(image · 2**exposure, 0)), 0, 1)``."""
     linear = np.maximum(_as_array(image, "image") * 2.0**exposure, 0.0)
-    return np.clip(colour.models.eotf_inverse_sRGB(linear), 0.0, 1.0)
+    return np.clip(_colour().models.eotf_inverse_sRGB(linear), 0.0, 1.0)
 
 
 def ssim(reference: Any, test: Any, mask: Any = None, exposure: float = 0.0) -> float:
@@ -132,10 +143,10 @@ def ssim(reference: Any, test: Any, mask: Any = None, exposure: float = 0.0) -> 
     mask = _check_mask(mask, ref.shape[:2])
     a, b = tone_map(ref, exposure), tone_map(tst, exposure)
     if mask is None:
-        return float(structural_similarity(a, b, channel_axis=-1, data_range=1.0, **_SSIM_KWARGS))
+        return float(_structural_similarity(a, b, channel_axis=-1, data_range=1.0, **_SSIM_KWARGS))
     a[~mask] = 0.0
     b[~mask] = 0.0
-    _, full = structural_similarity(a, b, channel_axis=-1, data_range=1.0, full=True, **_SSIM_KWARGS)
+    _, full = _structural_similarity(a, b, channel_axis=-1, data_range=1.0, full=True, **_SSIM_KWARGS)
     inner = np.zeros_like(mask)
     inner[_SSIM_PAD : height - _SSIM_PAD, _SSIM_PAD : width - _SSIM_PAD] = True
     selected = mask & inner
@@ -149,6 +160,7 @@ def ictcp(rgb: Any, peak_nits: float = DEFAULT_PEAK_NITS) -> np.ndarray:
     if not peak_nits > 0:
         raise ValueError(f"peak_nits must be positive, got {peak_nits}")
     linear = np.maximum(_as_array(rgb, "rgb"), 0.0)
+    colour = _colour()
     bt2020 = colour.RGB_to_RGB(
         linear,
         colour.RGB_COLOURSPACES["ITU-R BT.709"],
@@ -161,7 +173,7 @@ def ictcp(rgb: Any, peak_nits: float = DEFAULT_PEAK_NITS) -> np.ndarray:
 def delta_e_itp_map(reference: Any, test: Any, peak_nits: float = DEFAULT_PEAK_NITS) -> np.ndarray:
     """Per-pixel ΔE_ITP (BT.2124) of linear BT.709 colours ``(..., 3)``, shape ``(...)``; an error map."""
     ref, tst = _check_pair(reference, test, image=False)
-    return np.asarray(colour.difference.delta_E_ITP(ictcp(ref, peak_nits), ictcp(tst, peak_nits)), dtype=np.float64)
+    return np.asarray(_colour().difference.delta_E_ITP(ictcp(ref, peak_nits), ictcp(tst, peak_nits)), dtype=np.float64)
 
 
 def delta_e_itp(reference: Any, test: Any, mask: Any = None, peak_nits: float = DEFAULT_PEAK_NITS) -> float:
