@@ -68,39 +68,59 @@ def uninterrupted(tmp_path_factory):
     return run_alone(tmp_path_factory.mktemp("alone"), LONG)
 
 
-@pytest.mark.parametrize("k", [3, 8])
-def test_a_crash_after_k_finished_candidates_retrains_only_the_rest(tmp_path, k, uninterrupted):
+def crash_after(server: ServeProcess, store: SQLiteJobStore, job_id: str, k: int) -> tuple[int, int, int]:
+    """Wait until the round in progress has ``k`` finished candidates (persisted as they finish), then
+    SIGKILL the service: a crash, no shutdown, no chance to tidy up. Returns the interrupted round,
+    how many of its candidates the store holds and the last event's seq."""
+    deadline = time.monotonic() + 300  # a guard against a hang; minutes on an overloaded machine
+    try:
+        while len(store.finished_candidates(job_id, store.get_job(job_id).next_round)) < k:
+            assert time.monotonic() < deadline and not store.get_job(job_id).terminal, server.output
+            time.sleep(0.02)
+    finally:
+        server.stop(signal.SIGKILL)
+    interrupted = store.get_job(job_id).next_round
+    assert not store.get_job(job_id).terminal
+    return interrupted, len(store.finished_candidates(job_id, interrupted)), store.events(job_id)[-1].seq
+
+
+def test_crashes_mid_round_retrain_only_the_unfinished_candidates(tmp_path, uninterrupted):
+    """Killed after 3 finished candidates of round 1, restarted, killed again once 8 of the round in
+    progress had finished, restarted: each restart trains only what the store did not hold, and the
+    job reaches what a run that never crashed reaches."""
     assert len(uninterrupted) >= 3, "the job must reach round 1 and go on"
     server = ServeProcess(tmp_path / "data").wait_ready()
-    store = SQLiteJobStore(tmp_path / "data" / "jobs.sqlite")
     try:
         with server.client() as c:
             job_id = c.post("/jobs", json=LONG).json()["id"]
-            deadline = time.monotonic() + 300  # a guard against a hang; minutes on an overloaded machine
-            while len(store.finished_candidates(job_id, 1)) < k:  # persisted as they finish
-                assert time.monotonic() < deadline and not store.get_job(job_id).terminal, server.output
-                time.sleep(0.02)
-            before = c.get(f"/jobs/{job_id}/history").json()
-    finally:
-        server.stop(signal.SIGKILL)  # a crash: no shutdown, no chance to tidy up
-    interrupted = store.get_job(job_id).next_round
-    finished = len(store.finished_candidates(job_id, interrupted))  # what the store holds after the crash
-    last_seq = store.events(job_id)[-1].seq
-    assert not store.get_job(job_id).terminal and finished >= 1
+    except BaseException:
+        server.stop(signal.SIGKILL)
+        raise
+    store = SQLiteJobStore(tmp_path / "data" / "jobs.sqlite")
+    crashes = [crash_after(server, store, job_id, 3)]
+    before = store.rounds(job_id)
 
     again = ServeProcess(tmp_path / "data").wait_ready()
+    crashes.append(crash_after(again, store, job_id, 8))
+    assert f"resuming 1 unfinished job(s): {job_id}" in again.output
+
+    last = ServeProcess(tmp_path / "data").wait_ready()
     try:
-        with again.client() as c:
+        with last.client() as c:
             job = wait_for(c, job_id, timeout=240)
             after = c.get(f"/jobs/{job_id}/history").json()
     finally:
-        assert again.stop() in (0, -signal.SIGTERM), again.output
+        assert last.stop() in (0, -signal.SIGTERM), last.output
     assert job["status"] in ("CONVERGED", "STOPPED") and job["error"] is None, job
-    assert f"resuming 1 unfinished job(s): {job_id}" in again.output
-    retrained = [e for e in store.events(job_id, after_seq=last_seq)
-                 if e.kind == "candidate" and e.payload["round"] == interrupted]
-    assert len(retrained) == 12 - finished
-    assert after["rounds"][interrupted]["recovered"] == finished
-    assert after["rounds"][: len(before["rounds"])] == before["rounds"], "a committed round changed"
+    for interrupted, finished, last_seq in crashes:
+        assert finished >= 1
+        retrained = [e for e in store.events(job_id, after_seq=last_seq)
+                     if e.kind == "candidate" and e.payload["round"] == interrupted]
+        assert len(retrained) == 12 - finished, (interrupted, finished)
+    (first_round, first_finished, _), (second_round, second_finished, _) = crashes
+    assert after["rounds"][second_round]["recovered"] == second_finished
+    if first_round != second_round:
+        assert after["rounds"][first_round]["recovered"] == first_finished
+    assert store.rounds(job_id)[: len(before)] == before, "a committed round changed"
     assert served_path(after) == uninterrupted  # the same states and losses as a run that never crashed
     store.close()
