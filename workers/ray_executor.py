@@ -83,7 +83,10 @@ class RayExecutor(Executor):
                 if self.address:
                     ray.init(address=self.address, log_to_driver=False)
                 else:
-                    ray.init(num_cpus=num_cpus, object_store_memory=object_store_memory,
+                    # "local": a Ray of its own even when `ray start` ran on this machine — without
+                    # it ray.init joins the cluster /tmp/ray/ray_current_cluster names, and then
+                    # refuses num_cpus and object_store_memory (a colleague's cluster broke `serve`)
+                    ray.init(address="local", num_cpus=num_cpus, object_store_memory=object_store_memory,
                              include_dashboard=False, log_to_driver=False)
             self._owns_ray = True
 

@@ -61,3 +61,21 @@ def test_a_node_removed_mid_round_still_completes_the_round(cluster, job_inputs)
     # finished just before it went away).
     assert sum(r.node == workers[1].node_id for r in reports[2:]) <= 1
     assert sum(r.node == workers[0].node_id for r in reports[2:]) >= len(reports) - 3
+
+
+def test_without_an_address_the_executor_starts_its_own_ray_beside_a_ray_start_cluster():
+    """A cluster started with ``ray start`` (Cluster writes /tmp/ray/ray_current_cluster as it does)
+    is not joined by an executor given no address: embedded Ray means a Ray of its own, with the
+    CPUs it was asked for, not an error about options an existing cluster refuses."""
+    if ray.is_initialized():
+        ray.shutdown()
+    other = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    try:
+        executor = RayExecutor(num_cpus=2)
+        try:
+            assert ray.get_runtime_context().gcs_address != other.address
+            assert ray.cluster_resources()["CPU"] == 2
+        finally:
+            executor.close()
+    finally:
+        other.shutdown()
