@@ -50,6 +50,8 @@ class ProgressPublic(BaseModel):
     state: str
     elapsed_s: float
     message: str
+    score: str = Field("val", description="what best_val_loss is: the job's selecting loss, 'val' (the "
+                       "validation loss) or 'fit score' (search.score: fit)")
 
     @classmethod
     def from_progress(cls, p: Progress) -> "ProgressPublic":

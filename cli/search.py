@@ -175,7 +175,7 @@ class ProgressDisplay:
             self.stream.write("\r\033[K" + text)
             self.stream.flush()
         elif p.message in ("committed", "converged", "cancelled"):
-            self.stream.write(f"round {p.round}: {p.message}, winner {p.state} val {best} at {_clock(p.elapsed_s)}\n")
+            self.stream.write(f"round {p.round}: {p.message}, winner {p.state} {p.score} {best} at {_clock(p.elapsed_s)}\n")
 
     def note(self, text: str) -> None:
         self.stream.write(text + "\n")

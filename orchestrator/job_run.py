@@ -361,7 +361,7 @@ class JobRun:
     def emit(self, status: JobStatus, *, round: int = -1, done: int = 0, total: int = 0,
              best: float | None = None, state: str = "", message: str = "") -> None:
         self.on_progress(Progress(self.job_id, status, round, done, total, best, state,
-                                  time.perf_counter() - self.clock, message))
+                                  time.perf_counter() - self.clock, message, self.score.label))
 
     def parse(self, state: str):
         return self.graph.parse_state(state, self.digit_counts)

@@ -87,6 +87,7 @@ class SelectionScore(ABC):
     """Which loss selects a round's winner and ends a search (``search.score``)."""
 
     name: str  # what the loss is called in messages
+    label: str  # ... and on a progress line
 
     @abstractmethod
     def loss(self, report: CandidateReport) -> float:
@@ -97,6 +98,7 @@ class ByValLoss(SelectionScore):
     """``score: val``: the validation loss on held-out samples of the training materials."""
 
     name = "validation loss"
+    label = "val"
 
     def loss(self, report):
         return report.val_loss
@@ -105,7 +107,7 @@ class ByValLoss(SelectionScore):
 class ByFitScore(SelectionScore):
     """``score: fit``: the fit score on the materials the job held out (``neuenh.selection``)."""
 
-    name = "fit score"
+    name = label = "fit score"
 
     def loss(self, report):
         return float("nan") if report.fit_score is None else report.fit_score

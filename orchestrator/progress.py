@@ -16,3 +16,4 @@ class Progress:
     state: str  # the last state reported
     elapsed_s: float  # since the job's run started in this process
     message: str = ""  # the phase ("train", "warmup", "halving", "polish", ...) or what happened
+    score: str = "val"  # what ``best_val_loss`` is (``SelectionScore.label``: "val" or "fit score")

@@ -3,7 +3,7 @@
 
 /**
  * @typedef {{round: number, done: number, total: number, best_val_loss: number | null, state: string,
- *            elapsed_s: number, message: string}} Progress
+ *            elapsed_s: number, message: string, score: string}} Progress
  * @typedef {{id: string, name: string | null, model: string, status: string, terminal: boolean,
  *            error: string | null, reason: string | null, priority: number, used_wall_s: number,
  *            used_cpu_s: number, created_at: string, last_round: number | null,

@@ -88,7 +88,10 @@ class _Follower:
         if self.origin is None:
             self.origin = _seconds(r["started_at"])
         n = len(r["candidates"])
-        self.display(SimpleNamespace(round=r["round"], done=n, total=n, best_val_loss=r["winner_val_loss"],
+        by_fit = r["winner_fit_score"] is not None  # search.score: fit selected the winner
+        self.display(SimpleNamespace(round=r["round"], done=n, total=n,
+                                     best_val_loss=r["winner_fit_score"] if by_fit else r["winner_val_loss"],
+                                     score="fit score" if by_fit else "val",
                                      state=r["winner_state"], elapsed_s=_seconds(r["finished_at"]) - self.origin,
                                      message="converged" if r["converged"] else "committed"))
         self.line_open = self.display.live

@@ -258,6 +258,10 @@ def test_history_of_a_search_scored_by_fit_shows_the_fit_score(server, api):
     assert "val loss  fit score" in header
     r0 = served["rounds"][0]
     assert f"{r0['winner_val_loss']:.5f} {r0['winner_fit_score']:.5f}" in " ".join(row.split())
+    watched = client("watch", job["id"], url=server.url)  # its committed rounds say which loss selected
+    assert watched.returncode == 0, watched.stderr
+    assert re.search(rf"^round 0: (committed|converged), winner \d{{11}} fit score {r0['winner_fit_score']:.5f} ",
+                     watched.stderr, re.M), watched.stderr
 
 
 def test_history_into_a_closed_pipe_ends_quietly(server, submitted):

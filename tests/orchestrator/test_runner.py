@@ -479,11 +479,16 @@ def test_a_time_cost_is_measured_once_per_state_and_kept_for_a_resume(orchestrat
     assert again.costs.cost(report) == by_state["00100000000"] / 100.0
 
 
-def test_a_search_scored_by_fit_selects_the_lowest_fit_score_and_records_both(orchestrator, stores):
+def test_a_search_scored_by_fit_selects_the_lowest_fit_score_and_records_both(stores):
     jobs, artifacts = stores
+    progress = []
+    orchestrator = Orchestrator(*stores, InlineExecutor(), on_progress=progress.append)
     spec = fit_scored_spec(max_rounds=1)
     job = orchestrator.run(orchestrator.submit(spec)[0].id)
     assert job.error is None
+    committed = [p for p in progress if p.message in ("committed", "converged")]  # a line per round
+    assert committed and all(p.score == "fit score" for p in progress)  # what the progress line calls it
+    assert [p.best_val_loss for p in committed] == [r.winner_fit_score for r in jobs.rounds(job.id)][: len(committed)]
     rounds = jobs.rounds(job.id)
     held = set(materialise(spec.data, spec.train.val_fraction, spec.train.seed).holdout.names)
     assert len(held) == 2
