@@ -67,7 +67,7 @@ class _Follower:
             while True:
                 history = self._poll(self.api.history, self.job_id, since)
                 for r in history["rounds"]:
-                    self._show_round(r)
+                    self._show_round(r, by_fit=history["score"] == "fit")
                 since = history["next_since_round"]
                 if history["terminal"]:
                     break
@@ -84,11 +84,11 @@ class _Follower:
             self._close_line()
         return self._poll(self.api.job, self.job_id)
 
-    def _show_round(self, r: dict) -> None:
+    def _show_round(self, r: dict, by_fit: bool) -> None:
+        """A committed round's line; ``by_fit``: the job selects by its fit score (search.score: fit)."""
         if self.origin is None:
             self.origin = _seconds(r["started_at"])
         n = len(r["candidates"])
-        by_fit = r["winner_fit_score"] is not None  # search.score: fit selected the winner
         self.display(SimpleNamespace(round=r["round"], done=n, total=n,
                                      best_val_loss=r["winner_fit_score"] if by_fit else r["winner_val_loss"],
                                      score="fit score" if by_fit else "val",

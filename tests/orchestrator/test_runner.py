@@ -486,10 +486,10 @@ def test_a_search_scored_by_fit_selects_the_lowest_fit_score_and_records_both(st
     spec = fit_scored_spec(max_rounds=1)
     job = orchestrator.run(orchestrator.submit(spec)[0].id)
     assert job.error is None
+    rounds = jobs.rounds(job.id)
     committed = [p for p in progress if p.message in ("committed", "converged")]  # a line per round
     assert committed and all(p.score == "fit score" for p in progress)  # what the progress line calls it
-    assert [p.best_val_loss for p in committed] == [r.winner_fit_score for r in jobs.rounds(job.id)][: len(committed)]
-    rounds = jobs.rounds(job.id)
+    assert [p.best_val_loss for p in committed] == [r.winner_fit_score for r in rounds][: len(committed)]
     held = set(materialise(spec.data, spec.train.val_fraction, spec.train.seed).holdout.names)
     assert len(held) == 2
     for r in rounds:
