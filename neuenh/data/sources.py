@@ -80,6 +80,11 @@ class _Source(BaseModel):
             m.name = self.prefix + m.name
         return materials
 
+    def strata(self, n_materials: int) -> list[int] | None:
+        """The kind of each of the source's ``n_materials`` materials, when they come in kinds a
+        held-out set must cover (``held_out``); None: one kind."""
+        return None
+
 
 class _Continuous(_Source):
     """A source of continuous materials, which can draw its pairs anywhere (``Sampling``)."""
@@ -117,6 +122,10 @@ class SyntheticZoo(_Continuous):
     def load_materials(self) -> list:
         families = tuple(self.families) if self.families else None
         return self._named(synthetic_zoo(self.materials, self.seed, families))
+
+    def strata(self, n_materials: int) -> list[int]:
+        # synthetic_zoo cycles through the families: material i is of family i mod their count
+        return [i % len(self.families or ZOO_FAMILIES) for i in range(n_materials)]
 
 
 class SyntheticGGX(_Continuous):
@@ -277,16 +286,25 @@ def materialise(sources: Sequence[Source], val_fraction: float, seed: int,
 
 
 def held_out(source: Source, n_materials: int) -> list[int]:
-    """Indices of the ``source.holdout`` materials (of ``n_materials``) kept out of training: the
-    first of a permutation seeded with the source's seed, in index order. A fixed set: the same
-    source gives the same materials whatever else the job holds."""
+    """Indices of the ``source.holdout`` materials (of ``n_materials``) kept out of training, in
+    index order: a permutation seeded with the source's seed, taken round-robin over the source's
+    ``strata`` (the first of each kind, then the second, ...; with one kind, the permutation's first
+    ``holdout``), so a held-out set as large as the number of kinds has one of each — a fit score
+    that never sees a kind cannot tell a candidate that fails it (docs/BENCHMARKS.md, issue 23). A
+    fixed set: the same source gives the same materials whatever else the job holds."""
     if not source.holdout:
         return []
     if source.holdout >= n_materials:
         raise ValueError(f"a {source.source} source holds out {source.holdout} of its {n_materials} materials; "
                          "at least one must remain to train on")
-    order = torch.randperm(n_materials, generator=torch.Generator().manual_seed(source.seed))
-    return sorted(order[: source.holdout].tolist())
+    order = torch.randperm(n_materials, generator=torch.Generator().manual_seed(source.seed)).tolist()
+    kinds = source.strata(n_materials) or [0] * n_materials
+    taken: dict[int, int] = {}  # kind -> how many of it come earlier in the permutation
+    rounds = []  # (the round in which a material is taken, its place in the permutation, index)
+    for place, i in enumerate(order):
+        rounds.append((taken.get(kinds[i], 0), place, i))
+        taken[kinds[i]] = taken.get(kinds[i], 0) + 1
+    return sorted(i for _, _, i in sorted(rounds)[: source.holdout])
 
 
 def _hold_out(source: Source, part: Samples) -> tuple[Samples, Samples]:

@@ -35,9 +35,14 @@ def test_the_reference_spec_decays_its_lr_and_polishes():
         ({"alternatives": True, "search": {"fixed": {"S": 2}}}, "digit 2 for S is not in 0..1"),
         ({"alternatives": True, "search": {"allowed": {"D": [0, 6]}}}, r"digits \[0, 6\] for D are not all in 0..5"),
         ({"data": [{"source": "table", "paths": ["x.npz"], "near_mirror": 0.5}]}, "near_mirror"),
+        ({"search": {"score": "fit"}}, r"data\[0\] \(synthetic_zoo\) holds none out"),
+        ({"search": {"score": "fit"}, "data": [{"source": "synthetic_zoo", "materials": 6, "holdout": 2},
+                                               {"source": "synthetic_ggx", "materials": 4}]},
+         r"every data source, but data\[1\] \(synthetic_ggx\) holds none out"),
     ],
     ids=["no-data", "model", "typo", "radius", "position", "digit", "lr", "source", "family", "lr-final", "polish",
-         "alternatives-model", "alternatives-digit", "alternatives-allowed", "table-near-mirror"],
+         "alternatives-model", "alternatives-digit", "alternatives-allowed", "table-near-mirror",
+         "fit-score-without-holdout", "fit-score-blind-to-a-source"],
 )
 def test_bad_specs_name_the_field(change, message):
     with pytest.raises(SpecError, match=message):

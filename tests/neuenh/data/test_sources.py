@@ -2,6 +2,7 @@
 and a bad path or a file of the wrong kind is a clear error."""
 
 import json
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,8 @@ from pydantic import TypeAdapter, ValidationError
 from neuenh.data.errors import DataError
 from captures import capture_directions, render_capture
 from neuenh.data.merl import write_merl
-from neuenh.data.sources import DataSource, materialise
+from neuenh.data.sources import DataSource, held_out, materialise
+from neuenh.data.synthetic import ZOO_FAMILIES
 from neuenh.data.table import write_table
 
 from data_files import NBRDF_WEIGHTS, RGL_DIR, hemisphere, lambertian, nbrdf_weights, shared
@@ -117,6 +119,20 @@ def test_held_out_materials_are_a_fixed_set_kept_out_of_training(files):
         theirs = full.of_material(full.names.index(name))
         assert torch.equal(mine.wi, theirs.wi) and torch.equal(mine.f_r, theirs.f_r)
     assert materialise([source(**zoo)], 0.2, seed=5).holdout is None
+
+
+@pytest.mark.parametrize("families", [None, ["conductor", "sheen", "retro"]])
+def test_a_zoo_holds_out_every_family_before_a_second_of_any(families):
+    """The zoo's held-out materials cover its families round-robin (``held_out``): as many as there are
+    families gives one of each, more gives each family at most one more than any other — a fit score
+    must see every kind of material the source trains on."""
+    kinds = families or list(ZOO_FAMILIES)
+    for holdout in (len(kinds) - 1, len(kinds), 2 * len(kinds) + 1):
+        zoo = source(source="synthetic_zoo", materials=40, seed=5, families=families, holdout=holdout)
+        counts = Counter(kinds[i % len(kinds)] for i in held_out(zoo, 40))
+        assert sum(counts.values()) == holdout and max(counts.values()) - min(counts.get(k, 0) for k in kinds) <= 1
+    ggx = source(source="synthetic_ggx", materials=40, seed=4, holdout=4)  # one kind: the permutation's first
+    assert held_out(ggx, 40) == sorted(torch.randperm(40, generator=torch.Generator().manual_seed(4))[:4].tolist())
 
 
 @pytest.mark.parametrize("fields", [dict(source="synthetic_zoo", materials=3, holdout=3),
