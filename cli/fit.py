@@ -65,7 +65,9 @@ def add_parser(commands) -> None:
                         "model's L-BFGS iterations per phase unless --lbfgs-iterations")
     p.add_argument("--lbfgs-iterations", type=int, default=None,
                    help="a plain model's L-BFGS iterations per surrogate phase (default 300)")
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: all)")
+    p.add_argument("--threads", type=int, default=None, help=(
+        "torch CPU threads (default: all); on a machine busy with other work 1 can be several times "
+        "faster, since idle threads wait by spinning (docs/BENCHMARKS.md, 'Fit threads')"))
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("-o", "--output", type=Path, help="write a bundle with the fitted materials here")
     p.add_argument("--test", nargs="+", metavar="TABLE", type=Path,
