@@ -4,7 +4,7 @@ import os
 # workers, Ray workers inherit the environment): the tests' tensors are small, and on a 2-core
 # machine two OpenMP threads beside any other busy process spin instead of working —
 # tests/cli/test_fit_cli.py took 173 s with torch's default of two threads and 71 s with one
-# while a search shared the cores (docs/BENCHMARKS.md, "Test suite time"). Set before torch loads.
+# while a search shared the cores (docs/BENCHMARKS.md, "Fit threads"). Set before torch loads.
 os.environ["OMP_NUM_THREADS"] = "1"
 
 import pytest  # noqa: E402

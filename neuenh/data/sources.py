@@ -35,6 +35,7 @@ The bytes of materialised arrays: ``TrainingData.nbytes``.
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 from typing import Callable, Annotated, Literal, Sequence, Union
@@ -299,12 +300,12 @@ def held_out(source: Source, n_materials: int) -> list[int]:
                          "at least one must remain to train on")
     order = torch.randperm(n_materials, generator=torch.Generator().manual_seed(source.seed)).tolist()
     kinds = source.strata(n_materials) or [0] * n_materials
-    taken: dict[int, int] = {}  # kind -> how many of it come earlier in the permutation
-    rounds = []  # (the round in which a material is taken, its place in the permutation, index)
-    for place, i in enumerate(order):
-        rounds.append((taken.get(kinds[i], 0), place, i))
-        taken[kinds[i]] = taken.get(kinds[i], 0) + 1
-    return sorted(i for _, _, i in sorted(rounds)[: source.holdout])
+    earlier: Counter[int] = Counter()  # kind -> how many of it come earlier in the permutation
+    turn = {}  # material -> the round of the round-robin that takes it
+    for i in order:
+        turn[i] = earlier[kinds[i]]
+        earlier[kinds[i]] += 1
+    return sorted(sorted(order, key=turn.__getitem__)[: source.holdout])  # a stable sort: permutation order within a round
 
 
 def _hold_out(source: Source, part: Samples) -> tuple[Samples, Samples]:
