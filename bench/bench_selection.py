@@ -1,11 +1,14 @@
 """Issue 23's experiment: does the fit score track generalisation where the validation loss does not?
 
-    python bench/bench_selection.py --json OUT.json [--model enhanced-ggx] [--extra NAME=BUNDLE ...]
+    python bench/bench_selection.py --json OUT.json [--model enhanced-ggx] [--rungs all|final]
+                                    [--extra NAME=BUNDLE ...] [--search DATA_DIR]
                                     [--zoo 16] [--ggx 8] [--seed 1000] [--phases score rgl-score ...]
                                     [--workers 2] [--write docs/BENCHMARKS.md]
 
 Every rung of ``--model`` (each committed round's winner of the search that made it,
-``neuenh.pretrained.rungs``), every ``--extra`` bundle and plain GGX are scored by
+``neuenh.pretrained.rungs``; ``--rungs final``: the shipped state only), every ``--extra`` bundle,
+each committed round's winner of the search in ``--search`` (a ``neuenh search --data-dir`` folder,
+finished or not: its only job's checkpoints) and plain GGX are scored by
 ``neuenh.selection.fit_score`` — modules frozen, each material's parameters fitted to part of its
 samples, the log-L1 measured on others — on materials none of them trained on, in *phases*:
 
@@ -85,9 +88,26 @@ PHASES = {  # phase -> (groups, protocol, seed offset of the synthetic draws)
 }
 
 
-def contenders(model: str, extras: dict[str, str]) -> list[tuple[str, float, object, object]]:
+def search_rounds(data_dir: str) -> list[tuple[int, object]]:
+    """(round, winner's ``Bundle``) of every committed round of the only job in a ``neuenh search
+    --data-dir`` folder, read from its job store and checkpoints."""
+    from neuenh.checkpoint import Bundle
+    from neuenh_service.storage import LocalArtifactStore, SQLiteJobStore
+
+    with SQLiteJobStore(Path(data_dir) / "jobs.sqlite") as store:
+        jobs = store.list_jobs().jobs
+        if len(jobs) != 1:
+            raise SystemExit(f"--search {data_dir}: expected one job in its store, found {len(jobs)}")
+        rounds = store.rounds(jobs[0].id)
+    artifacts = LocalArtifactStore(Path(data_dir) / "artifacts")
+    return [(r.index, Bundle.from_bytes(artifacts.get(r.artifact_key))) for r in rounds if r.artifact_key]
+
+
+def contenders(model: str, extras: dict[str, str], search: str | None = None,
+               rung_choice: str = "all") -> list[tuple[str, float, object, object]]:
     """(label, val loss, model, its training materials' mean latent as a table or None) of every rung
-    of ``model``, every extra bundle, and plain GGX."""
+    of ``model`` (the last only for ``rung_choice`` "final"), every extra bundle, every committed
+    round of ``search`` and plain GGX."""
     from neuenh.checkpoint import Bundle
     from neuenh.materials import MaterialTable
     from neuenh.models import get_model
@@ -97,12 +117,18 @@ def contenders(model: str, extras: dict[str, str]) -> list[tuple[str, float, obj
         return None if latent is None or not m.uses_latent else MaterialTable(
             m.specs, ["mean"], m.latent_dim, latent=latent.reshape(1, -1).float())
 
-    out = [(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, trained(r.model, r.latent_mean)) for r in rungs(model)]
+    def mean_latent(table):
+        return table.latent.detach().mean(0) if table is not None and len(table) else None
+
+    shipped = rungs(model)[-1:] if rung_choice == "final" else rungs(model)
+    out = [(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, trained(r.model, r.latent_mean)) for r in shipped]
     for name, path in extras.items():
         m, table = load_model(path)
         val = float(Bundle.load(path).metrics.get("val_loss", float("nan")))
-        latent = table.latent.detach().mean(0) if table is not None and len(table) else None
-        out.append((f"{name}:{m.state}", val, m, trained(m, latent)))
+        out.append((f"{name}:{m.state}", val, m, trained(m, mean_latent(table))))
+    for k, bundle in search_rounds(search) if search else ():
+        val = float(bundle.metrics.get("val_loss", float("nan")))
+        out.append((f"search@{k}:{bundle.model.state}", val, bundle.model, trained(bundle.model, mean_latent(bundle.materials))))
     out.append(("ggx", float("nan"), get_model("ggx"), None))
     return out
 
@@ -124,11 +150,11 @@ def draw(group: str, protocol: Protocol, args, offset: int):
 _MODELS: list = []
 
 
-def _init(model: str, extras: dict[str, str]) -> None:
+def _init(*chosen) -> None:
     import torch
 
     torch.set_num_threads(1)
-    _MODELS[:] = contenders(model, extras)
+    _MODELS[:] = contenders(*chosen)
 
 
 def _score(index: int, holdout, protocol: Protocol) -> dict:
@@ -154,7 +180,8 @@ def run(args, config: dict) -> dict:
     results = json.loads(args.json.read_text()) if args.json.exists() else {}
     if results.get("config") != config:
         results = {"config": config, "units": {}}
-    models = contenders(args.model, config["extras"])
+    chosen = (args.model, config["extras"], config.get("search"), config.get("rungs", "all"))
+    models = contenders(*chosen)
     results["models"] = [(label, val) for label, val, _, _ in models]
     save(args.json, results)
     todo = [(phase, group, i) for phase in args.phases for group in PHASES[phase][0]
@@ -162,7 +189,7 @@ def run(args, config: dict) -> dict:
             for i in range(len(models)) if unit_key(phase, group, models[i][0]) not in results["units"]]
     print(f"{len(todo)} units to run, {len(results['units'])} done", flush=True)
     drawn: dict = {}
-    with ProcessPoolExecutor(args.workers, initializer=_init, initargs=(args.model, config["extras"])) as pool:
+    with ProcessPoolExecutor(args.workers, initializer=_init, initargs=chosen) as pool:
         running = {}
         for phase, group, i in todo:
             _, protocol, offset = PHASES[phase]
@@ -285,15 +312,17 @@ def markdown_section(env: dict, results: dict, command: str) -> str:
     if walls:
         per = statistics.median(w / m for w, m in walls)
         lines += ["", f"Price of the score (one torch thread, this shared machine): median {per:.2f} s per held-out "
-                  f"material and enhanced candidate at the search's budget, so {per * 10:.0f} s a candidate for "
-                  "examples/reference-fit.yaml's 10 held-out materials."]
+                  f"material and enhanced candidate at the search's budget, so {per * 16:.0f} s a candidate for "
+                  "examples/reference-fit.yaml's 16 held-out materials."]
     return "\n".join(lines) + "\n"
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", default="enhanced-ggx")
+    parser.add_argument("--rungs", choices=("all", "final"), default="all", help="--model's rungs to score")
     parser.add_argument("--extra", action="append", default=[], help="NAME=BUNDLE_DIR, a further model to score")
+    parser.add_argument("--search", help="a `neuenh search --data-dir` folder: score each committed round's winner")
     parser.add_argument("--zoo", type=int, default=16)
     parser.add_argument("--ggx", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1000)
@@ -310,7 +339,11 @@ def main() -> int:
         if not sep or not name or not Path(path).is_dir():
             parser.error(f"--extra {e!r}: expected NAME=BUNDLE_DIR with an existing folder")
         extras[name] = path
-    config = {"model": args.model, "extras": extras, "zoo": args.zoo, "ggx": args.ggx, "seed": args.seed}
+    if args.search and not (Path(args.search) / "jobs.sqlite").is_file():
+        parser.error(f"--search {args.search}: no jobs.sqlite there (a `neuenh search --data-dir` folder)")
+    config = {"model": args.model, "extras": extras, "zoo": args.zoo, "ggx": args.ggx, "seed": args.seed,
+              **({"search": str(Path(args.search).resolve())} if args.search else {}),
+              **({"rungs": args.rungs} if args.rungs != "all" else {})}
     env = machine()
     if args.report_only:
         if not args.json.exists():
