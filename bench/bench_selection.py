@@ -150,11 +150,14 @@ def draw(group: str, protocol: Protocol, args, offset: int):
 _MODELS: list = []
 
 
-def _init(*chosen) -> None:
+def _init(labels: list[str], *chosen) -> None:
+    """A worker's models: ``contenders(*chosen)`` in the order of the parent's ``labels`` (a search
+    may commit another round between the parent's listing and the worker's)."""
     import torch
 
     torch.set_num_threads(1)
-    _MODELS[:] = contenders(*chosen)
+    by_label = {c[0]: c for c in contenders(*chosen)}
+    _MODELS[:] = [by_label[label] for label in labels]
 
 
 def _score(index: int, holdout, protocol: Protocol) -> dict:
@@ -189,7 +192,8 @@ def run(args, config: dict) -> dict:
             for i in range(len(models)) if unit_key(phase, group, models[i][0]) not in results["units"]]
     print(f"{len(todo)} units to run, {len(results['units'])} done", flush=True)
     drawn: dict = {}
-    with ProcessPoolExecutor(args.workers, initializer=_init, initargs=chosen) as pool:
+    with ProcessPoolExecutor(args.workers, initializer=_init,
+                             initargs=([label for label, *_ in models], *chosen)) as pool:
         running = {}
         for phase, group, i in todo:
             _, protocol, offset = PHASES[phase]
