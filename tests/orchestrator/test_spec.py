@@ -58,6 +58,21 @@ def test_spec_files_report_their_path(tmp_path):
         load_spec(tmp_path / "nope.yaml")
 
 
+def test_the_fit_scored_reference_spec_holds_out_every_kind_and_fits_as_users_do():
+    """examples/reference-fit.yaml: every source holds materials out (the zoo one of each family) and
+    the score fits them for the epochs ``neuenh fit`` runs (docs/BENCHMARKS.md, issue 23)."""
+    from neuenh.data.sources import held_out
+    from neuenh.data.synthetic import ZOO_FAMILIES
+    from neuenh.fit import LatentAdam
+
+    spec = load_spec("examples/reference-fit.yaml")
+    assert spec.search.score == "fit" and all(source.holdout for source in spec.data)
+    zoo = next(source for source in spec.data if source.source == "synthetic_zoo")
+    families = {list(ZOO_FAMILIES)[i % len(ZOO_FAMILIES)] for i in held_out(zoo, zoo.materials)}
+    assert families == set(ZOO_FAMILIES)
+    assert spec.search.fit_score.epochs == LatentAdam().epochs
+
+
 def test_the_paper_scale_spec_is_valid_and_has_the_papers_sizes():
     """examples/paper.yaml (issue 18) is for clusters with GPUs: validated here, not run."""
     from neuenh.train import TrainConfig
