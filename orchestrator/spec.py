@@ -215,11 +215,11 @@ class JobSpec(_Strict):
         if self.alternatives and self.model not in models_with_alternatives():
             raise ValueError(f"alternatives: model {self.model!r} offers none; those that do: "
                              f"{', '.join(models_with_alternatives())}")
+        # a score that never fits a kind of material cannot see a candidate that fails it: a search whose
+        # held-out set lacked noisy GGX and zoo conductors chose a model that fits both 3x worse than
+        # plain GGX (docs/BENCHMARKS.md, issue 23)
         blind = [f"data[{k}] ({source.source})" for k, source in enumerate(self.data) if not source.holdout]
         if self.search.score == "fit" and blind:
-            # a score that never fits a kind of material cannot see a candidate that fails it: a search
-            # whose held-out set lacked noisy GGX and zoo conductors chose a model that fits both 3x
-            # worse than plain GGX (docs/BENCHMARKS.md, issue 23)
             raise ValueError(f"search.score: fit scores candidates on materials held out of every data source, "
                              f"but {', '.join(blind)} holds none out: give it 'holdout: N'")
         counts = dict(zip(self.positions(), self.model_instance().digit_counts))
