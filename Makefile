@@ -3,6 +3,9 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+# pytest-xdist processes for `make test`: the suite waits more than it computes (servers, Ray and
+# subprocesses starting), so two share even 2 cores well; each test file stays on one process.
+TEST_PROCESSES ?= 2
 
 .PHONY: install browser compiler gl mitsuba demo test bench report clean
 
@@ -51,12 +54,13 @@ mitsuba: $(STAMP)
 	    --no-install-recommends libllvm19 >/dev/null; } || \
 	  echo "note: libLLVM 17+ is not installed and this is not root; the Mitsuba export tests will skip"
 
-# The dashboard's pure modules under Node's own test runner, then every Python test with the 25
-# slowest listed (make them cheaper before adding more).
+# The dashboard's pure modules under Node's own test runner, then every Python test (in
+# TEST_PROCESSES processes, a file per process at a time) with the 25 slowest listed (make them
+# cheaper before adding more).
 test: $(STAMP) browser compiler gl mitsuba
 	@if command -v node >/dev/null; then node --test tests/dashboard/; \
 	  else echo "note: node is not installed; the dashboard's unit tests (tests/dashboard) skip"; fi
-	$(PY) -m pytest -q --durations=25
+	$(PY) -m pytest -q -n $(TEST_PROCESSES) --dist loadfile --durations=25
 
 # Slow, measured side by side; each script rewrites its own section of docs/BENCHMARKS.md.
 # bench_fit runs the checkout before issue 13 beside this one, both fitting the model shipped then.
