@@ -7,8 +7,10 @@ Each table is one material (``.npz`` with ``wi``, ``wo``, ``f_r``, or CSV; see n
 module weights of a bundle stay frozen; only per-material parameters are optimised (neuenh.fit). A
 model with modules fits each material at the capacity ``--capacity`` names: ``latent`` (default),
 its latent code and analytical parameters; ``auto`` chooses per material, by validation on a
-held-out third of its own measurements, between the analytical model, the latent code, and
-per-material corrections of module weights (last layer, low rank), then fits the chosen one to
+held-out third of its own measurements, between the model the search started from (``original``,
+e.g. plain GGX), the analytical model of the same graph (``analytical``: modules back to their
+terms, the search's alternative terms kept), the latent code, and per-material corrections of module
+weights (last layer, low rank), then fits the chosen one to
 all of them (about twice the time of ``latent``). The capacity and the material's parameter count are
 reported. ``-o DIR`` writes a bundle of the
 model with the fitted materials.
@@ -37,7 +39,7 @@ from neuenh.checkpoint import Bundle
 from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
 from neuenh.study.heldout import heldout_log_l1, predict_f_r, write_predictions
-from neuenh.fit import CAPACITIES, FitOptions, fit_materials
+from neuenh.fit import CAPACITIES, FitOptions, fit_materials, model_for
 from neuenh.models import available_models
 from neuenh.pretrained import load_model, shipped_models
 
@@ -104,9 +106,10 @@ def run(args) -> int:
         write_predictions(args.predictions, test, predict_f_r(model, result, test))
         report["predictions"] = str(args.predictions)
     if args.output:
-        analytical = [n for i, n in enumerate(samples.names) if model.has_modules and result.capacity(i) == "analytical"]
+        analytical = [f"{n} ({result.capacity(i)})" for i, n in enumerate(samples.names)
+                      if model_for(model, result.materials.as_params(i)) is not model]
         if analytical:  # the bundle's model would evaluate them with its modules
-            raise ValueError(f"-o: {', '.join(analytical)} fitted best at the analytical capacity, which a bundle of "
+            raise ValueError(f"-o: {', '.join(analytical)} fitted best at an analytical capacity, which a bundle of "
                              f"this model cannot hold; fit with --capacity latent, or --model with the analytical model")
         provenance = {"fitted_from": [str(t) for t in args.tables], "fit_protocol": result.protocol,
                       "fitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}

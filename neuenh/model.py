@@ -142,9 +142,11 @@ class BRDFModel(nn.Module):
         """Whether the state has neural modules (else it is an analytical formula, alternatives included)."""
         return any(self.is_neural(d) for d in self.digits)
 
-    def analytical_state(self) -> str:
-        """This state with every neural module back to its original term (alternatives kept)."""
-        return self.graph.format_state([0 if self.is_neural(d) else d for d in self.digits])
+    def analytical_state(self, keep_alternatives: bool = True) -> str:
+        """This state with every neural module back to its original term, and the alternatives the
+        search chose kept, or (``keep_alternatives=False``) every position at its original term: the
+        model the search started from, e.g. plain GGX."""
+        return self.graph.format_state([0 if self.is_neural(d) or not keep_alternatives else d for d in self.digits])
 
     @property
     def uses_latent(self) -> bool:

@@ -20,7 +20,7 @@ def add_parser(commands: Commands) -> None:
                    help="fast (default): the capacity's fit; paper: RMSProp lr 1e-3, 1000 epochs")
     p.add_argument("--capacity", default="latent",
                    help="a model with modules: latent (default), auto (chosen per material by cross-validation), "
-                        "analytical, last-layer, low-rank or full")
+                        "original, analytical, last-layer, low-rank or full")
     p.add_argument("--epochs", type=int, help="Adam or RMSProp epochs (default: the protocol's own)")
     p.add_argument("--lbfgs-iterations", type=int, help="a plain model's L-BFGS iterations per phase")
     json_arg(p)

@@ -34,16 +34,17 @@ class FitResult:
 
     def material_model(self, model: BRDFModel, i: int) -> tuple[BRDFModel, MaterialParams]:
         """Material ``i`` as the model that evaluates it and the record that model reads
-        (``evaluate``, ``unclipped``, ``specialize``): the analytical state's model for capacity
-        ``analytical``, else ``model`` (the record's corrections are added to its module weights)."""
+        (``evaluate``, ``unclipped``, ``specialize``): ``model_for``'s (an analytical model for an
+        analytical capacity), else ``model`` (the record's corrections are added to its module weights)."""
         own = model_for(model, self.materials.as_params(i))
         return own, own.used_params(self.materials.as_params(i))
 
     @property
     def at_own_capacity(self) -> bool:
-        """Whether some material needs more than ``model`` and its table row (corrections or the
-        analytical state): then only ``material_model`` evaluates it."""
-        return any(self.capacity(i) == "analytical" or self.materials.fits[i][0] for i in range(len(self.materials)))
+        """Whether some material needs more than ``model`` and its table row (corrections or an
+        analytical model of its own): then only ``material_model`` evaluates it."""
+        return any(self.capacity(i) in ANALYTICAL_CAPACITIES or self.materials.fits[i][0]
+                   for i in range(len(self.materials)))
 
     @property
     def loss(self) -> float:
@@ -79,11 +80,23 @@ class FitResult:
         return out
 
 
+# Capacities that fit an analytical model of the same graph instead of the modules, and whether that
+# model keeps the search's alternative terms: ``analytical`` (modules back to their original terms) and
+# ``original`` (every position at its original term: the model the search started from, e.g. plain GGX).
+ANALYTICAL_CAPACITIES = {"analytical": True, "original": False}
+
+
+def analytical_model(model: BRDFModel, capacity: str, seed: int = 0) -> BRDFModel:
+    """The analytical model that a capacity of ``ANALYTICAL_CAPACITIES`` fits in ``model``'s place."""
+    state = model.analytical_state(keep_alternatives=ANALYTICAL_CAPACITIES[capacity])
+    return model if state == model.state else model.enhance(state, seed)
+
+
 def model_for(model: BRDFModel, params: MaterialParams) -> BRDFModel:
-    """The model that evaluates a material fitted with ``model``: the analytical state's (modules
-    back to their terms) for a record of capacity ``analytical``, else ``model`` itself."""
-    if params.capacity == "analytical" and model.has_modules:
-        return model.enhance(model.analytical_state(), 0)
+    """The model that evaluates a material fitted with ``model``: for a record of an analytical
+    capacity (``ANALYTICAL_CAPACITIES``) that capacity's analytical model, else ``model`` itself."""
+    if params.capacity in ANALYTICAL_CAPACITIES:
+        return analytical_model(model, params.capacity)
     return model
 
 

@@ -18,6 +18,7 @@ from neuenh.fit.optim import Adam, adam_rows
 from neuenh.fit.protocols import Rows
 from neuenh.materials import MaterialTable
 from neuenh.models import get_model
+from neuenh.pretrained import load_model
 from neuenh.train import log_l1
 from ggx_states import PAPER_STATE
 
@@ -234,7 +235,7 @@ def test_options_name_one_protocol_with_its_own_budget():
     assert FitOptions(method="paper", epochs=50).protocol_for(enhanced) == PaperRMSProp(epochs=50)
     assert FitOptions(capacity="latent", epochs=70).protocol_for(enhanced) == LatentAdam(epochs=70)
     adaptive = FitOptions(capacity="auto").protocol_for(enhanced)
-    assert isinstance(adaptive, Adaptive) and "analytical" in adaptive.capacities
+    assert isinstance(adaptive, Adaptive) and {"original", "analytical"} <= set(adaptive.capacities)
     assert FitOptions(capacity="last-layer").protocol_for(enhanced).capacities == ("last-layer",)
     assert PaperRMSProp() == PaperRMSProp(epochs=1000, lr=1e-3)
     # the budget a service's work limit counts: each protocol's own epochs, an adaptive fit's on every
@@ -299,6 +300,28 @@ def test_adaptive_picks_the_analytical_capacity_on_a_table_ggx_generated(enhance
     assert not own.has_modules and params.latent is None and params.n_params == own.used_specs().total_width
     plain = PlainLBFGS(iterations=ADAPTIVE["lbfgs_iterations"]).fit(own, samples)
     assert result.losses == plain.losses
+
+
+def test_the_original_capacity_is_the_plain_fit_of_the_model_the_search_started_from():
+    """The shipped model keeps alternative terms (Oren–Nayar, hazy GGX): its ``analytical`` capacity
+    is that formula, its ``original`` one plain GGX: evaluated as plain GGX is, fitted as it is (to
+    where L-BFGS's last surrogate phase resolves the loss, ``SURROGATE_EPS[-1]``: the graph's unused
+    parameters change the rows' layout, so the float32 sums), and a material there is one a bundle of
+    the model cannot hold."""
+    shipped, _ = load_model("enhanced-ggx")
+    samples = sample_materials(synthetic_ggx(1, seed=4), 200, seed=0)
+    original = Adaptive(capacities=("original",), lbfgs_iterations=30).fit(shipped, samples)
+    plain_model = get_model("ggx")
+    plain = PlainLBFGS(iterations=30).fit(plain_model, samples)
+    own, params = original.material_model(shipped, 0)
+    assert own.describe() == plain_model.describe() != capacity_space(shipped, "analytical")[0].describe()
+    assert params.capacity == "original" and params.n_params == plain.material_model(plain_model, 0)[1].n_params == 12
+    assert original.losses == pytest.approx(plain.losses, abs=SURROGATE_EPS[-1]) and original.at_own_capacity
+    # the fitted values evaluated by plain GGX itself: the same per-sample float32 arithmetic, summed
+    # in another order (a few float32 eps of the mean)
+    from_plain = MaterialTable(plain_model.specs, samples.names, plain_model.latent_dim,
+                               {name: original.materials.raw[name].detach() for name in plain_model.specs.names})
+    assert original.losses == pytest.approx(per_material_loss(plain_model, from_plain, samples), rel=1e-6)
 
 
 def test_adaptive_never_ends_worse_held_out_than_the_analytical_fit(enhanced):
