@@ -15,8 +15,8 @@ weights by an L2 prior (``kernel.RowSpace.prior``, relative to each corrected la
 ``full``        + every layer of every module, dense
 ==============  =================================================================================
 
-``Adaptive`` chooses, per material, the candidate (capacity and prior strength) of lowest
-validation loss on its own fit data, then fits that candidate alone to all the samples:
+``Adaptive`` chooses, per material, a candidate (capacity and prior strength) by its validation
+loss on its own fit data, then fits that candidate alone to all the samples:
 
 1. *validation*: the samples are split in folds; a candidate is fitted to the samples outside a
    held-out fold and scored on it (by default one fold of three: a single validation split; k-fold
@@ -24,6 +24,11 @@ validation loss on its own fit data, then fits that candidate alone to all the s
    batch per stage, each row on a grid holding only its own fit samples (``Rows.as_problems``):
    each analytical candidate one L-BFGS run (``PlainLBFGS``), the latent one one stacked multi-start
    Adam run (``LatentAdam``), every candidate with corrections one Adam run from those latent fits.
+   The choice is the candidate with the fewest parameters per material among those whose
+   validation loss is within ``standard_errors`` standard errors of the lowest (the one-standard-
+   error rule; Hastie, Tibshirani & Friedman, *The Elements of Statistical Learning*, 2nd ed. 2009,
+   §7.10): the standard error of a mean over a few dozen held-out samples is as large as the gaps
+   between capacities, so few samples keep a simple model and many samples free more.
 2. *the fit to all the samples*, at each material's chosen candidate only: ``PlainLBFGS`` for
    ``original`` and ``analytical`` (the analytical-only fits), ``LatentAdam`` for ``latent`` (the latent fit), and for
    corrections the same Adam run started from the candidate's fit of the first fold's other samples
@@ -81,6 +86,27 @@ class Fitted:
     loss: float
 
 
+@dataclass
+class Validation:
+    """Every candidate's validation loss per material, (m,) float64, and its standard error (the
+    held-out samples' spread of losses over the square root of their count, pooled over folds)."""
+
+    loss: dict[tuple[str, float | None], torch.Tensor]
+    standard_error: dict[tuple[str, float | None], torch.Tensor]
+
+
+def simplest_within(loss: torch.Tensor, standard_error: torch.Tensor, n_params: list[tuple[int, float]],
+                    standard_errors: float) -> list[int]:
+    """The one-standard-error rule (module doc): per material (column of ``loss``, (candidates, m)),
+    among the candidates whose loss is at most the lowest plus ``standard_errors`` times that
+    lowest's standard error, the first in the order of ``n_params`` (a sort key per candidate:
+    parameters per material, then what breaks ties; equal keys keep the candidates' order)."""
+    best = loss.argmin(0, keepdim=True)
+    threshold = loss.gather(0, best)[0] + standard_errors * standard_error.gather(0, best)[0]
+    simplest_first = sorted(range(len(n_params)), key=lambda c: n_params[c])
+    return [next(c for c in simplest_first if loss[c, i] <= threshold[i]) for i in range(loss.shape[1])]
+
+
 def label(capacity: str, prior: float | None) -> str:
     """A candidate's name in fit details: the capacity, ``@strength`` when it has a prior."""
     return capacity + ("" if prior is None else f"@{prior:g}")
@@ -99,7 +125,8 @@ class Adaptive(FitProtocol):
     Budgets: the analytical candidates by ``PlainLBFGS`` (``lbfgs_iterations``), the latent one by
     ``LatentAdam`` (``latent_epochs``, from ``latent_starts``), corrections by ``correction_epochs``
     Adam epochs at lr ``correction_lr`` from the latent fit of the same samples. A single candidate
-    is fitted without validation."""
+    is fitted without validation. ``standard_errors``: how far above the lowest validation loss a
+    simpler candidate may be and still be chosen (module doc; 0: the lowest)."""
 
     name: ClassVar[str] = "adaptive"
     # "original" so that few samples never end worse than the model the search started from (its
@@ -115,13 +142,14 @@ class Adaptive(FitProtocol):
     lbfgs_iterations: int = 300
     correction_epochs: int = 150
     correction_lr: float = 0.01
+    standard_errors: float = 1.0
 
     def __post_init__(self) -> None:
         unknown = [c for c in self.capacities if c not in CAPACITIES]
         if unknown or not self.capacities:
             raise ValueError(f"unknown capacities {unknown} (known: {', '.join(CAPACITIES)})")
         if (self.folds < 2 or not 1 <= self.validation_folds <= self.folds or not self.priors
-                or any(p < 0 for p in self.priors) or self.correction_epochs < 1):
+                or any(p < 0 for p in self.priors) or self.correction_epochs < 1 or self.standard_errors < 0):
             raise ValueError(f"invalid adaptive protocol {self}")
 
     @property
@@ -139,8 +167,11 @@ class Adaptive(FitProtocol):
         rows = Rows(samples, seed)
         m, grid = rows.materials, self.grid
         with frozen(model):
-            scores, warm = self.cross_validate(model, rows, start, trained, seed) if len(grid) > 1 else ({}, {})
-            best = torch.stack([scores[g] for g in grid]).argmin(0).tolist() if scores else [0] * m
+            scores, warm = self.cross_validate(model, rows, start, trained, seed) if len(grid) > 1 else (None, {})
+            best = ([0] * m if scores is None else
+                    simplest_within(torch.stack([scores.loss[g] for g in grid]),
+                                    torch.stack([scores.standard_error[g] for g in grid]),
+                                    [self.n_params(model, g) for g in grid], self.standard_errors))
             fits = self.fit_chosen(model, rows, [grid[b] for b in best], start, trained, seed, warm)
         table = MaterialTable(model.specs, samples.names, model.latent_dim)
         details = []
@@ -153,14 +184,25 @@ class Adaptive(FitProtocol):
                 table.latent[i] = sub.latent[0]
             corrections = chosen.space.dense_corrections(chosen.x) if chosen.space.corrections else {}
             table.set_corrections(i, corrections, chosen.capacity, chosen.space.n_corrections if corrections else None)
-            details.append({"prior": chosen.prior, "cv": {label(*g): float(scores[g][i]) for g in scores}})
+            details.append({"prior": chosen.prior} if scores is None else
+                           {"prior": chosen.prior, "cv": {label(*g): float(scores.loss[g][i]) for g in grid},
+                            "cv_standard_error": {label(*g): float(scores.standard_error[g][i]) for g in grid}})
         table.requires_grad_(False)
         return FitResult(table, [f.loss for f in fits], time.perf_counter() - start_time, self.describe(), details)
 
+    def n_params(self, model: BRDFModel, candidate: tuple[str, float | None]) -> tuple[int, float]:
+        """A candidate's parameters per material, then minus its prior strength: the order in which
+        ``simplest_within`` prefers candidates (a stronger prior is the simpler of equal sizes)."""
+        capacity, prior = candidate
+        if CAPACITIES[capacity] is None:
+            return analytical_model(model, capacity).n_material_params(), 0.0
+        corrections = RowSpace(model, CAPACITIES[capacity](model)).n_corrections
+        return model.n_material_params() + corrections, -(prior or 0.0)
+
     def cross_validate(self, model: BRDFModel, rows: Rows, start: MaterialTable | None, trained: MaterialTable | None,
-                       seed: int) -> tuple[dict[tuple[str, float | None], torch.Tensor], dict[tuple[str, float], torch.Tensor]]:
-        """Every candidate of ``grid``'s validation loss per material, (m,) float64: each of the
-        first ``validation_folds`` folds held out in turn, the candidate fitted to the other samples
+                       seed: int) -> tuple[Validation, dict[tuple[str, float], torch.Tensor]]:
+        """Every candidate of ``grid``'s validation loss per material and its standard error: each of
+        the first ``validation_folds`` folds held out in turn, the candidate fitted to the other samples
         only (``Rows.as_problems``: a fit costs its own samples), then scored on the held-out fold;
         the held-out losses pooled over folds by their sizes. Also each candidate with corrections'
         fit on the first fold's other samples, (m, its ``RowSpace`` dim): where the fit to all the
@@ -172,33 +214,42 @@ class Adaptive(FitProtocol):
         problems = rows.as_problems(material, ~held_out)
         scored_on = rows.as_problems(material, held_out)
         sizes = folds.sum(2).double()  # (v, m)
+        count = sizes.sum(0)
 
-        def score(kernel: RowKernel, x: torch.Tensor) -> torch.Tensor:
+        def score(kernel: RowKernel, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
             r = len(x) // (v * m)  # candidates stacked as blocks of v * m rows
-            val = evaluate_rows(kernel, x, scored_on.layout(torch.arange(v * m).repeat(r))).train
-            return ((val.reshape(r, v, m) * sizes).sum(1) / sizes.sum(0)).reshape(r * m)
+            val = evaluate_rows(kernel, x, scored_on.layout(torch.arange(v * m).repeat(r)))
+            mean, mean_sq = (((moment.reshape(r, v, m) * sizes).sum(1) / count) for moment in (val.train, val.train_sq))
+            # the sample variance of the held-out losses over their count
+            error = ((mean_sq - mean * mean).clamp_min(0) / (count - 1).clamp_min(1)).sqrt()
+            return mean.reshape(r * m), error.reshape(r * m)
 
-        scores: dict[tuple[str, float | None], torch.Tensor] = {}
+        scores = Validation({}, {})
         warm: dict[tuple[str, float], torch.Tensor] = {}
-        by_state: dict[str, torch.Tensor] = {}  # a model without alternatives: both analytical capacities are one
+
+        def keep(entry: tuple[str, float | None], scored: tuple[torch.Tensor, torch.Tensor]) -> None:
+            scores.loss[entry], scores.standard_error[entry] = scored
+
+        by_state: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}  # no alternatives: one analytical model
         for capacity in (c for c in self.capacities if c in ANALYTICAL_CAPACITIES):
             analytical, a_space = capacity_space(model, capacity, seed)
             if analytical.state not in by_state:
                 x, _ = self._analytical(model, capacity, problems, seed)
                 by_state[analytical.state] = score(RowKernel(analytical, a_space), x)
-            scores[(capacity, None)] = by_state[analytical.state]
+            keep((capacity, None), by_state[analytical.state])
         corrected = [(c, p) for c, p in self.grid if c not in ANALYTICAL_CAPACITIES and c != "latent"]
         if "latent" in self.capacities or corrected:
             x_latent, _ = self._latent(model, problems, material, start, trained, seed)
             if "latent" in self.capacities:
-                scores[("latent", None)] = score(RowKernel(model, RowSpace(model)), x_latent)
+                keep(("latent", None), score(RowKernel(model, RowSpace(model)), x_latent))
             if corrected:
                 r = problems.materials
                 entries = [g for g in corrected for _ in range(r)]
                 kernel, x = self._corrections(model, problems.layout(torch.arange(r).repeat(len(corrected))),
                                               x_latent.repeat(len(corrected), 1), entries, seed)
-                for g, (entry, val) in enumerate(zip(corrected, score(kernel, x).reshape(len(corrected), m))):
-                    scores[entry] = val
+                loss, error = (s.reshape(len(corrected), m) for s in score(kernel, x))
+                for g, entry in enumerate(corrected):
+                    keep(entry, (loss[g], error[g]))
                     warm[entry] = x[g * r : g * r + m, _columns(kernel.space, CAPACITIES[entry[0]](model))]
         return scores, warm
 

@@ -11,10 +11,10 @@ from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
 from neuenh.fit import (SURROGATE_EPS, Adaptive, FitOptions, LatentAdam, PaperRMSProp, PlainLBFGS, fit_materials,
                         per_material_loss)
 from neuenh.data.samples import Samples
-from neuenh.fit.capacity import capacity_space
+from neuenh.fit.capacity import capacity_space, simplest_within
 from neuenh.fit.kernel import LayerCorrection, RowKernel, RowSpace
 from neuenh.fit.layout import compacted, fold_masks, layout_rows, padded
-from neuenh.fit.optim import Adam, adam_rows
+from neuenh.fit.optim import Adam, adam_rows, evaluate_rows
 from neuenh.fit.protocols import Rows
 from neuenh.materials import MaterialTable
 from neuenh.models import get_model
@@ -92,9 +92,10 @@ def _random_table(model, names, seed):
 
 
 def test_kernel_losses_and_corrections_equal_the_model_with_corrected_weights(enhanced, two_zoo_materials):
-    """Each row's loss is the model's own log-L1 with the row's corrections added to its weights
-    (``torch.func.functional_call``, evaluated per material), and the gradient is the float64
-    kernel's within float32 rounding."""
+    """Each row's loss (and mean squared loss, the spread a standard error needs) is the model's own
+    log-L1 with the row's corrections added to its weights (``torch.func.functional_call``, evaluated
+    per material), also when evaluated in slot chunks, and the gradient is the float64 kernel's within
+    float32 rounding."""
     samples = two_zoo_materials
     table = _random_table(enhanced, samples.names, 0)
     corrections = [LayerCorrection(p, i, None if i % 2 else 2) for p in enhanced.neural for i in range(4)]
@@ -104,6 +105,7 @@ def test_kernel_losses_and_corrections_equal_the_model_with_corrected_weights(en
     wi, wo, f_r, valid = padded(samples)
     layout = layout_rows(wi, wo, f_r, torch.arange(2), valid, torch.zeros_like(valid))
     losses = RowKernel(enhanced, space)(x, layout)
+    chunked = evaluate_rows(RowKernel(enhanced, space), x, layout, batch_slots=97)
     for i in range(2):
         rows = samples.of_material(i)
         dense = space.dense_corrections(x[i])
@@ -111,8 +113,11 @@ def test_kernel_losses_and_corrections_equal_the_model_with_corrected_weights(en
         values = {k: v[i : i + 1].expand(len(rows), -1) for k, v in table.values().items()}
         pred = torch.func.functional_call(enhanced, weights, (rows.wi, rows.wo, values,
                                                                table.latent[i : i + 1].expand(len(rows), -1)))
-        reference = float(log_l1(pred, rows.f_r, rows.wi).detach().double().mean())
-        assert float(losses.train[i]) == pytest.approx(reference, rel=1e-5)
+        per_sample = log_l1(pred, rows.f_r, rows.wi).detach().double()
+        for moment, reference in ((losses.train, per_sample.mean()), (losses.train_sq, per_sample.square().mean())):
+            assert float(moment[i]) == pytest.approx(float(reference), rel=1e-5)
+    # the chunks' sums of the same float32 per-sample losses, in another order
+    assert torch.allclose(chunked.train, losses.train, rtol=1e-9) and torch.allclose(chunked.train_sq, losses.train_sq, rtol=1e-9)
     double = copy.deepcopy(enhanced).double()
     layout64 = layout_rows(wi.double(), wo.double(), f_r.double(), torch.arange(2), valid, torch.zeros_like(valid))
     reference = RowKernel(double, RowSpace(double, corrections))(x.double(), layout64).grad
@@ -302,6 +307,22 @@ def test_adaptive_picks_the_analytical_capacity_on_a_table_ggx_generated(enhance
     assert result.losses == plain.losses
 
 
+def test_the_choice_is_the_simplest_candidate_within_the_standard_errors_of_the_lowest():
+    """The one-standard-error rule on hand-made scores, three candidates of 12, 42 and 240
+    parameters and four materials: the lowest when nothing simpler is within reach, the simplest
+    within reach otherwise, equal scores the simplest."""
+    loss = torch.tensor([[0.050, 0.050, 0.020, 0.030],
+                         [0.040, 0.031, 0.020, 0.030],
+                         [0.030, 0.030, 0.010, 0.030]], dtype=torch.float64)
+    error = torch.full_like(loss, 0.002)
+    sizes = [(12, 0.0), (42, 0.0), (240, 0.0)]
+    assert simplest_within(loss, error, sizes, 1.0) == [2, 1, 2, 0]
+    assert simplest_within(loss, error, sizes, 0.0) == [2, 2, 2, 0]
+    assert simplest_within(loss, error, sizes, 100.0) == [0, 0, 0, 0]
+    # of equal sizes the stronger prior (the larger strength, a lower key) first
+    assert simplest_within(loss, error, [(42, 0.0), (42, -0.01), (240, 0.0)], 1.0) == [2, 1, 2, 1]
+
+
 def test_the_original_capacity_is_the_plain_fit_of_the_model_the_search_started_from():
     """The shipped model keeps alternative terms (Oren–Nayar, hazy GGX): its ``analytical`` capacity
     is that formula, its ``original`` one plain GGX: evaluated as plain GGX is, fitted as it is (to
@@ -354,7 +375,7 @@ def test_a_candidates_validation_loss_is_its_fit_of_the_other_samples_scored_on_
                                     torch.zeros(int(mask.sum()), dtype=torch.long), (name,))
         fitted = PlainLBFGS(iterations=100).fit(analytical, part(rows.valid[i] & ~held_out[i]))
         expected = per_material_loss(analytical, fitted.materials, part(held_out[i]))[0]
-        assert float(scores[("analytical", None)][i]) == pytest.approx(expected, abs=SURROGATE_EPS[-1])
+        assert float(scores.loss[("analytical", None)][i]) == pytest.approx(expected, abs=SURROGATE_EPS[-1])
 
 
 def test_corrections_are_the_materials_own_keyed_like_the_module_weights(enhanced, two_zoo_materials):
