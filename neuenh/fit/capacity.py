@@ -25,10 +25,12 @@ loss on its own fit data, then fits that candidate alone to all the samples:
    each analytical candidate one L-BFGS run (``PlainLBFGS``), the latent one one stacked multi-start
    Adam run (``LatentAdam``), every candidate with corrections one Adam run from those latent fits.
    The choice is the candidate with the fewest parameters per material among those whose
-   validation loss is within ``standard_errors`` standard errors of the lowest (the one-standard-
-   error rule; Hastie, Tibshirani & Friedman, *The Elements of Statistical Learning*, 2nd ed. 2009,
-   §7.10): the standard error of a mean over a few dozen held-out samples is as large as the gaps
-   between capacities, so few samples keep a simple model and many samples free more.
+   validation loss is above the lowest by at most ``standard_errors`` standard errors of that gap
+   (the one-standard-error rule of Hastie, Tibshirani & Friedman, *The Elements of Statistical
+   Learning*, 2nd ed. 2009, §7.10, on paired differences: every candidate is scored on the same
+   held-out samples, so the gap's error is the spread of the per-sample differences over the square
+   root of their count). On a few dozen held-out samples that error is as large as the gaps between
+   capacities, so few samples keep a simple model, and many samples free more.
 2. *the fit to all the samples*, at each material's chosen candidate only: ``PlainLBFGS`` for
    ``original`` and ``analytical`` (the analytical-only fits), ``LatentAdam`` for ``latent`` (the latent fit), and for
    corrections the same Adam run started from the candidate's fit of the first fold's other samples
@@ -88,23 +90,40 @@ class Fitted:
 
 @dataclass
 class Validation:
-    """Every candidate's validation loss per material, (m,) float64, and its standard error (the
-    held-out samples' spread of losses over the square root of their count, pooled over folds)."""
+    """Every candidate's validation loss per material, (m,) float64, and its losses on each
+    held-out sample, (m, samples) float64, where ``held_out`` (m, samples) marks the real ones (the
+    same samples, in the same order, for every candidate: the folds side by side)."""
 
     loss: dict[tuple[str, float | None], torch.Tensor]
-    standard_error: dict[tuple[str, float | None], torch.Tensor]
+    per_sample: dict[tuple[str, float | None], torch.Tensor]
+    held_out: torch.Tensor | None = None
 
 
-def simplest_within(loss: torch.Tensor, standard_error: torch.Tensor, n_params: list[tuple[int, float]],
+def gap_errors(per_sample: torch.Tensor, held_out: torch.Tensor) -> torch.Tensor:
+    """(candidates, m) the standard error of each candidate's gap to the one of lowest mean loss,
+    from ``per_sample`` (candidates, m, samples) losses on the same ``held_out`` (m, samples)
+    samples: the sample standard deviation of the per-sample differences over the root of their count."""
+    per_sample = torch.where(held_out, per_sample, 0.0)  # a padding slot's loss may be anything
+    weight = held_out.double()
+    count = weight.sum(1)
+    mean = (per_sample * weight).sum(2) / count.clamp_min(1)
+    best = mean.argmin(0)
+    gap = per_sample - per_sample[best, torch.arange(per_sample.shape[1])]
+    gap_mean = (gap * weight).sum(2, keepdim=True) / count.clamp_min(1)[:, None]
+    variance = ((gap - gap_mean).square() * weight).sum(2) / (count - 1).clamp_min(1)
+    return (variance / count.clamp_min(1)).sqrt()
+
+
+def simplest_within(loss: torch.Tensor, gap_error: torch.Tensor, n_params: list[tuple[int, float]],
                     standard_errors: float) -> list[int]:
     """The one-standard-error rule (module doc): per material (column of ``loss``, (candidates, m)),
-    among the candidates whose loss is at most the lowest plus ``standard_errors`` times that
-    lowest's standard error, the first in the order of ``n_params`` (a sort key per candidate:
-    parameters per material, then what breaks ties; equal keys keep the candidates' order)."""
-    best = loss.argmin(0, keepdim=True)
-    threshold = loss.gather(0, best)[0] + standard_errors * standard_error.gather(0, best)[0]
+    among the candidates whose loss is above the lowest by at most ``standard_errors`` times
+    ``gap_error`` (the standard error of that gap, (candidates, m)), the first in the order of
+    ``n_params`` (a sort key per candidate: parameters per material, then what breaks ties; equal
+    keys keep the candidates' order)."""
+    within = loss - loss.min(0).values <= standard_errors * gap_error
     simplest_first = sorted(range(len(n_params)), key=lambda c: n_params[c])
-    return [next(c for c in simplest_first if loss[c, i] <= threshold[i]) for i in range(loss.shape[1])]
+    return [next(c for c in simplest_first if within[c, i]) for i in range(loss.shape[1])]
 
 
 def label(capacity: str, prior: float | None) -> str:
@@ -168,10 +187,12 @@ class Adaptive(FitProtocol):
         m, grid = rows.materials, self.grid
         with frozen(model):
             scores, warm = self.cross_validate(model, rows, start, trained, seed) if len(grid) > 1 else (None, {})
-            best = ([0] * m if scores is None else
-                    simplest_within(torch.stack([scores.loss[g] for g in grid]),
-                                    torch.stack([scores.standard_error[g] for g in grid]),
-                                    [self.n_params(model, g) for g in grid], self.standard_errors))
+            if scores is None:
+                best, errors = [0] * m, None
+            else:
+                errors = gap_errors(torch.stack([scores.per_sample[g] for g in grid]), scores.held_out)
+                best = simplest_within(torch.stack([scores.loss[g] for g in grid]), errors,
+                                       [self.n_params(model, g) for g in grid], self.standard_errors)
             fits = self.fit_chosen(model, rows, [grid[b] for b in best], start, trained, seed, warm)
         table = MaterialTable(model.specs, samples.names, model.latent_dim)
         details = []
@@ -186,7 +207,7 @@ class Adaptive(FitProtocol):
             table.set_corrections(i, corrections, chosen.capacity, chosen.space.n_corrections if corrections else None)
             details.append({"prior": chosen.prior} if scores is None else
                            {"prior": chosen.prior, "cv": {label(*g): float(scores.loss[g][i]) for g in grid},
-                            "cv_standard_error": {label(*g): float(scores.standard_error[g][i]) for g in grid}})
+                            "cv_gap_error": {label(*g): float(errors[c, i]) for c, g in enumerate(grid)}})
         table.requires_grad_(False)
         return FitResult(table, [f.loss for f in fits], time.perf_counter() - start_time, self.describe(), details)
 
@@ -201,7 +222,7 @@ class Adaptive(FitProtocol):
 
     def cross_validate(self, model: BRDFModel, rows: Rows, start: MaterialTable | None, trained: MaterialTable | None,
                        seed: int) -> tuple[Validation, dict[tuple[str, float], torch.Tensor]]:
-        """Every candidate of ``grid``'s validation loss per material and its standard error: each of
+        """Every candidate of ``grid``'s validation losses per material and per held-out sample: each of
         the first ``validation_folds`` folds held out in turn, the candidate fitted to the other samples
         only (``Rows.as_problems``: a fit costs its own samples), then scored on the held-out fold;
         the held-out losses pooled over folds by their sizes. Also each candidate with corrections'
@@ -214,21 +235,19 @@ class Adaptive(FitProtocol):
         problems = rows.as_problems(material, ~held_out)
         scored_on = rows.as_problems(material, held_out)
         sizes = folds.sum(2).double()  # (v, m)
-        count = sizes.sum(0)
+        side_by_side = lambda per_fold: per_fold.reshape(v, m, -1).transpose(0, 1).reshape(m, -1)  # (m, v * slots)
 
         def score(kernel: RowKernel, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
             r = len(x) // (v * m)  # candidates stacked as blocks of v * m rows
             val = evaluate_rows(kernel, x, scored_on.layout(torch.arange(v * m).repeat(r)))
-            mean, mean_sq = (((moment.reshape(r, v, m) * sizes).sum(1) / count) for moment in (val.train, val.train_sq))
-            # the sample variance of the held-out losses over their count
-            error = ((mean_sq - mean * mean).clamp_min(0) / (count - 1).clamp_min(1)).sqrt()
-            return mean.reshape(r * m), error.reshape(r * m)
+            mean = (val.train.reshape(r, v, m) * sizes).sum(1) / sizes.sum(0)
+            return mean.reshape(r * m), torch.cat([side_by_side(block) for block in val.per_sample.chunk(r)])
 
-        scores = Validation({}, {})
+        scores = Validation({}, {}, side_by_side(scored_on.valid))
         warm: dict[tuple[str, float], torch.Tensor] = {}
 
         def keep(entry: tuple[str, float | None], scored: tuple[torch.Tensor, torch.Tensor]) -> None:
-            scores.loss[entry], scores.standard_error[entry] = scored
+            scores.loss[entry], scores.per_sample[entry] = scored
 
         by_state: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}  # no alternatives: one analytical model
         for capacity in (c for c in self.capacities if c in ANALYTICAL_CAPACITIES):
@@ -247,9 +266,9 @@ class Adaptive(FitProtocol):
                 entries = [g for g in corrected for _ in range(r)]
                 kernel, x = self._corrections(model, problems.layout(torch.arange(r).repeat(len(corrected))),
                                               x_latent.repeat(len(corrected), 1), entries, seed)
-                loss, error = (s.reshape(len(corrected), m) for s in score(kernel, x))
+                loss, per_sample = score(kernel, x)
                 for g, entry in enumerate(corrected):
-                    keep(entry, (loss[g], error[g]))
+                    keep(entry, (loss[g * m : (g + 1) * m], per_sample[g * m : (g + 1) * m]))
                     warm[entry] = x[g * r : g * r + m, _columns(kernel.space, CAPACITIES[entry[0]](model))]
         return scores, warm
 

@@ -257,7 +257,7 @@ class RowLosses:
     val: torch.Tensor  # (rows,) float64 mean loss over its val slots (NaN without any)
     objective: torch.Tensor  # (rows,) float64 what is minimised: train (or its surrogate) + prior
     grad: torch.Tensor | None  # (rows, dim) gradient of objective
-    train_sq: torch.Tensor | None = None  # (rows,) float64 mean squared loss over the train slots (its spread)
+    per_sample: torch.Tensor | None = None  # (rows, slots) float64 each slot's loss (padding's is meaningless)
 
 
 class RowKernel:
@@ -292,9 +292,7 @@ class RowKernel:
             g = torch.autograd.grad(objective.sum(), x)[0] if grad else None
         with torch.no_grad():
             per = per_sample.detach().double()
-            train_weight = layout.train.sum(1).double().clamp_min(1e-12)
-            train = (per * layout.train).sum(1) / train_weight
-            train_sq = (per * per * layout.train).sum(1) / train_weight
+            train = (per * layout.train).sum(1) / layout.train.sum(1).double().clamp_min(1e-12)
             val_weight = layout.val.sum(1).double()
             val = torch.where(val_weight > 0, (per * layout.val).sum(1) / val_weight.clamp_min(1e-12), torch.nan)
-        return RowLosses(train, val, objective.detach().double(), g, train_sq)
+        return RowLosses(train, val, objective.detach().double(), g, per)

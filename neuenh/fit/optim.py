@@ -155,14 +155,16 @@ def evaluate_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, batch_s
     """Exact losses of every row (no gradient), in slot chunks so memory stays bounded."""
     if layout.slots <= batch_slots:
         return kernel(x, layout, grad=False)
-    train_sum, train_sq_sum, val_sum = (torch.zeros(len(x), dtype=torch.float64) for _ in range(3))
+    train_sum = torch.zeros(len(x), dtype=torch.float64)
+    val_sum = torch.zeros(len(x), dtype=torch.float64)
+    per_sample = []
     for lo in range(0, layout.slots, batch_slots):
         part = layout.chunk(lo, min(lo + batch_slots, layout.slots))
         losses = kernel(x, part, grad=False)
         train_sum += torch.nan_to_num(losses.train) * part.train.sum(1).double()
-        train_sq_sum += torch.nan_to_num(losses.train_sq) * part.train.sum(1).double()
         val_sum += torch.nan_to_num(losses.val) * part.val.sum(1).double()
-    train_w, val_w = layout.train.sum(1).double().clamp_min(1e-12), layout.val.sum(1).double()
-    train = train_sum / train_w
+        per_sample.append(losses.per_sample)
+    train_w, val_w = layout.train.sum(1).double(), layout.val.sum(1).double()
+    train = train_sum / train_w.clamp_min(1e-12)
     val = torch.where(val_w > 0, val_sum / val_w.clamp_min(1e-12), torch.nan)
-    return RowLosses(train, val, train, None, train_sq_sum / train_w)
+    return RowLosses(train, val, train, None, torch.cat(per_sample, 1))

@@ -3,6 +3,7 @@ independent references, the row layout, and what each protocol promises of its o
 
 import copy
 
+import numpy as np
 import pytest
 import torch
 
@@ -11,7 +12,7 @@ from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
 from neuenh.fit import (SURROGATE_EPS, Adaptive, FitOptions, LatentAdam, PaperRMSProp, PlainLBFGS, fit_materials,
                         per_material_loss)
 from neuenh.data.samples import Samples
-from neuenh.fit.capacity import capacity_space, simplest_within
+from neuenh.fit.capacity import capacity_space, gap_errors, simplest_within
 from neuenh.fit.kernel import LayerCorrection, RowKernel, RowSpace
 from neuenh.fit.layout import compacted, fold_masks, layout_rows, padded
 from neuenh.fit.optim import Adam, adam_rows, evaluate_rows
@@ -92,10 +93,9 @@ def _random_table(model, names, seed):
 
 
 def test_kernel_losses_and_corrections_equal_the_model_with_corrected_weights(enhanced, two_zoo_materials):
-    """Each row's loss (and mean squared loss, the spread a standard error needs) is the model's own
-    log-L1 with the row's corrections added to its weights (``torch.func.functional_call``, evaluated
-    per material), also when evaluated in slot chunks, and the gradient is the float64 kernel's within
-    float32 rounding."""
+    """Each row's loss (mean and per sample) is the model's own log-L1 with the row's corrections
+    added to its weights (``torch.func.functional_call``, evaluated per material), also when evaluated
+    in slot chunks, and the gradient is the float64 kernel's within float32 rounding."""
     samples = two_zoo_materials
     table = _random_table(enhanced, samples.names, 0)
     corrections = [LayerCorrection(p, i, None if i % 2 else 2) for p in enhanced.neural for i in range(4)]
@@ -114,10 +114,12 @@ def test_kernel_losses_and_corrections_equal_the_model_with_corrected_weights(en
         pred = torch.func.functional_call(enhanced, weights, (rows.wi, rows.wo, values,
                                                                table.latent[i : i + 1].expand(len(rows), -1)))
         per_sample = log_l1(pred, rows.f_r, rows.wi).detach().double()
-        for moment, reference in ((losses.train, per_sample.mean()), (losses.train_sq, per_sample.square().mean())):
-            assert float(moment[i]) == pytest.approx(float(reference), rel=1e-5)
-    # the chunks' sums of the same float32 per-sample losses, in another order
-    assert torch.allclose(chunked.train, losses.train, rtol=1e-9) and torch.allclose(chunked.train_sq, losses.train_sq, rtol=1e-9)
+        assert float(losses.train[i]) == pytest.approx(float(per_sample.mean()), rel=1e-5)
+        mine = losses.per_sample[i][valid[i]]  # the samples in the padded rows' shuffled order
+        assert torch.allclose(mine.sort().values, per_sample.sort().values, rtol=1e-5, atol=1e-7)
+    # the chunks: the same losses up to float32 rounding (matrix products blocked differently)
+    assert torch.allclose(chunked.per_sample, losses.per_sample, rtol=1e-5, atol=1e-7)
+    assert torch.allclose(chunked.train, losses.train, rtol=1e-5)
     double = copy.deepcopy(enhanced).double()
     layout64 = layout_rows(wi.double(), wo.double(), f_r.double(), torch.arange(2), valid, torch.zeros_like(valid))
     reference = RowKernel(double, RowSpace(double, corrections))(x.double(), layout64).grad
@@ -321,6 +323,23 @@ def test_the_choice_is_the_simplest_candidate_within_the_standard_errors_of_the_
     assert simplest_within(loss, error, sizes, 100.0) == [0, 0, 0, 0]
     # of equal sizes the stronger prior (the larger strength, a lower key) first
     assert simplest_within(loss, error, [(42, 0.0), (42, -0.01), (240, 0.0)], 1.0) == [2, 1, 2, 1]
+
+
+def test_a_gaps_standard_error_is_the_spread_of_the_paired_differences():
+    """Against numpy on hand-made losses: per material, the candidate of lowest mean is the
+    reference, and each candidate's gap error is the sample standard deviation of its per-sample
+    differences to it over the root of their count; padding slots (NaN here) count for nothing."""
+    generator = torch.Generator().manual_seed(3)
+    per_sample = torch.rand(3, 2, 6, generator=generator, dtype=torch.float64)
+    held_out = torch.ones(2, 6, dtype=torch.bool)
+    held_out[1, 4:] = False
+    per_sample[:, 1, 4:] = torch.nan
+    errors = gap_errors(per_sample, held_out)
+    for i, n in ((0, 6), (1, 4)):
+        losses = per_sample[:, i, :n].numpy()
+        gaps = losses - losses[losses.mean(1).argmin()]
+        expected = gaps.std(1, ddof=1) / np.sqrt(n)
+        np.testing.assert_allclose(errors[:, i].numpy(), expected, rtol=1e-12, atol=1e-15)
 
 
 def test_the_original_capacity_is_the_plain_fit_of_the_model_the_search_started_from():
