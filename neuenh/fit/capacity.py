@@ -32,9 +32,9 @@ loss on its own fit data, then fits that candidate alone to all the samples:
    root of their count). On a few dozen held-out samples that error is as large as the gaps between
    capacities, so few samples keep a simple model, and many samples free more.
 2. *the fit to all the samples*, at each material's chosen candidate only: ``PlainLBFGS`` for
-   ``original`` and ``analytical`` (the analytical-only fits), ``LatentAdam`` for ``latent`` (the latent fit), and for
-   corrections the same Adam run started from the candidate's fit of the first fold's other samples
-   (a start near the end, instead of a second latent fit to start from).
+   ``original`` and ``analytical`` (the analytical-only fits), ``LatentAdam`` for ``latent`` (the
+   latent fit), and for corrections the same Adam run started from the candidate's fit of the first
+   fold's other samples (a start near the end, instead of a second latent fit to start from).
 """
 
 from __future__ import annotations
@@ -96,7 +96,7 @@ class Validation:
 
     loss: dict[tuple[str, float | None], torch.Tensor]
     per_sample: dict[tuple[str, float | None], torch.Tensor]
-    held_out: torch.Tensor | None = None
+    held_out: torch.Tensor
 
 
 def gap_errors(per_sample: torch.Tensor, held_out: torch.Tensor) -> torch.Tensor:
@@ -148,10 +148,10 @@ class Adaptive(FitProtocol):
     simpler candidate may be and still be chosen (module doc; 0: the lowest)."""
 
     name: ClassVar[str] = "adaptive"
-    # "original" so that few samples never end worse than the model the search started from (its
-    # plain fit): at 100 samples the modules' capacities lost to plain GGX (docs/BENCHMARKS.md, "Issue
-    # 23's targets on the visible 8"). Of equal scores the first wins: a model without alternatives
-    # has one analytical model, named "analytical".
+    # "original" so that few samples can keep the model the search started from (plain GGX): at 100
+    # samples the modules' capacities lost to it (docs/BENCHMARKS.md, "`--capacity auto`: the model the
+    # search started from, and the one-standard-error rule"). Of equal sizes the first is preferred: a
+    # model without alternatives has one analytical model, named "analytical".
     capacities: tuple[str, ...] = ("analytical", "original", "latent", "last-layer", "low-rank")
     priors: tuple[float, ...] = (1e-3, 1e-2)
     folds: int = 3
