@@ -19,8 +19,8 @@ The protocols:
 * ``PaperRMSProp`` — the paper's Sec. 5.1: RMSProp (alpha 0.9), lr 1e-3, ``epochs`` epochs of
   minibatches of ``batch_size`` samples, from the paper's start (range means, latent 0.5).
 * ``PlainLBFGS`` — for analytical models: row-wise L-BFGS on a Charbonnier surrogate
-  (``optim.lbfgs_rows``), at most ``iterations`` per surrogate phase; a second start (where
-  ``warmup_epochs`` Adam epochs took the paper's start) when the first end point is suspect.
+  (``optim.lbfgs_rows``), at most ``iterations`` per surrogate phase, from the paper's start and
+  from where ``warmup_epochs`` Adam epochs took it, side by side; each material keeps the lower.
 * ``LatentAdam`` — an enhanced model's latent code and analytical parameters by row-wise Adam
   (``epochs``, lr ``lr`` with cosine decay), from several starts stacked as rows of one batch and
   narrowed to each material's best after a quarter of the epochs (module doc of ``latent``).
@@ -173,9 +173,11 @@ def _copy(table: MaterialTable) -> MaterialTable:
 @dataclass(frozen=True)
 class PlainLBFGS(FitProtocol):
     """Row-wise L-BFGS (at most ``iterations`` per surrogate phase) from the paper's start (or
-    ``start``); a material whose end point is suspect (``suspect``) is fitted again from where
-    ``warmup_epochs`` Adam epochs (lr ``warmup_lr``) took the paper's start, and keeps the lower
-    loss. Meant for analytical models (an enhanced model's landscape is rough for L-BFGS)."""
+    ``start``) and, as rows of the same batch, from where ``warmup_epochs`` Adam epochs (lr
+    ``warmup_lr``) took it; each material keeps the end point of lower loss. Both always run: a
+    first end point can be a wrong minimum that nothing in its own numbers flags (docs/BENCHMARKS.md,
+    "Issue 24's latent and plain fits"). Meant for analytical models (an enhanced model's landscape
+    is rough for L-BFGS)."""
 
     name: ClassVar[str] = "plain"
     iterations: int = 300
