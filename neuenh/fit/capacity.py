@@ -25,12 +25,13 @@ loss on its own fit data, then fits that candidate alone to all the samples:
    each analytical candidate one L-BFGS run (``PlainLBFGS``), the latent one one stacked multi-start
    Adam run (``LatentAdam``), every candidate with corrections one Adam run from those latent fits.
    The choice is the candidate with the fewest parameters per material among those whose
-   validation loss is above the lowest by at most ``standard_errors`` standard errors of that gap
-   (the one-standard-error rule of Hastie, Tibshirani & Friedman, *The Elements of Statistical
-   Learning*, 2nd ed. 2009, §7.10, on paired differences: every candidate is scored on the same
-   held-out samples, so the gap's error is the spread of the per-sample differences over the square
-   root of their count). On a few dozen held-out samples that error is as large as the gaps between
-   capacities, so few samples keep a simple model, and many samples free more.
+   validation loss is above the lowest by at most ``standard_errors`` standard errors of that gap:
+   by default 0, the lowest validation loss; 1 is the one-standard-error rule of Hastie, Tibshirani
+   & Friedman, *The Elements of Statistical Learning*, 2nd ed. 2009, §7.10, on paired differences
+   (every candidate is scored on the same held-out samples, so the gap's error is the spread of the
+   per-sample differences over the square root of their count), which keeps simpler models on few
+   samples — better at 100 samples, worse at the user's 3,000 near the mirror (docs/BENCHMARKS.md,
+   "`--capacity auto`: the model the search started from, and the one-standard-error rule").
 2. *the fit to all the samples*, at each material's chosen candidate only: ``PlainLBFGS`` for
    ``original`` and ``analytical`` (the analytical-only fits), ``LatentAdam`` for ``latent`` (the
    latent fit), and for corrections the same Adam run started from the candidate's fit of the first
@@ -145,7 +146,7 @@ class Adaptive(FitProtocol):
     ``LatentAdam`` (``latent_epochs``, from ``latent_starts``), corrections by ``correction_epochs``
     Adam epochs at lr ``correction_lr`` from the latent fit of the same samples. A single candidate
     is fitted without validation. ``standard_errors``: how far above the lowest validation loss a
-    simpler candidate may be and still be chosen (module doc; 0: the lowest)."""
+    simpler candidate may be and still be chosen (module doc; 0: the lowest, 1: the one-SE rule)."""
 
     name: ClassVar[str] = "adaptive"
     # "original" so that few samples can keep the model the search started from (plain GGX): at 100
@@ -161,7 +162,7 @@ class Adaptive(FitProtocol):
     lbfgs_iterations: int = 300
     correction_epochs: int = 150
     correction_lr: float = 0.01
-    standard_errors: float = 1.0
+    standard_errors: float = 0.0
 
     def __post_init__(self) -> None:
         unknown = [c for c in self.capacities if c not in CAPACITIES]
