@@ -41,7 +41,7 @@ loss on its own fit data, then fits that candidate alone to all the samples:
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, ClassVar
 
 import torch
@@ -98,6 +98,8 @@ class Validation:
     loss: dict[tuple[str, float | None], torch.Tensor]
     per_sample: dict[tuple[str, float | None], torch.Tensor]
     held_out: torch.Tensor
+    # each analytical capacity's fit of the first fold's other samples, (m, its RowSpace dim)
+    analytical_fits: dict[str, torch.Tensor] = field(default_factory=dict)
 
 
 def gap_errors(per_sample: torch.Tensor, held_out: torch.Tensor) -> torch.Tensor:
@@ -194,7 +196,8 @@ class Adaptive(FitProtocol):
                 errors = gap_errors(torch.stack([scores.per_sample[g] for g in grid]), scores.held_out)
                 best = simplest_within(torch.stack([scores.loss[g] for g in grid]), errors,
                                        [self.n_params(model, g) for g in grid], self.standard_errors)
-            fits = self.fit_chosen(model, rows, [grid[b] for b in best], start, trained, seed, warm)
+            fits = self.fit_chosen(model, rows, [grid[b] for b in best], start, trained, seed, warm,
+                                   None if scores is None else scores.analytical_fits)
         table = MaterialTable(model.specs, samples.names, model.latent_dim)
         details = []
         for i, chosen in enumerate(fits):
@@ -250,13 +253,14 @@ class Adaptive(FitProtocol):
         def keep(entry: tuple[str, float | None], scored: tuple[torch.Tensor, torch.Tensor]) -> None:
             scores.loss[entry], scores.per_sample[entry] = scored
 
-        by_state: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}  # no alternatives: one analytical model
+        by_state: dict[str, tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = {}  # no alternatives: one model
         for capacity in (c for c in self.capacities if c in ANALYTICAL_CAPACITIES):
             analytical, a_space = capacity_space(model, capacity, seed)
             if analytical.state not in by_state:
                 x, _ = self._analytical(model, capacity, problems, seed)
-                by_state[analytical.state] = score(RowKernel(analytical, a_space), x)
-            keep((capacity, None), by_state[analytical.state])
+                by_state[analytical.state] = (*score(RowKernel(analytical, a_space), x), x[:m])
+            *scored, scores.analytical_fits[capacity] = by_state[analytical.state]
+            keep((capacity, None), tuple(scored))
         corrected = [(c, p) for c, p in self.grid if c not in ANALYTICAL_CAPACITIES and c != "latent"]
         if "latent" in self.capacities or corrected:
             x_latent, _ = self._latent(model, problems, material, start, trained, seed)
@@ -275,19 +279,25 @@ class Adaptive(FitProtocol):
 
     def fit_chosen(self, model: BRDFModel, rows: Rows, chosen: list[tuple[str, float | None]],
                    start: MaterialTable | None, trained: MaterialTable | None, seed: int,
-                   warm: dict[tuple[str, float], torch.Tensor] | None = None) -> list[Fitted]:
+                   warm: dict[tuple[str, float], torch.Tensor] | None = None,
+                   analytical_fits: dict[str, torch.Tensor] | None = None) -> list[Fitted]:
         """Each material fitted to all its samples at its ``chosen`` (capacity, prior): analytical
-        capacities as ``PlainLBFGS`` fits their models alone, latent ones by ``LatentAdam`` (the latent fit
-        itself), corrected ones by the corrections' Adam run from their validation fit (``warm``:
-        (m, dim) per candidate, ``cross_validate``'s) or, without one, from their latent fit."""
-        warm = warm or {}
+        capacities as ``PlainLBFGS`` fits their models alone, and also from their validation fit
+        (``analytical_fits``: (m, dim) per capacity, ``cross_validate``'s) when there is one — the
+        point the choice measured; an analytical fit of a few hundred samples can end in a minimum
+        several times worse than that one —, latent ones by ``LatentAdam`` (the latent fit itself),
+        corrected ones by the corrections' Adam run from their validation fit (``warm``: (m, dim) per
+        candidate, ``cross_validate``'s) or, without one, from their latent fit."""
+        warm, analytical_fits = warm or {}, analytical_fits or {}
         out: list[Fitted | None] = [None] * rows.materials
         for capacity in ANALYTICAL_CAPACITIES:
             analytical = [i for i, (c, _) in enumerate(chosen) if c == capacity]
             if analytical:
                 index = torch.tensor(analytical)
                 a_model, a_space = capacity_space(model, capacity, seed)
-                x, scored = self._analytical(model, capacity, rows.as_problems(index, rows.valid[index]), seed)
+                validated = analytical_fits.get(capacity)
+                x, scored = self._analytical(model, capacity, rows.as_problems(index, rows.valid[index]), seed,
+                                             None if validated is None else validated[index])
                 for j, i in enumerate(analytical):
                     out[i] = Fitted(capacity, None, a_model, a_space, x[j], float(scored.train[j]))
         cold = [i for i, (c, p) in enumerate(chosen) if c not in ANALYTICAL_CAPACITIES and (c, p) not in warm]
@@ -315,13 +325,14 @@ class Adaptive(FitProtocol):
                                 float(train[n]))
         return out
 
-    def _analytical(self, model: BRDFModel, capacity: str, problems: Rows, seed: int):
-        """``capacity``'s analytical model's fit of every row of ``problems`` from the paper's start,
-        by ``PlainLBFGS.fit_rows``: (rows, dim) and their losses."""
+    def _analytical(self, model: BRDFModel, capacity: str, problems: Rows, seed: int,
+                    also: torch.Tensor | None = None):
+        """``capacity``'s analytical model's fit of every row of ``problems`` from the paper's start
+        (and from ``also``, (rows, dim), when given), by ``PlainLBFGS.fit_rows``: (rows, dim) and their losses."""
         analytical, space = capacity_space(model, capacity, seed)
         x0 = space.from_table(paper_start(analytical, problems.names))
         return PlainLBFGS(iterations=self.lbfgs_iterations).fit_rows(
-            RowKernel(analytical, space), x0, problems.layout(torch.arange(problems.materials)))
+            RowKernel(analytical, space), x0, problems.layout(torch.arange(problems.materials)), also)
 
     def _latent(self, model: BRDFModel, problems: Rows, material: torch.Tensor, start: MaterialTable | None,
                 trained: MaterialTable | None, seed: int):

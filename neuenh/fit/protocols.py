@@ -203,16 +203,19 @@ class PlainLBFGS(FitProtocol):
         table = _table(model, space, x, samples.names)
         return FitResult(table, scored.train.tolist(), time.perf_counter() - start_time, self.describe())
 
-    def fit_rows(self, kernel: RowKernel, first: torch.Tensor, layout) -> tuple[torch.Tensor, "RowLosses"]:
-        """Every row of ``layout`` from ``first`` (rows, dim) and from its Adam warm-up, each row
-        keeping the end point of lower fit loss: (rows, dim) and their losses."""
+    def fit_rows(self, kernel: RowKernel, first: torch.Tensor, layout, also: torch.Tensor | None = None
+                 ) -> tuple[torch.Tensor, "RowLosses"]:
+        """Every row of ``layout`` from ``first`` (rows, dim), from its Adam warm-up and from
+        ``also`` (rows, dim) when given (e.g. a fit of part of the same samples), each row keeping
+        the end point of lowest fit loss: (rows, dim) and their losses."""
         warmed = adam_rows(kernel, first, layout, Adam(self.warmup_epochs, self.warmup_lr)).x
-        r = layout.rows
-        both = layout.select(torch.arange(r).repeat(2))
-        x, _ = lbfgs_rows(kernel, torch.cat([first, warmed]), both, self.iterations)
-        scored = evaluate_rows(kernel, x, both)
-        best = scored.train.reshape(2, r).argmin(0)
-        pick = lambda t: t.reshape(2, r, *t.shape[1:])[best, torch.arange(r)]
+        starts = [first, warmed] + ([] if also is None else [also])
+        r, k = layout.rows, len(starts)
+        every = layout.select(torch.arange(r).repeat(k))
+        x, _ = lbfgs_rows(kernel, torch.cat(starts), every, self.iterations)
+        scored = evaluate_rows(kernel, x, every)
+        best = scored.train.reshape(k, r).argmin(0)
+        pick = lambda t: t.reshape(k, r, *t.shape[1:])[best, torch.arange(r)]
         return pick(x), RowLosses(pick(scored.train), pick(scored.val), pick(scored.objective), None)
 
 

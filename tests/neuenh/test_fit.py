@@ -295,8 +295,8 @@ ADAPTIVE = dict(latent_epochs=20, correction_epochs=15, lbfgs_iterations=40, pri
 
 def test_adaptive_picks_the_analytical_capacity_on_a_table_ggx_generated(enhanced):
     """A clean GGX material: the analytical model represents it exactly, so its cross-validation
-    loss is the lowest and the adaptive fit is the analytical-only fit, to the last bit (its rows
-    on all samples run as ``PlainLBFGS`` runs them)."""
+    loss is the lowest and the adaptive fit is the analytical-only fit — its rows on all samples run
+    as ``PlainLBFGS`` runs them, plus a third start at the validation fit, so never worse."""
     samples = sample_materials(synthetic_ggx(1, seed=9, noise_sigma=0.0), 300, seed=0)
     result = Adaptive(**ADAPTIVE).fit(enhanced, samples)
     scores = result.details[0]["cv"]
@@ -306,7 +306,7 @@ def test_adaptive_picks_the_analytical_capacity_on_a_table_ggx_generated(enhance
     own, params = result.material_model(enhanced, 0)
     assert not own.has_modules and params.latent is None and params.n_params == own.used_specs().total_width
     plain = PlainLBFGS(iterations=ADAPTIVE["lbfgs_iterations"]).fit(own, samples)
-    assert result.losses == plain.losses
+    assert result.losses[0] <= plain.losses[0] < 1e-3
 
 
 def test_the_choice_is_the_simplest_candidate_within_the_standard_errors_of_the_lowest():
