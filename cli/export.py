@@ -10,7 +10,10 @@ with ``--params`` those of a fit report (``neuenh fit --json``, or the answer of
 With ``--plan`` (written by ``neuenh scene plan``) every material is exported with the rung the plan
 chose for it, one folder per rung (``OUT/<rung>/``), each holding only that rung's modules; the
 materials planned with the per-material NBRDF rung are skipped, each named on stderr (no exporter
-writes NBRDF networks), and naming one with ``--material`` is an error.
+writes NBRDF networks), and naming one with ``--material`` is an error. A material fitted at an
+analytical capacity (``neuenh fit --capacity auto`` may choose one) is evaluated by an analytical
+model of the same graph, not by the modules: it is written with that model into a folder named after
+its capacity inside the model's (``OUT/original/``, ``OUT/<rung>/analytical/``).
 Each format's files are described in docs/EXPORT.md and ``neuenh.export``.
 """
 
@@ -54,7 +57,8 @@ def run(args) -> int:
         if named:
             raise ValueError(f"{', '.join(map(repr, named))} planned with the per-material NBRDF rung, which the "
                              "exporters do not write")
-        groups = [(args.output / safe_name(key), model, materials) for key, model, materials in planned.groups]
+        groups = [group for key, model, materials in planned.groups
+                  for group in by_own_model(args.output / safe_name(key), model, materials)]
         if not groups:
             raise ValueError(f"{args.plan}: every material was planned with the per-material NBRDF rung; nothing to "
                              "export")
@@ -64,7 +68,7 @@ def run(args) -> int:
     else:
         model, trained = load_model(args.model, "MODEL")
         materials = fit_report_materials(args.params, model) if args.params else bundle_materials(trained, args.model)
-        groups = [(args.output, model, materials)]
+        groups = by_own_model(args.output, model, materials)
     every = {m for _, _, materials in groups for m in materials}
     missing = sorted(wanted - every)
     if missing:
@@ -75,6 +79,20 @@ def run(args) -> int:
             for path in export(model, chosen, args.format, folder):
                 print(path)
     return 0
+
+
+def by_own_model(folder: Path, model, materials: dict[str, MaterialParams]) -> list[tuple[Path, object, dict]]:
+    """``materials`` of ``model`` as (folder, model, materials) groups by the model that evaluates
+    each (``neuenh.fit.model_for``): ``model``'s into ``folder``, those fitted at an analytical
+    capacity with that capacity's model into ``folder/<capacity>``."""
+    from neuenh.fit import model_for
+
+    groups: dict[Path, tuple[object, dict]] = {}
+    for name, params in materials.items():
+        own = model_for(model, params)
+        where = folder if own is model else folder / params.capacity
+        groups.setdefault(where, (own, {}))[1][name] = own.used_params(params)
+    return [(where, own, chosen) for where, (own, chosen) in groups.items()]
 
 
 def bundle_materials(table, model_arg: str) -> dict[str, MaterialParams]:
@@ -97,12 +115,14 @@ def fit_report_materials(path: Path, model) -> dict[str, MaterialParams]:
     if of != (model.name, model.state):
         raise ValueError(f"{path} is a fit of {of[0]} in state {of[1]}, but the model is {model.name} in state "
                          f"{model.state}; export the model it was fitted with")
+    from neuenh.fit import model_for
+
     fitted = {}
     for name, entry in entries.items():
         try:
             fitted[name] = MaterialParams.from_json(entry)
         except ValueError as exc:
             raise ValueError(f"{path}: material {name!r}: {exc}") from None
-    if model.uses_latent and any(p.latent is None for p in fitted.values()):
+    if model.uses_latent and any(p.latent is None and model_for(model, p) is model for p in fitted.values()):
         raise ValueError(f"{path}: a material has no latent code, which this model needs")
     return fitted

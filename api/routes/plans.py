@@ -24,7 +24,7 @@ from neuenh.data.formats import detect_format
 from neuenh.data.measured import load_measured
 from neuenh.data.table import load_table
 from neuenh.scene import SceneError, SceneSpec, parse_scene
-from neuenh.scene.spec import CaptureEntry, FileEntry, RungsEntry, scene_data
+from neuenh.scene.spec import CaptureEntry, FileEntry, ladder_source, scene_data
 from neuenh_service.orchestrator.plans import CONTENT_TYPES, PLAN_FILES, plan_file_key
 from neuenh_service.storage import ArtifactStore, CorruptArtifactError, PlanRecord, PlanStatus
 from neuenh_service.storage.artifacts import sha256
@@ -239,7 +239,7 @@ def _outside_data_roots(spec, settings: Settings, uploaded: set[str] = frozenset
     allowed = ", ".join(map(str, roots)) or "none configured"
     paths = [(f"materials.{i}", e.path if isinstance(e, FileEntry) else e.capture)
              for i, e in enumerate(spec.materials) if isinstance(e, (FileEntry, CaptureEntry))]
-    paths += [(f"ladder.{i}", e.rungs if isinstance(e, RungsEntry) else e) for i, e in enumerate(spec.ladder)]
+    paths += [(f"ladder.{i}", ladder_source(e)) for i, e in enumerate(spec.ladder)]
     problems = []
     for where, path in paths:
         if path in uploaded:

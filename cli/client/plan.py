@@ -93,9 +93,11 @@ def _service_paths(scene: dict, base: Path) -> dict:
         for key in ("path", "capture"):
             if key in m:
                 m[key] = fix(m[key])
-    scene["ladder"] = [fix(r) if isinstance(r, str) and ("/" in r or (base / r).is_dir()) else
-                       ({"rungs": fix(r["rungs"])} if isinstance(r, dict) and "/" in r["rungs"] else r)
-                       for r in scene["ladder"]]
+    def fix_model(name: object) -> object:  # a bundle folder's path, not a model's name
+        return fix(name) if isinstance(name, str) and ("/" in name or (base / name).is_dir()) else name
+
+    scene["ladder"] = [{k: fix_model(v) if k in ("rungs", "model") else v for k, v in r.items()}
+                       if isinstance(r, dict) else fix_model(r) for r in scene["ladder"]]
     return scene
 
 

@@ -6,7 +6,9 @@ the held-out loss, its parameters as plain data, and their size. Two kinds:
 
 * :class:`GraphRung` — a ``BRDFModel`` with frozen module weights (an analytical model, or one
   rung of a searched model: ``neuenh.pretrained.rungs``), fitted by ``fit.fit_materials`` on all
-  materials in one batch; its per-material parameters are the ones its state reads;
+  materials in one batch; its per-material parameters are the ones its state reads at the scene's
+  capacity (latent), or at the rung's own (``{model: M, capacity: C}``: with ``auto`` a material may
+  carry corrections of the module weights, or be fitted by an analytical model of the same graph);
 * :class:`NBRDFRung` — a 6-21-21-3 network per material (Sztrajman et al. 2021), 675 parameters.
 
 ``build_ladder(entries)`` turns a scene's ladder (``SceneSpec.ladder``) into rungs. A rung's
@@ -30,7 +32,7 @@ from ..materials import MaterialParams, MaterialTable
 from ..model import BRDFModel
 from ..train import log_l1
 
-__all__ = ["FittedRung", "GraphRung", "NBRDFRung", "Rung", "build_ladder", "measure_cost"]
+__all__ = ["FittedRung", "GraphRung", "NBRDFRung", "Rung", "build_ladder", "measure_cost", "rung_cost"]
 
 Directions = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 BYTES_PER_PARAMETER = 4  # float32, as the exporters store them
@@ -45,6 +47,7 @@ class FittedRung:
     params: dict[str, Any]  # what the plan stores (a graph rung: MaterialParams.to_json())
     n_params: int
     fit_loss: float
+    by_rung_model: bool = True  # False: fitted at an analytical capacity, by an analytical model of its own
 
     @property
     def param_bytes(self) -> int:
@@ -75,8 +78,10 @@ class Rung(ABC):
 
 class GraphRung(Rung):
     def __init__(self, label: str, key: str, model: BRDFModel, latent_mean: torch.Tensor | None = None,
-                 source: str | None = None, round_index: int | None = None, val_loss: float | None = None):
+                 source: str | None = None, round_index: int | None = None, val_loss: float | None = None,
+                 capacity: str | None = None):
         self.label, self.key, self.model = label, key, model
+        self.capacity = capacity  # the fit's capacity (FitOptions.capacity); None: the scene's
         self.model_name, self.state, self.shared_weights = model.name, model.state, model.n_weights()
         self.source, self.round = source, round_index  # the shipped model or bundle it is a rung of
         self.val_loss, self.latent_mean = val_loss, latent_mean  # the search's, carried into plans' bundles
@@ -87,6 +92,8 @@ class GraphRung(Rung):
 
     def fit(self, samples: Samples, options: FitOptions, seed: int) -> list[FittedRung]:
         model = self.model
+        if self.capacity is not None:
+            options = options.replace(capacity=self.capacity)
         result = fit_materials(model, samples, options.protocol_for(model), seed=seed, trained=self.trained)
         out = []
         for i in range(len(samples.names)):
@@ -97,12 +104,12 @@ class GraphRung(Rung):
                 return own.unclipped(wi, wo, params)
 
             out.append(FittedRung(own.specialize(params), predict, params.to_json(), params.n_params,
-                                  result.losses[i]))
+                                  result.losses[i], by_rung_model=own is model))
         return out
 
     def brdf_of(self, params):
         params = MaterialParams.from_json(params)
-        own = model_for(self.model, params)  # a material fitted at the analytical capacity: its model
+        own = model_for(self.model, params)  # a material fitted at an analytical capacity: its model
         return own.specialize(own.used_params(params))
 
 
@@ -131,20 +138,24 @@ class NBRDFRung(Rung):
 
 def build_ladder(entries: Sequence[Any], where: str = "ladder") -> list[Rung]:
     """The scene's ladder entries as rungs, in order: a model name (``ggx``, a shipped model, a bundle
-    folder: its final model) or ``nbrdf``, or ``{rungs: MODEL}`` (every rung of a searched model).
-    Every problem is a ValueError naming the entry."""
+    folder: its final model) or ``nbrdf``, ``{model: MODEL, capacity: C}`` (that model fitted at
+    capacity C), or ``{rungs: MODEL}`` (every rung of a searched model). Every problem is a
+    ValueError naming the entry."""
     from ..pretrained import load_model, rungs
+    from .spec import ModelEntry, ladder_source
 
     out: list[Rung] = []
     for i, entry in enumerate(entries):
-        name = entry if isinstance(entry, str) else entry.rungs
+        name = ladder_source(entry)
         try:
             if isinstance(entry, str) and entry == "nbrdf":
                 out.append(NBRDFRung())
-            elif isinstance(entry, str):
-                model, trained = load_model(entry, f"{where}.{i}")
+            elif isinstance(entry, (str, ModelEntry)):
+                capacity = getattr(entry, "capacity", None)
+                model, trained = load_model(name, f"{where}.{i}")
                 latent = trained.latent.detach().mean(0) if trained is not None and len(trained) else None
-                out.append(GraphRung(entry, entry, model, latent, source=entry))
+                label, key = (name, name) if capacity is None else (f"{name} ({capacity} capacity)", f"{name}:{capacity}")
+                out.append(GraphRung(label, key, model, latent, source=name, capacity=capacity))
             else:
                 for r in rungs(name):
                     label = f"{name} r{r.round}" if r.round >= 0 else name
@@ -158,6 +169,13 @@ def build_ladder(entries: Sequence[Any], where: str = "ladder") -> list[Rung]:
     if duplicated:
         raise ValueError(f"{where}: {', '.join(duplicated)} more than once")
     return out
+
+
+def rung_cost(fitted: Sequence[FittedRung]) -> float:
+    """A rung's cost (``measure_cost``) on one of its fitted materials: the first its own model
+    evaluates (a material of an adaptive rung fitted at an analytical capacity costs less; the rung
+    stands for its model)."""
+    return measure_cost(next((f for f in fitted if f.by_rung_model), fitted[0]).brdf)
 
 
 @torch.no_grad()

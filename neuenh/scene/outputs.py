@@ -128,8 +128,7 @@ def markdown(plan: Plan, sheet: bool = True) -> str:
         else f"at most {tol.absolute:g}"
     metric = {"log_l1": "held-out log-L1", "delta_e_itp": "ΔE_ITP of the render", "ssim": "1 − SSIM of the render"}[
         tol.metric]
-    analytical = sum(1 for m in plan.materials if plan.rung_info(m.chosen)["shared_weights"] == 0
-                     and plan.rung_info(m.chosen)["model"] != "nbrdf")
+    analytical = sum(1 for m in plan.materials if _analytical(plan.rung_info(m.chosen), m.result(m.chosen).params))
     per_rung = totals["plan"]["rungs"]  # rung key -> materials the planner gave it
     lines = [
         f"# Scene plan{f': {s.name}' if s.name else ''}", "",
@@ -169,6 +168,16 @@ def markdown(plan: Plan, sheet: bool = True) -> str:
     if sheet:
         lines += ["", f"![each material: measured truth, then the chosen rung]({SHEET})"]
     return "\n".join(lines) + "\n"
+
+
+def _analytical(rung: dict, params: dict) -> bool:
+    """Whether a material's chosen rung evaluates it analytically: an analytical rung, or a rung with
+    modules that fitted it at an analytical capacity (``fit.result.ANALYTICAL_CAPACITIES``)."""
+    from ..fit.result import ANALYTICAL_CAPACITIES
+
+    if rung["model"] == "nbrdf":
+        return False
+    return rung["shared_weights"] == 0 or params.get("capacity") in ANALYTICAL_CAPACITIES
 
 
 # -- figures ---------------------------------------------------------------------------------------

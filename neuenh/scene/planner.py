@@ -6,7 +6,7 @@ For every material of the scene (``spec.SceneSpec``) it draws a fit set and a te
 the ladder (``ladder.Rung``, several materials in one batch), measures each fitted rung's error — the
 held-out log-L1, and with a render metric ΔE_ITP or 1 − SSIM of a render against the measured truth
 under the same light samples (``study.comparison.RenderSetup``) — and its cost, nanoseconds per
-evaluation of its specialized BRDF measured once per rung on this machine (``ladder.measure_cost``)
+evaluation of its specialized BRDF measured once per rung on this machine (``ladder.rung_cost``)
 beside its bytes of per-material parameters. The material gets the cheapest rung within tolerance
 (``spec.Tolerance``); a rung listed later in the ladder is preferred to an earlier one only when it
 is more than ``COST_MARGIN`` cheaper, so timing noise between rungs of nearly equal cost cannot
@@ -32,7 +32,7 @@ from ..data.samples import Samples
 from ..fit import FitOptions
 from ..study.comparison import RenderSetup
 from ..study.heldout import draw_fit_test
-from .ladder import FittedRung, Rung, build_ladder, measure_cost
+from .ladder import FittedRung, Rung, build_ladder, rung_cost
 from .spec import CaptureEntry, FileEntry, SceneError, SceneSpec
 
 __all__ = ["COST_MARGIN", "MaterialPlan", "Plan", "RungResult", "SceneMaterial", "load_materials", "plan_scene"]
@@ -225,7 +225,7 @@ def plan_scene(spec: SceneSpec, base: Path, *, done: Mapping[str, MaterialPlan] 
         for rung in rungs:
             fitted = rung.fit(fit, options, seed=spec.fit.seed)
             if rung.key not in costs:
-                costs[rung.key] = measure_cost(fitted[0].brdf)
+                costs[rung.key] = rung_cost(fitted)
             for i, (f, (_, test), truth) in enumerate(zip(fitted, sets, truths)):
                 results[i].append(_measure(rung.key, f, test, truth, setup, spec.tolerance.metric))
             step += 1
@@ -240,7 +240,7 @@ def plan_scene(spec: SceneSpec, base: Path, *, done: Mapping[str, MaterialPlan] 
         costs = _remeasure(rungs, materials[0], spec, options)
     info = [{"key": r.key, "label": r.label, "model": r.model_name, "state": r.state,
              "alternatives": bool(getattr(getattr(r, "model", None), "has_alternatives", False)),
-             "shared_weights": r.shared_weights, "cost_ns": costs[r.key],
+             "capacity": getattr(r, "capacity", None), "shared_weights": r.shared_weights, "cost_ns": costs[r.key],
              "source": getattr(r, "source", None), "round": getattr(r, "round", None)} for r in rungs]
     return Plan(spec, info, [done[m.name] for m in materials], list(rungs), materials)
 
@@ -291,4 +291,4 @@ def _measure(key: str, fitted: FittedRung, test: Samples, truth, setup, metric: 
 
 def _remeasure(rungs, material: SceneMaterial, spec: SceneSpec, options: FitOptions) -> dict[str, float]:
     fit, _ = _draw(material, spec)
-    return {r.key: measure_cost(r.fit(fit, options, seed=spec.fit.seed)[0].brdf) for r in rungs}
+    return {r.key: rung_cost(r.fit(fit, options, seed=spec.fit.seed)) for r in rungs}

@@ -9,6 +9,7 @@ which models may represent them (a *ladder*, cheapest first), and how close is c
     ladder:                                # cheapest first
       - ggx                                # an analytical model
       - {rungs: enhanced-ggx}              # every rung of a shipped or searched model
+      - {model: enhanced-ggx, capacity: auto}   # a model fitted at a capacity of its own
       - nbrdf                              # optional top rung: a network per material
     tolerance: {metric: log_l1, relative: 0.10}   # or {metric: delta_e_itp, absolute: 2.0}
     fit: {samples: 3000, test_samples: 3000, near_mirror: 0.5, seed: 0}
@@ -22,6 +23,10 @@ which models may represent them (a *ladder*, cheapest first), and how close is c
   tolerance when its error is at most the best rung's times (1 + relative); ``absolute``: at most
   that value (the best rung is taken when none is). Render metrics need materials that can be
   rendered (continuous sources: RGL, MERL, NBRDF), not tables or texels.
+* A ladder entry fits its rungs at the latent capacity (the latent code and analytical parameters;
+  a cost and a parameter count that are the model's own), except ``{model: M, capacity: C}``: the
+  capacity of ``neuenh fit --capacity`` (``auto``, the default there: each material at the capacity
+  its samples support — per-material corrections of the module weights, or an analytical model).
 * Paths are relative to the scene file's folder.
 
 ``load_scene(path)`` reads and validates one, every problem a ``SceneError`` naming the field.
@@ -34,10 +39,10 @@ from pathlib import Path
 from typing import Annotated, Literal, Union
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator, model_validator
 
-__all__ = ["CaptureEntry", "FileEntry", "FitSpec", "RenderSpec", "RungsEntry", "SceneError", "SceneSpec",
-           "Tolerance", "load_scene", "parse_scene", "scene_data"]
+__all__ = ["CaptureEntry", "FileEntry", "FitSpec", "ModelEntry", "RenderSpec", "RungsEntry", "SceneError",
+           "SceneSpec", "Tolerance", "ladder_source", "load_scene", "parse_scene", "scene_data"]
 
 RENDER_METRICS = ("delta_e_itp", "ssim")
 
@@ -78,6 +83,42 @@ class RungsEntry(_Strict):
     """Every rung of a shipped model or bundle folder (``neuenh.pretrained.rungs``), cheapest first."""
 
     rungs: str = Field(min_length=1)
+
+
+class ModelEntry(_Strict):
+    """A model (as a string entry names one) fitted at ``capacity`` (``neuenh.fit.FitOptions.capacity``)."""
+
+    model: str = Field(min_length=1)
+    capacity: str = Field("auto", description="auto, or one capacity of neuenh fit --capacity")
+
+    @field_validator("capacity")
+    @classmethod
+    def _known_capacity(cls, capacity: str) -> str:
+        from ..fit.options import CAPACITY_CHOICES
+
+        if capacity not in CAPACITY_CHOICES:
+            raise ValueError(f"unknown capacity {capacity!r}; choose one of {', '.join(CAPACITY_CHOICES)}")
+        return capacity
+
+
+def _entry_kind(entry: object) -> str | None:
+    if isinstance(entry, str):
+        return "name"
+    if isinstance(entry, dict):
+        return "rungs" if "rungs" in entry else "model" if "model" in entry else None
+    return "rungs" if isinstance(entry, RungsEntry) else "model" if isinstance(entry, ModelEntry) else None
+
+
+# one kind per entry, told by its key, so a bad entry's error names that kind's fields alone
+LadderEntry = Annotated[
+    Union[Annotated[str, Tag("name")], Annotated[RungsEntry, Tag("rungs")], Annotated[ModelEntry, Tag("model")]],
+    Discriminator(_entry_kind, custom_error_type="ladder_entry", custom_error_message=(
+        "a ladder entry is a model's name, {rungs: MODEL} or {model: MODEL, capacity: C}"))]
+
+
+def ladder_source(entry: LadderEntry) -> str:
+    """What a ladder entry reads: a model's name, ``nbrdf``, or a bundle folder's path."""
+    return entry if isinstance(entry, str) else entry.rungs if isinstance(entry, RungsEntry) else entry.model
 
 
 class Tolerance(_Strict):
@@ -132,7 +173,7 @@ class RenderSpec(_Strict):
 class SceneSpec(_Strict):
     name: str | None = None
     materials: list[Annotated[MaterialEntry, Field(union_mode="left_to_right")]] = Field(min_length=1)
-    ladder: list[Union[str, RungsEntry]] = Field(min_length=1, description="cheapest first")
+    ladder: list[LadderEntry] = Field(min_length=1, description="cheapest first")
     tolerance: Tolerance = Field(default_factory=lambda: Tolerance(relative=0.1))
     fit: FitSpec = Field(default_factory=FitSpec)
     render: RenderSpec = Field(default_factory=RenderSpec)

@@ -404,13 +404,19 @@ def test_plan_a_scene_on_the_service_wait_and_save_its_files(live_server, tmp_pa
     (tmp_path / "roots").mkdir()
     tables = write_tables(tmp_path / "roots")
     server = live_server(data_roots=[tables], api_token=TOKEN)
-    data = scene(tables)  # paths relative to the scene file: the client sends them as the service must read them
+    bundle = Bundle.initial("ggx", ["a"])
+    bundle.model = bundle.model.enhance("00000100000", seed=1)
+    bundle.save(tables / "searched")
+    # paths relative to the scene file (a bundle folder's too): the client sends them as the service must read them
+    data = scene(tables, ladder=["ggx", {"model": "searched", "capacity": "last-layer"}, "nbrdf"])
     (tables / "scene.yaml").write_text(yaml.safe_dump(data))
     out = client("plan", tables / "scene.yaml", "--wait", "-o", tmp_path / "files", url=server.url)
     assert out.returncode == 0, out.stderr
     assert re.search(r"gloss +ggx +[0-9.]+", out.stdout) and re.search(r"retro +NBRDF", out.stdout)
     assert "frame: plan" in out.stdout and "materials" in out.stderr
     assert sorted(p.name for p in (tmp_path / "files").iterdir()) == ["cost_vs_error.png", "plan.json", "plan.md"]
+    ladder = json.loads((tmp_path / "files" / "plan.json").read_text())["ladder"]
+    assert [r["key"] for r in ladder] == ["ggx", f"{tables.resolve() / 'searched'}:last-layer", "nbrdf"]
     bad = dict(data, ladder=[])
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
     one_line_error(client("plan", tmp_path / "bad.yaml", url=server.url), "ladder: List should have at least 1 item")

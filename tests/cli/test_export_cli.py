@@ -185,3 +185,79 @@ def test_a_plan_skips_the_materials_planned_with_nbrdf_and_names_them(plan, tmp_
     copy.write_text(json.dumps(data))
     one_line_error(neuenh_here("export", "--plan", copy, "--format", "glsl", "-o", tmp_path / "o"),
                    "every material was planned with the per-material NBRDF rung")
+
+
+@pytest.fixture(scope="module")
+def own_capacity_plan(tmp_path_factory):
+    """A scene plan (written in-process) whose rungs fit a model with a module at capacities of their
+    own: ``original`` (plain GGX in the module's place) and ``last-layer`` (per-material corrections
+    of the module's last layer); gloss is given the first, retro the second."""
+    from neuenh.checkpoint import Bundle
+    from neuenh.scene import parse_scene, plan_scene
+    from neuenh.scene.outputs import write_plan
+    from scene_files import scene, write_tables
+
+    where = tmp_path_factory.mktemp("capacities")
+    tables = write_tables(where)
+    bundle = Bundle.initial("ggx", ["a"])
+    bundle.model = bundle.model.enhance("00000100000", seed=1)
+    bundle.save(where / "searched")
+    ladder = [{"model": str(where / "searched"), "capacity": c} for c in ("original", "last-layer")]
+    plan = plan_scene(parse_scene(scene(tables, ladder=ladder, fit={"samples": 300, "test_samples": 200, "epochs": 20})),
+                      tables)
+    gloss, retro = plan.materials
+    gloss.chosen, retro.chosen = (r["key"] for r in plan.ladder)
+    write_plan(plan, where / "plan", sheet=False)
+    return where / "plan" / "plan.json", bundle.model, where / "searched"
+
+
+def _onnx_f_r(path: Path, n: int = 512) -> tuple[np.ndarray, torch.Tensor, torch.Tensor]:
+    import onnxruntime as ort
+
+    rng = np.random.default_rng(0)
+    wi, wo = ((w / np.linalg.norm(w, axis=1, keepdims=True)).astype(np.float32)
+              for w in (np.abs(rng.normal(size=(n, 3))) for _ in range(2)))
+    session = ort.InferenceSession(path.read_bytes(), providers=["CPUExecutionProvider"])
+    return session.run(["f_r"], {"wi": wi, "wo": wo})[0], torch.as_tensor(wi), torch.as_tensor(wo)
+
+
+def _plain_ggx(record: dict, wi: torch.Tensor, wo: torch.Tensor) -> np.ndarray:
+    """f_r of plain GGX (built here, not the exporter's model) with a record's analytical values."""
+    from neuenh.models import get_model
+
+    return get_model("ggx").specialize({k: torch.tensor(v) for k, v in record["params"].items()})(wi, wo).numpy()
+
+
+def test_a_plan_exports_an_analytical_capacity_with_its_own_model_and_corrections_with_theirs(own_capacity_plan,
+                                                                                               tmp_path):
+    from neuenh.scene.outputs import safe_name
+
+    path, searched, _ = own_capacity_plan
+    data = json.loads(path.read_text())
+    gloss, retro = data["materials"]
+    assert [gloss["params"]["capacity"], retro["params"]["capacity"]] == ["original", "last-layer"]
+    assert retro["params"]["corrections"] and retro["params"]["params_per_material"] > searched.n_material_params()
+    out = neuenh_here("export", "--plan", path, "--format", "onnx", "-o", tmp_path)
+    assert out.returncode == 0, out.stderr
+    # gloss: plain GGX (built here from its recorded values), in its capacity's folder inside its rung's
+    got, wi, wo = _onnx_f_r(tmp_path / safe_name(gloss["chosen"]) / "original" / "gloss.onnx")
+    np.testing.assert_allclose(got, _plain_ggx(gloss["params"], wi, wo), rtol=1e-4, atol=1e-6)
+    # retro: the searched model with its corrections folded in (without them it is another BRDF)
+    got, wi, wo = _onnx_f_r(tmp_path / safe_name(retro["chosen"]) / "retro.onnx")
+    params = MaterialParams.from_json(retro["params"])
+    want = searched.specialize(params)(wi, wo).numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)
+    bare = searched.specialize(MaterialParams(params.values, params.latent))(wi, wo).numpy()
+    assert np.abs(bare - want).max() > 1e-3 * np.abs(want).max()
+
+
+def test_a_fit_report_exports_an_analytical_capacity_into_its_capacitys_folder(own_capacity_plan, tmp_path):
+    path, searched, folder = own_capacity_plan
+    gloss = json.loads(path.read_text())["materials"][0]
+    report = {"model": searched.name, "state": searched.state, "materials": [{"name": "gloss", **gloss["params"]}]}
+    (tmp_path / "fit.json").write_text(json.dumps(report))  # as neuenh fit --capacity original --json writes it
+    out = neuenh_here("export", folder, "--params", tmp_path / "fit.json", "--format", "onnx", "-o", tmp_path / "out")
+    assert out.returncode == 0, out.stderr
+    assert not (tmp_path / "out" / "gloss.onnx").exists()
+    got, wi, wo = _onnx_f_r(tmp_path / "out" / "original" / "gloss.onnx")
+    np.testing.assert_allclose(got, _plain_ggx(gloss["params"], wi, wo), rtol=1e-4, atol=1e-6)

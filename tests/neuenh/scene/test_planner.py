@@ -88,6 +88,27 @@ def test_rungs_of_a_searched_model_join_the_ladder(tmp_path, tables):
     assert isinstance(plan.rungs[1], GraphRung) and plan.rungs[1].round == 1
 
 
+def test_a_model_at_a_capacity_of_its_own_is_a_rung_and_an_analytical_capacity_stays_analytical(tmp_path, tables):
+    """``{model: M, capacity: original}`` fits plain GGX in the module's place: exact on GGX's own
+    material (the module, random here, cannot be), and counted as analytical in plan.md."""
+    from neuenh.checkpoint import Bundle
+    from neuenh.scene.outputs import write_plan
+
+    bundle = Bundle.initial("ggx", ["a"])
+    bundle.model = bundle.model.enhance("00000100000", seed=1)
+    bundle.save(tmp_path / "searched")
+    spec = parse_scene(scene(tables, materials=[{"path": "gloss.npz"}],
+                             ladder=[{"model": str(tmp_path / "searched"), "capacity": "original"}]))
+    plan = plan_scene(spec, tables)
+    [rung] = plan.ladder
+    assert rung["key"] == f"{tmp_path / 'searched'}:original" and rung["capacity"] == "original"
+    [gloss] = plan.materials
+    result = gloss.result(rung["key"])
+    assert result.params["capacity"] == "original" and result.n_params == 12 and result.error < 1e-3
+    write_plan(plan, tmp_path / "plan", sheet=False)
+    assert "**1 of 1 materials stay analytical." in (tmp_path / "plan" / "plan.md").read_text()
+
+
 @pytest.mark.parametrize("changes, message", [
     ({"materials": [{"path": "nowhere.npz"}]}, "materials.0: .*nowhere.npz"),
     ({"ladder": ["phong"]}, r"ladder.0 'phong' is neither an analytical model"),
@@ -99,8 +120,12 @@ def test_rungs_of_a_searched_model_join_the_ladder(tmp_path, tables):
     ({"materials": [{"path": "gloss.npz", "sha256": "0" * 64}]},
      r"materials.0: .*gloss.npz: its content does not match its sha256 000000000000\.\.\. \(damaged or replaced\)"),
     ({"materials": [{"path": "gloss.npz", "sha256": "abc"}]}, "materials.0.*sha256: String should match pattern"),
+    ({"ladder": ["ggx", {"model": "ggx", "capacity": "most"}]}, r"^scene: ladder.1.model.capacity: .*unknown capacity 'most'"),
+    ({"ladder": [{"model": "ggx", "rung": 1}]}, r"^scene: ladder.0.model.rung: Extra inputs are not permitted$"),
+    ({"ladder": [{"state": "0"}]}, r"^scene: ladder.0: a ladder entry is a model's name, \{rungs: MODEL\} or"),
 ], ids=["missing-file", "unknown-model", "empty-ladder", "negative-weight", "render-metric-on-a-table",
-        "two-tolerances", "same-name", "damaged-file", "not-a-digest"])
+        "two-tolerances", "same-name", "damaged-file", "not-a-digest", "unknown-capacity", "extra-field",
+        "unknown-entry"])
 def test_bad_scenes_are_one_line_naming_the_problem(tables, changes, message):
     with pytest.raises(SceneError, match=message) as info:
         plan_scene(parse_scene(scene(tables, **changes)), tables)
