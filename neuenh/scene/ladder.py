@@ -31,6 +31,7 @@ from ..fit import FitOptions, fit_materials, model_for
 from ..materials import MaterialParams, MaterialTable
 from ..model import BRDFModel
 from ..train import log_l1
+from .spec import ModelEntry, ladder_source
 
 __all__ = ["FittedRung", "GraphRung", "NBRDFRung", "Rung", "build_ladder", "measure_cost", "rung_cost"]
 
@@ -142,7 +143,6 @@ def build_ladder(entries: Sequence[Any], where: str = "ladder") -> list[Rung]:
     capacity C), or ``{rungs: MODEL}`` (every rung of a searched model). Every problem is a
     ValueError naming the entry."""
     from ..pretrained import load_model, rungs
-    from .spec import ModelEntry, ladder_source
 
     out: list[Rung] = []
     for i, entry in enumerate(entries):
