@@ -102,6 +102,7 @@ class ModelEntry(_Strict):
 
 
 def _entry_kind(entry: object) -> str | None:
+    """Which kind a ladder entry is, by its type or its key (None: no kind, one error says so)."""
     if isinstance(entry, str):
         return "name"
     if isinstance(entry, dict):

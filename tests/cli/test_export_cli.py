@@ -203,8 +203,8 @@ def own_capacity_plan(tmp_path_factory):
     bundle.model = bundle.model.enhance("00000100000", seed=1)
     bundle.save(where / "searched")
     ladder = [{"model": str(where / "searched"), "capacity": c} for c in ("original", "last-layer")]
-    plan = plan_scene(parse_scene(scene(tables, ladder=ladder, fit={"samples": 300, "test_samples": 200, "epochs": 20})),
-                      tables)
+    fit = {"samples": 300, "test_samples": 200, "epochs": 20}
+    plan = plan_scene(parse_scene(scene(tables, ladder=ladder, fit=fit)), tables)
     gloss, retro = plan.materials
     gloss.chosen, retro.chosen = (r["key"] for r in plan.ladder)
     write_plan(plan, where / "plan", sheet=False)
