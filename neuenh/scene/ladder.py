@@ -18,6 +18,7 @@ machine (:func:`measure_cost`, one thread), beside its bytes of per-material par
 
 from __future__ import annotations
 
+import math
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -33,7 +34,8 @@ from ..model import BRDFModel
 from ..train import log_l1
 from .spec import ModelEntry, ladder_source
 
-__all__ = ["FittedRung", "GraphRung", "NBRDFRung", "Rung", "build_ladder", "measure_cost", "rung_cost"]
+__all__ = ["FittedRung", "GraphRung", "NBRDFRung", "Rung", "build_ladder", "measure_cost", "rung_brdf",
+           "rung_costs"]
 
 Directions = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 BYTES_PER_PARAMETER = 4  # float32, as the exporters store them
@@ -172,11 +174,23 @@ def build_ladder(entries: Sequence[Any], where: str = "ladder") -> list[Rung]:
     return out
 
 
-def rung_cost(fitted: Sequence[FittedRung]) -> float:
-    """A rung's cost (``measure_cost``) on one of its fitted materials: the first its own model
-    evaluates (a material of an adaptive rung fitted at an analytical capacity costs less; the rung
-    stands for its model)."""
-    return measure_cost(next((f for f in fitted if f.by_rung_model), fitted[0]).brdf)
+def rung_brdf(fitted: Sequence[FittedRung]) -> Directions:
+    """What a rung's cost is measured on: the first of its fitted materials its own model evaluates
+    (a material of an adaptive rung fitted at an analytical capacity costs less; the rung stands for
+    its model)."""
+    return next((f for f in fitted if f.by_rung_model), fitted[0]).brdf
+
+
+def rung_costs(brdfs: Mapping[str, Directions], rounds: int = 3) -> dict[str, float]:
+    """Each rung's cost (``measure_cost``), measured side by side: ``rounds`` rounds over all rungs,
+    the fastest of each rung's. Timings taken minutes apart, each after its own rung's fit, differed
+    by up to 1.6x for the same model (BENCHMARKS, stop 34); interleaved, a slow spell of the machine
+    lands on every rung alike."""
+    costs: dict[str, float] = {}
+    for _ in range(rounds):
+        for key, brdf in brdfs.items():
+            costs[key] = min(costs.get(key, math.inf), measure_cost(brdf))
+    return costs
 
 
 @torch.no_grad()

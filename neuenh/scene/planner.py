@@ -6,8 +6,8 @@ For every material of the scene (``spec.SceneSpec``) it draws a fit set and a te
 the ladder (``ladder.Rung``, several materials in one batch), measures each fitted rung's error — the
 held-out log-L1, and with a render metric ΔE_ITP or 1 − SSIM of a render against the measured truth
 under the same light samples (``study.comparison.RenderSetup``) — and its cost, nanoseconds per
-evaluation of its specialized BRDF measured once per rung on this machine (``ladder.rung_cost``)
-beside its bytes of per-material parameters. The material gets the cheapest rung within tolerance
+evaluation of its specialized BRDF on this machine, measured for all rungs side by side once the
+first chunk's fits are done (``ladder.rung_costs``), beside its bytes of per-material parameters. The material gets the cheapest rung within tolerance
 (``spec.Tolerance``); a rung listed later in the ladder is preferred to an earlier one only when it
 is more than ``COST_MARGIN`` cheaper, so timing noise between rungs of nearly equal cost cannot
 change a plan.
@@ -32,7 +32,7 @@ from ..data.samples import Samples
 from ..fit import FitOptions
 from ..study.comparison import RenderSetup
 from ..study.heldout import draw_fit_test
-from .ladder import FittedRung, Rung, build_ladder, rung_cost
+from .ladder import FittedRung, Rung, build_ladder, rung_brdf, rung_costs
 from .spec import CaptureEntry, FileEntry, SceneError, SceneSpec
 
 __all__ = ["COST_MARGIN", "MaterialPlan", "Plan", "RungResult", "SceneMaterial", "load_materials", "plan_scene"]
@@ -222,15 +222,17 @@ def plan_scene(spec: SceneSpec, base: Path, *, done: Mapping[str, MaterialPlan] 
         fit = Samples.concat([s[0] for s in sets])
         truths = [_truth(m, setup) for m in group] if spec.tolerance.renders else [None] * len(group)
         results: list[list[RungResult]] = [[] for _ in group]
+        brdfs = {}
         for rung in rungs:
             fitted = rung.fit(fit, options, seed=spec.fit.seed)
-            if rung.key not in costs:
-                costs[rung.key] = rung_cost(fitted)
+            brdfs[rung.key] = rung_brdf(fitted)
             for i, (f, (_, test), truth) in enumerate(zip(fitted, sets, truths)):
                 results[i].append(_measure(rung.key, f, test, truth, setup, spec.tolerance.metric))
             step += 1
             if progress:
                 progress(f"{rung.label} on {len(group)} material(s)", step, steps)
+        if not costs:
+            costs = rung_costs(brdfs)
         for m, rs in zip(group, results):
             plan = MaterialPlan(m.name, m.weight, choose(rs, costs, spec.tolerance), rs)
             done[m.name] = plan
@@ -291,4 +293,4 @@ def _measure(key: str, fitted: FittedRung, test: Samples, truth, setup, metric: 
 
 def _remeasure(rungs, material: SceneMaterial, spec: SceneSpec, options: FitOptions) -> dict[str, float]:
     fit, _ = _draw(material, spec)
-    return {r.key: rung_cost(r.fit(fit, options, seed=spec.fit.seed)) for r in rungs}
+    return rung_costs({r.key: rung_brdf(r.fit(fit, options, seed=spec.fit.seed)) for r in rungs})

@@ -163,3 +163,23 @@ def test_a_plan_with_nbrdf_writes_its_files_counts_each_rung_and_names_what_expo
     assert planned.nbrdf == ["retro"]
     [(key, model, materials)] = planned.groups
     assert key == "ggx" and list(materials) == ["gloss"] and not model.has_modules
+
+
+def test_rung_costs_are_measured_side_by_side_in_rounds_and_keep_each_rungs_fastest():
+    import itertools
+
+    import torch
+
+    from neuenh.scene.ladder import rung_costs
+
+    calls = []
+
+    def timed(key, work):
+        def brdf(wi, wo):
+            calls.append(key)
+            return torch.stack([wi] * work).sum(0)  # more work per evaluation: a dearer rung
+        return brdf
+
+    costs = rung_costs({"cheap": timed("cheap", 1), "dear": timed("dear", 64)}, rounds=3)
+    assert [k for k, _ in itertools.groupby(calls)] == ["cheap", "dear"] * 3  # interleaved, not one after the other
+    assert set(costs) == {"cheap", "dear"} and 0 < costs["cheap"] < costs["dear"]
