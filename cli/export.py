@@ -87,9 +87,12 @@ def by_own_model(folder: Path, model, materials: dict[str, MaterialParams]) -> l
     capacity with that capacity's model into ``folder/<capacity>``."""
     from neuenh.fit import model_for
 
+    owns: dict[str | None, object] = {}  # capacity -> the model that evaluates it
     groups: dict[Path, tuple[object, dict]] = {}
     for name, params in materials.items():
-        own = model_for(model, params)
+        if params.capacity not in owns:  # model_for builds an analytical capacity's model: once each
+            owns[params.capacity] = model_for(model, params)
+        own = owns[params.capacity]
         where = folder if own is model else folder / params.capacity
         groups.setdefault(where, (own, {}))[1][name] = own.used_params(params)
     return [(where, own, chosen) for where, (own, chosen) in groups.items()]
@@ -115,7 +118,7 @@ def fit_report_materials(path: Path, model) -> dict[str, MaterialParams]:
     if of != (model.name, model.state):
         raise ValueError(f"{path} is a fit of {of[0]} in state {of[1]}, but the model is {model.name} in state "
                          f"{model.state}; export the model it was fitted with")
-    from neuenh.fit import model_for
+    from neuenh.fit.result import ANALYTICAL_CAPACITIES
 
     fitted = {}
     for name, entry in entries.items():
@@ -123,6 +126,6 @@ def fit_report_materials(path: Path, model) -> dict[str, MaterialParams]:
             fitted[name] = MaterialParams.from_json(entry)
         except ValueError as exc:
             raise ValueError(f"{path}: material {name!r}: {exc}") from None
-    if model.uses_latent and any(p.latent is None and model_for(model, p) is model for p in fitted.values()):
+    if model.uses_latent and any(p.latent is None and p.capacity not in ANALYTICAL_CAPACITIES for p in fitted.values()):
         raise ValueError(f"{path}: a material has no latent code, which this model needs")
     return fitted

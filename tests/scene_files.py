@@ -29,3 +29,14 @@ def scene(folder: Path, **changes) -> dict:
     return {"name": "known", "materials": [{"path": "gloss.npz", "weight": 3.0}, {"path": "retro.npz"}],
             "ladder": ["ggx", "nbrdf"], "tolerance": {"metric": "log_l1", "relative": 0.1},
             "fit": {"samples": 1000, "test_samples": 500, "seed": 0, "epochs": 100}, **changes}
+
+
+def write_module_bundle(folder: Path):
+    """A bundle of GGX with one module (invE, random weights) saved at ``folder``: a model with modules
+    for a ladder's ``{model: folder, capacity: C}``. Returns its model."""
+    from neuenh.checkpoint import Bundle
+
+    bundle = Bundle.initial("ggx", ["a"])
+    bundle.model = bundle.model.enhance("00000100000", seed=1)
+    bundle.save(folder)
+    return bundle.model

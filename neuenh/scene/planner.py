@@ -7,10 +7,10 @@ the ladder (``ladder.Rung``, several materials in one batch), measures each fitt
 held-out log-L1, and with a render metric ΔE_ITP or 1 − SSIM of a render against the measured truth
 under the same light samples (``study.comparison.RenderSetup``) — and its cost, nanoseconds per
 evaluation of its specialized BRDF on this machine, measured for all rungs side by side once the
-first chunk's fits are done (``ladder.rung_costs``), beside its bytes of per-material parameters. The material gets the cheapest rung within tolerance
-(``spec.Tolerance``); a rung listed later in the ladder is preferred to an earlier one only when it
-is more than ``COST_MARGIN`` cheaper, so timing noise between rungs of nearly equal cost cannot
-change a plan.
+first chunk's fits are done (``ladder.rung_costs``), beside its bytes of per-material parameters. The
+material gets the cheapest rung within tolerance (``spec.Tolerance``); a rung listed later in the
+ladder is preferred to an earlier one only when it is more than ``COST_MARGIN`` cheaper, so timing
+noise between rungs of nearly equal cost cannot change a plan.
 
 Materials are planned in chunks; ``on_material`` receives each finished ``MaterialPlan`` (a caller
 persists it) and ``done`` gives back those of an interrupted run, which are not planned again. The
@@ -222,10 +222,11 @@ def plan_scene(spec: SceneSpec, base: Path, *, done: Mapping[str, MaterialPlan] 
         fit = Samples.concat([s[0] for s in sets])
         truths = [_truth(m, setup) for m in group] if spec.tolerance.renders else [None] * len(group)
         results: list[list[RungResult]] = [[] for _ in group]
-        brdfs = {}
+        brdfs = {}  # what the costs are measured on: the first chunk's only
         for rung in rungs:
             fitted = rung.fit(fit, options, seed=spec.fit.seed)
-            brdfs[rung.key] = rung_brdf(fitted)
+            if not costs:
+                brdfs[rung.key] = rung_brdf(fitted)
             for i, (f, (_, test), truth) in enumerate(zip(fitted, sets, truths)):
                 results[i].append(_measure(rung.key, f, test, truth, setup, spec.tolerance.metric))
             step += 1

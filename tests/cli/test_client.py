@@ -399,14 +399,12 @@ def test_fit_measurements_with_a_jobs_model(server, submitted, ggx_table, as_jso
 
 
 def test_plan_a_scene_on_the_service_wait_and_save_its_files(live_server, tmp_path):
-    from scene_files import scene, write_tables
+    from scene_files import scene, write_module_bundle, write_tables
 
     (tmp_path / "roots").mkdir()
     tables = write_tables(tmp_path / "roots")
     server = live_server(data_roots=[tables], api_token=TOKEN)
-    bundle = Bundle.initial("ggx", ["a"])
-    bundle.model = bundle.model.enhance("00000100000", seed=1)
-    bundle.save(tables / "searched")
+    write_module_bundle(tables / "searched")
     # paths relative to the scene file (a bundle folder's too): the client sends them as the service must read them
     data = scene(tables, ladder=["ggx", {"model": "searched", "capacity": "last-layer"}, "nbrdf"])
     (tables / "scene.yaml").write_text(yaml.safe_dump(data))

@@ -192,23 +192,20 @@ def own_capacity_plan(tmp_path_factory):
     """A scene plan (written in-process) whose rungs fit a model with a module at capacities of their
     own: ``original`` (plain GGX in the module's place) and ``last-layer`` (per-material corrections
     of the module's last layer); gloss is given the first, retro the second."""
-    from neuenh.checkpoint import Bundle
     from neuenh.scene import parse_scene, plan_scene
     from neuenh.scene.outputs import write_plan
-    from scene_files import scene, write_tables
+    from scene_files import scene, write_module_bundle, write_tables
 
     where = tmp_path_factory.mktemp("capacities")
     tables = write_tables(where)
-    bundle = Bundle.initial("ggx", ["a"])
-    bundle.model = bundle.model.enhance("00000100000", seed=1)
-    bundle.save(where / "searched")
+    searched = write_module_bundle(where / "searched")
     ladder = [{"model": str(where / "searched"), "capacity": c} for c in ("original", "last-layer")]
     fit = {"samples": 300, "test_samples": 200, "epochs": 20}
     plan = plan_scene(parse_scene(scene(tables, ladder=ladder, fit=fit)), tables)
     gloss, retro = plan.materials
     gloss.chosen, retro.chosen = (r["key"] for r in plan.ladder)
     write_plan(plan, where / "plan", sheet=False)
-    return where / "plan" / "plan.json", bundle.model, where / "searched"
+    return where / "plan" / "plan.json", searched, where / "searched"
 
 
 def _onnx_f_r(path: Path, n: int = 512) -> tuple[np.ndarray, torch.Tensor, torch.Tensor]:

@@ -91,12 +91,10 @@ def test_rungs_of_a_searched_model_join_the_ladder(tmp_path, tables):
 def test_a_model_at_a_capacity_of_its_own_is_a_rung_and_an_analytical_capacity_stays_analytical(tmp_path, tables):
     """``{model: M, capacity: original}`` fits plain GGX in the module's place: exact on GGX's own
     material (the module, random here, cannot be), and counted as analytical in plan.md."""
-    from neuenh.checkpoint import Bundle
     from neuenh.scene.outputs import write_plan
+    from scene_files import write_module_bundle
 
-    bundle = Bundle.initial("ggx", ["a"])
-    bundle.model = bundle.model.enhance("00000100000", seed=1)
-    bundle.save(tmp_path / "searched")
+    write_module_bundle(tmp_path / "searched")
     spec = parse_scene(scene(tables, materials=[{"path": "gloss.npz"}],
                              ladder=[{"model": str(tmp_path / "searched"), "capacity": "original"}]))
     plan = plan_scene(spec, tables)
