@@ -65,6 +65,8 @@ test: $(STAMP) browser compiler gl mitsuba
 # Slow, measured side by side; each script rewrites its own section of docs/BENCHMARKS.md.
 # bench_fit runs the checkout before issue 13 beside this one, both fitting the model shipped then.
 ISSUE13_MODEL := e388c1a
+# bench_plain_fit runs the plain fit as it was before issue 24's warm-up subset and L-BFGS restart beside today's.
+PLAIN_FIT_BEFORE := 0709a17
 bench: $(STAMP)
 	$(PY) bench/bench_core.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_data.py --write docs/BENCHMARKS.md
@@ -72,6 +74,7 @@ bench: $(STAMP)
 	mkdir -p build/issue13-model && for f in model.json weights.safetensors materials.safetensors; do \
 	  git show $(ISSUE13_MODEL):models/enhanced-ggx/$$f > build/issue13-model/$$f; done
 	$(PY) bench/bench_fit.py --model build/issue13-model --before-rev 351a26c --write docs/BENCHMARKS.md
+	$(PY) bench/bench_plain_fit.py --before-rev $(PLAIN_FIT_BEFORE) --write docs/BENCHMARKS.md
 	$(PY) bench/bench_search.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_api.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_cluster.py --write docs/BENCHMARKS.md

@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
 import torch  # noqa: E402
 
-from bench.harness import machine, machine_line, run_at_revision, wait_quiet, write_json  # noqa: E402
+from bench.harness import absent, machine, machine_line, output_arguments, run_at_revision, wait_quiet, write_json  # noqa: E402
 from bench.report import publish  # noqa: E402
 
 SECTION = "## Fitting speed (issue 13)"
@@ -101,12 +101,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="the enhanced model: a shipped name or a bundle folder (default enhanced-ggx)")
     parser.add_argument("--before-rev", metavar="REV", help="also run this git revision first, side by side")
     parser.add_argument("--rgl", type=Path, default=RGL, help=f"the RGL materials (default {RGL})")
-    parser.add_argument("--json", type=Path, help="write the raw numbers here")
-    parser.add_argument("--write", metavar="PATH", help="write/replace this section of PATH (docs/BENCHMARKS.md)")
-    parser.add_argument("--max-wait", type=float, default=300.0)
+    output_arguments(parser)
     args = parser.parse_args(argv)
-    if not args.rgl.is_dir():
-        print(f"skipped: {args.rgl} is absent (the RGL materials of ../shared)")
+    if absent(args.rgl, "the RGL materials of ../shared"):
         return 0
     if Path(args.model).is_dir():
         args.model = str(Path(args.model).resolve())  # the older checkout runs elsewhere

@@ -146,6 +146,22 @@ class Timer:
                 f"({self.rejected} redone; median background load of the kept ones {background:.2f} cores)")
 
 
+def output_arguments(parser) -> None:
+    """The options every side-by-side bench takes: ``--json`` (the raw numbers), ``--write`` (the
+    section of docs/BENCHMARKS.md it replaces) and ``--max-wait`` (for a quiet machine, seconds)."""
+    parser.add_argument("--json", type=Path, help="write the raw numbers here")
+    parser.add_argument("--write", metavar="PATH", help="write/replace this section of PATH (docs/BENCHMARKS.md)")
+    parser.add_argument("--max-wait", type=float, default=300.0)
+
+
+def absent(path: Path, what: str) -> bool:
+    """True, after printing that the bench skips, when ``path`` (``what`` names it) does not exist."""
+    if Path(path).exists():
+        return False
+    print(f"skipped: {path} is absent ({what})")
+    return True
+
+
 def write_json(path: Path, data) -> None:
     """``data`` as indented JSON at ``path``, atomically (``neuenh.files``). A bench run by
     ``run_at_revision`` in a checkout older than that module writes plainly: its parent reads the

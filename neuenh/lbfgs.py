@@ -7,8 +7,10 @@ then runs an independent L-BFGS per row (Nocedal & Wright 2006, *Numerical Optim
 Alg. 7.4 two-loop recursion and Alg. 7.5, with the initial Hessian scaling of eq. 7.20) with a
 per-row backtracking Armijo line search (their Alg. 3.1), so a row's step length, curvature history
 and convergence never depend on another row's. A row stops once its loss has fallen by less than
-``rel_tol`` of itself for ``patience`` iterations in a row; the whole minimisation stops when every
-row has, or after ``max_iter`` iterations.
+``rel_tol`` of itself for ``patience`` iterations in a row, or when a line search along its steepest
+descent finds no decrease (one along a quasi-Newton step clears the row's curvature memory instead,
+their Sec. 7.2, and the row goes on); the whole minimisation stops when every row has, or after
+``max_iter`` iterations.
 
 Everything is vectorised over rows and deterministic (same inputs, same iterates).
 """
@@ -97,8 +99,11 @@ def minimize_rows(
             excess = (trial_loss - loss - slope * step).clamp_min(1e-300)
             quadratic = torch.where(finite, -slope * step * step / (2 * excess), 0.1 * step)
             step = torch.where(pending, quadratic.clamp(0.1 * step, 0.5 * step), step)
-        # Rows whose line search failed keep their point and stop (no decrease found along any step).
-        failed = pending
+        # A row whose line search failed keeps its point. If the step came from its curvature memory,
+        # the memory is stale (Nocedal & Wright Sec. 7.2: restart): it is cleared and the row tries a
+        # steepest-descent step next; a failed steepest-descent step stops the row.
+        failed = pending & fresh
+        restart = pending & ~fresh
         s, y = new_x - x, new_grad - grad
         sy = (s * y).sum(1)
         good = active & ~failed & (sy > CURVATURE_EPS * torch.linalg.vector_norm(s, dim=1)
@@ -107,6 +112,9 @@ def minimize_rows(
         s_hist[slot], y_hist[slot] = s, y
         rho[slot] = torch.where(good, 1.0 / torch.where(good, sy, 1.0), 0.0)
         gamma = torch.where(good, sy / (y * y).sum(1).clamp_min(1e-30), gamma)
+        if restart.any():
+            rho[:, restart] = 0
+            gamma[restart] = 0
         decrease = loss - new_loss
         quiet = torch.where(decrease <= rel_tol * new_loss.abs().clamp_min(1e-12), quiet + 1, 0)
         iterations += active.long()

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import torch
 
@@ -128,12 +129,15 @@ def _best_of_groups(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, group
     return torch.tensor(keep, dtype=torch.long)
 
 
-def lbfgs_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, max_iter: int) -> tuple[torch.Tensor, int]:
-    """Row-wise L-BFGS of every row of ``x`` on ``layout``, one phase per ``SURROGATE_EPS``.
-    Returns the end points and the iterations the slowest row ran."""
+def lbfgs_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, max_iter: int,
+               phases: Sequence[float] = SURROGATE_EPS) -> tuple[torch.Tensor, int]:
+    """Row-wise L-BFGS of every row of ``x`` on ``layout``, one phase per surrogate eps of ``phases``
+    (default all of ``SURROGATE_EPS``), each at most ``max_iter`` iterations, in float64. Returns the
+    end points (float64, so a later phase continues from them unrounded) and the iterations the
+    slowest row ran."""
     x = x.detach().double()
     iterations = 0
-    for eps in SURROGATE_EPS:
+    for eps in phases:
         def objective(point: torch.Tensor, wanted: torch.Tensor, eps: float = eps):
             if bool(wanted.all()):
                 losses = kernel(point, layout, surrogate_eps=eps)
@@ -148,7 +152,7 @@ def lbfgs_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, max_iter: 
         result = minimize_rows(objective, x, max_iter=max_iter)
         x = result.x
         iterations += int(result.iterations.max())
-    return x.float(), iterations
+    return x, iterations
 
 
 def evaluate_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, batch_slots: int = 50_000) -> RowLosses:

@@ -21,6 +21,7 @@ The protocols:
 * ``PlainLBFGS`` — for analytical models: row-wise L-BFGS on a Charbonnier surrogate
   (``optim.lbfgs_rows``), at most ``iterations`` per surrogate phase, from the paper's start and
   from where ``warmup_epochs`` Adam epochs took it, side by side; each material keeps the lower.
+  The other starts' warm-up and first phase see a random subset of ``coarse_slots`` samples.
 * ``LatentAdam`` — an enhanced model's latent code and analytical parameters by row-wise Adam
   (``epochs``, lr ``lr`` with cosine decay), from several starts stacked as rows of one batch and
   narrowed to each material's best after a quarter of the epochs (module doc of ``latent``).
@@ -47,7 +48,7 @@ from ..model import BRDFModel
 from ..train import log_l1, predict
 from .kernel import RowKernel, RowLosses, RowSpace, frozen
 from .layout import compacted, layout_rows, padded
-from .optim import Adam, adam_rows, evaluate_rows, lbfgs_rows
+from .optim import SURROGATE_EPS, Adam, adam_rows, evaluate_rows, lbfgs_rows
 from .result import FitResult, per_material_loss
 
 
@@ -177,15 +178,24 @@ class PlainLBFGS(FitProtocol):
     ``warmup_lr``) took it; each material keeps the end point of lower loss. Both always run: a
     first end point can be a wrong minimum that nothing in its own numbers flags (docs/BENCHMARKS.md,
     "Issue 24's latent and plain fits"). Meant for analytical models (an enhanced model's landscape
-    is rough for L-BFGS)."""
+    is rough for L-BFGS).
+
+    The given starts (``first``, and ``also`` in ``fit_rows``) run every phase on every sample. The
+    warm-up start only diversifies the basins tried, so it and its first surrogate phase
+    (``SURROGATE_EPS[0]``, which settles the basin) see at most ``coarse_slots`` of each row's
+    samples — its first slots, a random subset since rows keep their samples shuffled with the valid
+    ones first (``layout.padded``, ``layout.compacted``); its last phase sees all of them. A material's
+    result is never worse than what the given starts alone reach (docs/BENCHMARKS.md, "Plain fits
+    against NBRDF and before")."""
 
     name: ClassVar[str] = "plain"
     iterations: int = 300
     warmup_epochs: int = 100
     warmup_lr: float = 0.05
+    coarse_slots: int = 2000
 
     def __post_init__(self) -> None:
-        if self.iterations < 1 or self.warmup_epochs < 0 or self.warmup_lr <= 0:
+        if self.iterations < 1 or self.warmup_epochs < 0 or self.warmup_lr <= 0 or self.coarse_slots < 1:
             raise ValueError(f"invalid plain protocol {self}")
 
     @property
@@ -208,11 +218,20 @@ class PlainLBFGS(FitProtocol):
         """Every row of ``layout`` from ``first`` (rows, dim), from its Adam warm-up and from
         ``also`` (rows, dim) when given (e.g. a fit of part of the same samples), each row keeping
         the end point of lowest fit loss: (rows, dim) and their losses."""
-        warmed = adam_rows(kernel, first, layout, Adam(self.warmup_epochs, self.warmup_lr)).x
+        coarse = layout.chunk(0, min(layout.slots, self.coarse_slots))
+        warmed = adam_rows(kernel, first, coarse, Adam(self.warmup_epochs, self.warmup_lr)).x
         starts = [first, warmed] + ([] if also is None else [also])
         r, k = layout.rows, len(starts)
         every = layout.select(torch.arange(r).repeat(k))
-        x, _ = lbfgs_rows(kernel, torch.cat(starts), every, self.iterations)
+        if coarse is layout:  # no subset: every start's first phase in one batch
+            x, _ = lbfgs_rows(kernel, torch.cat(starts), every, self.iterations, SURROGATE_EPS[:1])
+        else:
+            given = lbfgs_rows(kernel, torch.cat(starts[::2]), layout.select(torch.arange(r).repeat(k - 1)),
+                               self.iterations, SURROGATE_EPS[:1])[0]
+            warm = lbfgs_rows(kernel, warmed, coarse, self.iterations, SURROGATE_EPS[:1])[0]
+            x = torch.cat([given[:r], warm, given[r:]])
+        x, _ = lbfgs_rows(kernel, x, every, self.iterations, SURROGATE_EPS[1:])
+        x = x.float()
         scored = evaluate_rows(kernel, x, every)
         best = scored.train.reshape(k, r).argmin(0)
         pick = lambda t: t.reshape(k, r, *t.shape[1:])[best, torch.arange(r)]

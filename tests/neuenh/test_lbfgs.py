@@ -62,3 +62,33 @@ def test_a_row_with_an_infinite_loss_is_left_where_it_started():
     result = minimize_rows(objective, STARTS, max_iter=50)
     assert torch.equal(result.x[1], STARTS[1])
     assert result.iterations[1] == 0 and result.loss[0] < rosenbrock(STARTS[:1], None)[0][0]
+
+
+def _failing_from(first_failure: int, failures: int):
+    """Rosenbrock whose evaluations number ``first_failure`` .. ``first_failure + failures - 1``
+    (1 = the start's) return a NaN loss: a line search that falls in that window fails."""
+    count = [0]
+
+    def objective(x, rows):
+        count[0] += 1
+        f, g = rosenbrock(x, rows)
+        return (f * torch.nan if first_failure <= count[0] < first_failure + failures else f), g
+
+    return objective
+
+
+def test_a_failed_quasi_newton_line_search_restarts_from_steepest_descent():
+    """A line search along a step from the curvature memory that finds no decrease (here: every trial
+    NaN, 12 backtracks) clears the memory and the row goes on by steepest descent, to the minimum;
+    before, such a row stopped where it was (Nocedal & Wright Sec. 7.2)."""
+    start = STARTS[:1]
+    clean = minimize_rows(rosenbrock, start, max_iter=300, rel_tol=1e-14)
+    # evaluation 1 is the start's, 2 and on the first iterations' trials: the window from 6 on falls
+    # in a line search along a quasi-Newton step (the first iteration's is steepest descent)
+    result = minimize_rows(_failing_from(6, 12), start, max_iter=300, rel_tol=1e-14)
+    assert clean.loss[0] < 1e-10 and result.loss[0] < 1e-10
+
+
+def test_a_failed_steepest_descent_line_search_stops_the_row():
+    result = minimize_rows(_failing_from(2, 12), STARTS[:1], max_iter=50)
+    assert torch.equal(result.x, STARTS[:1]) and result.iterations[0] == 1 and result.evaluations == 13
