@@ -21,7 +21,7 @@ The protocols:
 * ``PlainLBFGS`` — for analytical models: row-wise L-BFGS on a Charbonnier surrogate
   (``optim.lbfgs_rows``), at most ``iterations`` per surrogate phase, from the paper's start and
   from where ``warmup_epochs`` Adam epochs took it, side by side; each material keeps the lower.
-  The other starts' warm-up and first phase see a random subset of ``coarse_slots`` samples.
+  The warm-up and the warm-up start's first phase see a random subset of ``coarse_slots`` samples.
 * ``LatentAdam`` — an enhanced model's latent code and analytical parameters by row-wise Adam
   (``epochs``, lr ``lr`` with cosine decay), from several starts stacked as rows of one batch and
   narrowed to each material's best after a quarter of the epochs (module doc of ``latent``).
