@@ -249,8 +249,7 @@ def test_plain_lbfgs_recovers_a_ggx_material(clean_ggx):
 def test_plain_lbfgs_warms_up_on_a_subset_and_is_never_worse_than_its_start_alone():
     """More samples than ``coarse_slots``: the warm-up start runs its first phase on a subset, the
     paper's start on every sample; the fit keeps the better, so it is no worse than L-BFGS from the
-    paper's start alone on all samples (the same batch of one row: the same iterates), and both are
-    far below the paper start's own loss."""
+    paper's start alone on all samples, and both are far below the paper start's own loss."""
     (material,) = synthetic_ggx(1, seed=21, noise_sigma=0.1)
     samples = sample_materials([material], 5000, seed=0)
     model = get_model("ggx")
@@ -264,7 +263,10 @@ def test_plain_lbfgs_warms_up_on_a_subset_and_is_never_worse_than_its_start_alon
         start_loss = evaluate_rows(kernel, first, layout).train
     alone, _ = lbfgs_rows(kernel, first, layout, 60)
     alone_loss = evaluate_rows(kernel, alone.float(), layout).train
-    assert result.loss <= float(alone_loss[0]) < 0.5 * float(start_loss[0])
+    # The fine phase runs the paper start beside the warm-up start: a batch of two rows rounds
+    # differently from one (~1e-10), so both stop near the same minimum within L-BFGS's own tolerance
+    # (a relative decrease below 1e-4 for 3 iterations), not bit for bit.
+    assert result.loss <= float(alone_loss[0]) * (1 + 3e-4) and float(alone_loss[0]) < 0.5 * float(start_loss[0])
     assert result.protocol["coarse_slots"] == 64
 
 
