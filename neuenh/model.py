@@ -19,7 +19,8 @@ from .graph import Expr, Graph, Operator, StateEncoding, Term, apply, fold
 from .materials import MaterialParams
 from .modules import ModuleConfig, NeuralModule, module_seed
 from .params import ParamSpec, ParamSpecs
-from .shading import Shading, make_shading
+from .ops import TORCH, BatchVec3
+from .shading import Shading, make_shading, shading_frame
 from .specialize import SpecializedBRDF
 
 
@@ -331,13 +332,18 @@ class BRDFModel(nn.Module):
         ``values``: physical values per *material*, (m, width) each; ``latent`` (m, latent_dim);
         ``material`` (n,) the row of each sample. Equals ``forward(wi, wo,
         values[material], latent[material])`` up to float rounding, but what depends on the
-        material alone is computed once per material: terms that read no direction (their
-        formula or their module), and the first-layer contribution of the 12 + latent
-        per-material inputs of every module replacing a term (``NeuralModule.forward_indexed``).
+        material alone is computed once per material: the shading frame (tilted normal, rotated
+        tangent), terms that read no direction (their formula or their module), and the
+        first-layer contribution of the 12 + latent per-material inputs of every module replacing
+        a term (``NeuralModule.forward_indexed``).
         """
         digits = self.digits if digits is None else digits
         # index_select, not [material]: its backward accumulates in a fixed order (bit-identical).
-        shading = make_shading(wi, wo, {k: torch.index_select(v, 0, material) for k, v in values.items()})
+        gather = lambda v: torch.index_select(v, 0, material)
+        # The shading frame depends on the material alone: built once per material, then gathered.
+        frame = None if "normal" not in values else tuple(
+            BatchVec3(gather(axis.array)) for axis in shading_frame(TORCH, values["normal"], values.get("t_theta")))
+        shading = make_shading(wi, wo, {k: gather(v) for k, v in values.items()}, frame=frame)
         per_material = Shading(None, None, None, None, None, None, None, values, None)
         modules_read = _reads_latent(self, digits)
         material_input = None

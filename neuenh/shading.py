@@ -97,12 +97,15 @@ def shade(xp, wi, wo, wi_s, wo_s, params: Mapping[str, Any]) -> Shading:
     )
 
 
-def make_shading(wi, wo, params: Mapping[str, Any], xp=TORCH) -> Shading:
+def make_shading(wi, wo, params: Mapping[str, Any], xp=TORCH, frame: tuple[Any, Any, Any] | None = None) -> Shading:
     """Build the shading context. ``wi``, ``wo``: (n, 3) local-frame arrays (or Vec3s of ``xp``);
-    ``params`` are physical values already broadcast to (n, width)."""
+    ``params`` are physical values already broadcast to (n, width). ``frame``: the shading frame of
+    each sample when the caller has it (``shading_frame`` of ``params``, e.g. built once per material
+    and gathered); by default it is built here from ``params``."""
     wi, wo = xp.as_vec3(wi), xp.as_vec3(wo)
     normal = params.get("normal")
     if normal is None:
         return shade(xp, wi, wo, wi, wo, params)
-    frame = shading_frame(xp, normal, params.get("t_theta"))
+    if frame is None:
+        frame = shading_frame(xp, normal, params.get("t_theta"))
     return shade(xp, wi, wo, to_frame(xp, wi, frame), to_frame(xp, wo, frame), params)
