@@ -20,7 +20,7 @@ from .materials import MaterialParams
 from .modules import ModuleConfig, NeuralModule, module_seed
 from .params import ParamSpec, ParamSpecs
 from .ops import TORCH, BatchVec3
-from .shading import Shading, make_shading, shading_frame
+from .shading import Shading, frame_of, make_shading
 from .specialize import SpecializedBRDF
 
 
@@ -341,8 +341,8 @@ class BRDFModel(nn.Module):
         # index_select, not [material]: its backward accumulates in a fixed order (bit-identical).
         gather = lambda v: torch.index_select(v, 0, material)
         # The shading frame depends on the material alone: built once per material, then gathered.
-        frame = None if "normal" not in values else tuple(
-            BatchVec3(gather(axis.array)) for axis in shading_frame(TORCH, values["normal"], values.get("t_theta")))
+        frame = frame_of(TORCH, values)
+        frame = None if frame is None else tuple(BatchVec3(gather(axis.array)) for axis in frame)
         shading = make_shading(wi, wo, {k: gather(v) for k, v in values.items()}, frame=frame)
         per_material = Shading(None, None, None, None, None, None, None, values, None)
         modules_read = _reads_latent(self, digits)

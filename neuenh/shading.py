@@ -65,6 +65,14 @@ def shading_frame(xp, normal_angles, t_theta) -> tuple[Any, Any, Any]:
     return c * t0 + s * b0, c * b0 - s * t0, normal
 
 
+def frame_of(xp, params: Mapping[str, Any]) -> tuple[Any, Any, Any] | None:
+    """``shading_frame`` of a model's parameters (per sample or per material alike), or None for a
+    model without a ``normal`` parameter (the local frame is the shading frame)."""
+    if "normal" not in params or params["normal"] is None:
+        return None
+    return shading_frame(xp, params["normal"], params.get("t_theta"))
+
+
 def to_frame(xp, w, frame: tuple[Any, Any, Any]):
     """Local-frame Vec3 -> the same direction in the frame (tangent, bitangent, normal)."""
     t, b, n = frame
@@ -103,9 +111,7 @@ def make_shading(wi, wo, params: Mapping[str, Any], xp=TORCH, frame: tuple[Any, 
     each sample when the caller has it (``shading_frame`` of ``params``, e.g. built once per material
     and gathered); by default it is built here from ``params``."""
     wi, wo = xp.as_vec3(wi), xp.as_vec3(wo)
-    normal = params.get("normal")
-    if normal is None:
-        return shade(xp, wi, wo, wi, wo, params)
+    frame = frame_of(xp, params) if frame is None else frame
     if frame is None:
-        frame = shading_frame(xp, normal, params.get("t_theta"))
+        return shade(xp, wi, wo, wi, wo, params)
     return shade(xp, wi, wo, to_frame(xp, wi, frame), to_frame(xp, wo, frame), params)

@@ -30,7 +30,7 @@ import torch
 from .graph import Expr, Operator, Term, V, apply, fold
 from .materials import MaterialParams
 from .ops import TORCH, BatchVec3
-from .shading import Shading, shade, shading_frame
+from .shading import Shading, frame_of, shade
 
 # Rows per pass: the intermediates of a chunk stay in cache (measured in bench/bench_speed.py:
 # unchunked batches of 1e5 pay for page faults and memory traffic on every (n, 32) intermediate).
@@ -155,10 +155,8 @@ class SpecializedBRDF:
     @staticmethod
     def _frame(values: Mapping[str, torch.Tensor]) -> torch.Tensor | None:
         """The rotation whose rows are the shading frame's (tangent, bitangent, normal)."""
-        if "normal" not in values:
-            return None
-        t, b, n = shading_frame(TORCH, values["normal"], values.get("t_theta"))
-        return torch.cat([t.array, b.array, n.array])
+        frame = frame_of(TORCH, values)
+        return None if frame is None else torch.cat([axis.array for axis in frame])
 
     # -- evaluation ------------------------------------------------------------------------------
     @torch.no_grad()

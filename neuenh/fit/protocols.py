@@ -220,16 +220,17 @@ class PlainLBFGS(FitProtocol):
         the end point of lowest fit loss: (rows, dim) and their losses."""
         coarse = layout.chunk(0, min(layout.slots, self.coarse_slots))
         warmed = adam_rows(kernel, first, coarse, Adam(self.warmup_epochs, self.warmup_lr)).x
-        starts = [first, warmed] + ([] if also is None else [also])
-        r, k = layout.rows, len(starts)
-        every = layout.select(torch.arange(r).repeat(k))
+        given = [first] + ([] if also is None else [also])
+        r, k = layout.rows, len(given) + 1
+        every = layout.select(torch.arange(r).repeat(k))  # rows: first, warmed, also
         if coarse is layout:  # no subset: every start's first phase in one batch
-            x, _ = lbfgs_rows(kernel, torch.cat(starts), every, self.iterations, SURROGATE_EPS[:1])
+            x, _ = lbfgs_rows(kernel, torch.cat([first, warmed, *given[1:]]), every, self.iterations,
+                              SURROGATE_EPS[:1])
         else:
-            given = lbfgs_rows(kernel, torch.cat(starts[::2]), layout.select(torch.arange(r).repeat(k - 1)),
-                               self.iterations, SURROGATE_EPS[:1])[0]
+            settled = lbfgs_rows(kernel, torch.cat(given), layout.select(torch.arange(r).repeat(k - 1)),
+                                 self.iterations, SURROGATE_EPS[:1])[0]
             warm = lbfgs_rows(kernel, warmed, coarse, self.iterations, SURROGATE_EPS[:1])[0]
-            x = torch.cat([given[:r], warm, given[r:]])
+            x = torch.cat([settled[:r], warm, settled[r:]])
         x, _ = lbfgs_rows(kernel, x, every, self.iterations, SURROGATE_EPS[1:])
         x = x.float()
         scored = evaluate_rows(kernel, x, every)
