@@ -167,20 +167,24 @@ function planSelected() {
 /** @type {ReturnType<typeof setTimeout> | undefined} */
 let planTimer = undefined;
 
-/** The plan named in the hash, polled until it ends. */
+/** The plan named in the hash, polled until it ends (or is not found); a failed poll is tried again,
+ * as a job's is, so a moment's error never leaves a stale status on the page. */
 async function pollPlan() {
   clearTimeout(planTimer);
   const id = planSelected();
   $("plan").hidden = !id;
   if (!id || S.needsToken) return;
+  let again = true;
   try {
     const plan = await fetchPlan(id);
     if (id !== planSelected()) return;
     await renderPlan(plan);
-    if (!plan.terminal) planTimer = setTimeout(pollPlan, JOB_MS);
+    again = !plan.terminal;
   } catch (err) {
+    again = !(err instanceof ApiError && err.status === 404);
     handleError(err);
   }
+  if (again && !S.needsToken && id === planSelected()) planTimer = setTimeout(pollPlan, JOB_MS);
 }
 
 /** @param {boolean} poll */
