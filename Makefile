@@ -55,12 +55,12 @@ mitsuba: $(STAMP)
 	  echo "note: libLLVM 17+ is not installed and this is not root; the Mitsuba export tests will skip"
 
 # The dashboard's pure modules under Node's own test runner, then every Python test (in
-# TEST_PROCESSES processes, a file per process at a time) with the 25 slowest listed (make them
-# cheaper before adding more).
+# TEST_PROCESSES processes, a file per process at a time, the heaviest files first: tests/conftest.py)
+# with the 25 slowest listed (make them cheaper before adding more).
 test: $(STAMP) browser compiler gl mitsuba
 	@if command -v node >/dev/null; then node --test tests/dashboard/; \
 	  else echo "note: node is not installed; the dashboard's unit tests (tests/dashboard) skip"; fi
-	$(PY) -m pytest -q -n $(TEST_PROCESSES) --dist loadfile --durations=25
+	$(PY) -m pytest -q -n $(TEST_PROCESSES) --dist loadfile --no-loadscope-reorder --durations=25
 
 # Slow, measured side by side; each script rewrites its own section of docs/BENCHMARKS.md.
 # bench_fit runs the checkout before issue 13 beside this one, both fitting the model shipped then.

@@ -19,6 +19,7 @@ from .graph import Expr, Graph, Operator, StateEncoding, Term, apply, fold
 from .materials import MaterialParams
 from .modules import ModuleConfig, NeuralModule, module_seed
 from .params import ParamSpec, ParamSpecs
+from .rows import RowIndex, gather_rows
 from .ops import TORCH, BatchVec3
 from .shading import Shading, frame_of, make_shading
 from .specialize import SpecializedBRDF
@@ -324,13 +325,13 @@ class BRDFModel(nn.Module):
         wo: torch.Tensor,
         values: Mapping[str, torch.Tensor],
         latent: torch.Tensor | None,
-        material: torch.Tensor,
+        material: RowIndex,
         digits: Sequence[int] | None = None,
     ) -> torch.Tensor:
         """``forward`` for samples of a table of materials, the training and fitting path.
 
         ``values``: physical values per *material*, (m, width) each; ``latent`` (m, latent_dim);
-        ``material`` (n,) the row of each sample. Equals ``forward(wi, wo,
+        ``material``: the row of each sample (``rows.RowIndex``: an index or a grid). Equals ``forward(wi, wo,
         values[material], latent[material])`` up to float rounding, but what depends on the
         material alone is computed once per material: the shading frame (tilted normal, rotated
         tangent), terms that read no direction (their formula or their module), and the
@@ -338,8 +339,7 @@ class BRDFModel(nn.Module):
         a term (``NeuralModule.forward_indexed``).
         """
         digits = self.digits if digits is None else digits
-        # index_select, not [material]: its backward accumulates in a fixed order (bit-identical).
-        gather = lambda v: torch.index_select(v, 0, material)
+        gather = lambda v: gather_rows(v, material)
         # The shading frame depends on the material alone: built once per material, then gathered.
         frame = frame_of(TORCH, values)
         frame = None if frame is None else tuple(BatchVec3(gather(axis.array)) for axis in frame)
@@ -361,7 +361,7 @@ class BRDFModel(nn.Module):
                     material_input, directions if expr.reads_directions else None, material)
             if not expr.reads_directions:  # a function of the parameters alone: per material
                 value = torch.as_tensor(expr.formula(per_material), dtype=wi.dtype)
-                return torch.index_select(value.expand(m, expr.width), 0, material)
+                return gather(value.expand(m, expr.width))
             return expr.formula(shading)
 
         return self._combine(digits, term, shading.above)

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from .rows import RowIndex, gather_rows
+
 
 @dataclass(frozen=True)
 class ModuleConfig:
@@ -106,22 +108,21 @@ class NeuralModule(nn.Module):
         return self.layers[-1](x).to(dtype)
 
     def forward_indexed(self, per_material: torch.Tensor, per_sample: torch.Tensor | None,
-                        material: torch.Tensor) -> torch.Tensor:
+                        material: RowIndex) -> torch.Tensor:
         """``forward(cat([per_material[material], per_sample]))`` without building that input:
         the first layer's per-material part ``b1 + W1[:, :P] @ per_material`` is computed once per
         material (m rows) and gathered per sample, so each sample pays only for its own inputs.
 
         ``per_material`` (m, P); ``per_sample`` (n, Q) or None when the module reads nothing
         else (then the whole module runs on the m rows and its output is gathered); ``material``
-        (n,) the row of each sample."""
+        the row of each sample (``rows.RowIndex``)."""
         first = self.layers[0]
         dtype = per_material.dtype
         per_material = per_material.to(first.weight.dtype)
         k = per_material.shape[1]
         if per_sample is None:
-            return torch.index_select(self.forward(per_material), 0, material).to(dtype)
-        # index_select, not [material]: its backward accumulates in a fixed order (bit-identical).
-        x = torch.index_select(torch.addmm(first.bias, per_material, first.weight[:, :k].t()), 0, material)
+            return gather_rows(self.forward(per_material), material).to(dtype)
+        x = gather_rows(torch.addmm(first.bias, per_material, first.weight[:, :k].t()), material)
         x = torch.addmm(x, per_sample.to(first.weight.dtype), first.weight[:, k:].t())
         for layer in self.layers[1:]:
             x = layer(nn.functional.leaky_relu(x, self.negative_slope, inplace=True))

@@ -31,6 +31,14 @@ def scene(folder: Path, **changes) -> dict:
             "fit": {"samples": 1000, "test_samples": 500, "seed": 0, "epochs": 100}, **changes}
 
 
+def runaway(folder: Path, epochs: int = 1000, copies: int = 60) -> dict:
+    """A plan that runs until it is cancelled: NBRDF fitted for ``epochs`` to ``copies`` copies of
+    gloss.npz (``write_tables``). One copy at 1,000 epochs fits in about a second once the plan's
+    process is up, so a plan of one may end before a test has cancelled it (one did, in CI)."""
+    return scene(folder, ladder=["nbrdf"], fit={"samples": 300, "test_samples": 200, "epochs": epochs},
+                 materials=[{"path": str(folder / "gloss.npz"), "name": f"gloss{i}"} for i in range(copies)])
+
+
 def write_module_bundle(folder: Path):
     """A bundle of GGX with one module (invE, random weights) saved at ``folder``: a model with modules
     for a ladder's ``{model: folder, capacity: C}``. Returns its model."""

@@ -34,6 +34,7 @@ from torch import nn
 from ..materials import MaterialTable
 from ..model import BRDFModel
 from ..modules import NeuralModule
+from ..rows import RowIndex, gather_rows
 from ..train import log_residual
 from .layout import RowLayout
 
@@ -217,11 +218,11 @@ class _RowModule(nn.Module):
         return self._rest(self._layer(0, x))
 
     def forward_indexed(self, per_material: torch.Tensor, per_sample: torch.Tensor | None,
-                        material: torch.Tensor) -> torch.Tensor:
+                        material: RowIndex) -> torch.Tensor:
         """``per_material`` (rows, P): one row per grid row; ``per_sample`` (rows * s, Q); the
         per-row part of the first layer is broadcast over the row's slots."""
         if per_sample is None:
-            return torch.index_select(self.forward(per_material), 0, material)
+            return gather_rows(self.forward(per_material), material)
         k = per_material.shape[1]
         if 0 in self.weights:
             weight, bias = self.weights[0]
@@ -278,7 +279,7 @@ class RowKernel:
                 x.requires_grad_(True)
             values, latent = self.space.values(x)
             view = row_view(self.model, rows, self.space.deltas(x))
-            pred = view.forward_indexed(layout.wi, layout.wo, values, latent, layout.row_of_sample)
+            pred = view.forward_indexed(layout.wi, layout.wo, values, latent, layout.grid)
             residual = log_residual(pred, layout.f_r, layout.wi)
             per_sample = residual.abs().mean(dim=1).reshape(rows, -1)
             if surrogate_eps is None:

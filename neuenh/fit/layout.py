@@ -20,6 +20,7 @@ from typing import Sequence
 import torch
 
 from ..data.samples import Samples
+from ..rows import RowGrid
 
 
 @dataclass(frozen=True)
@@ -42,9 +43,9 @@ class RowLayout:
         return self.train.shape[1]
 
     @property
-    def row_of_sample(self) -> torch.Tensor:
-        """(rows * slots,) the row of every flat sample position."""
-        return torch.arange(self.rows).repeat_interleave(self.slots)
+    def grid(self) -> RowGrid:
+        """The row of every flat sample position: ``rows`` runs of ``slots``."""
+        return RowGrid(self.rows, self.slots)
 
     def select(self, rows: torch.Tensor | Sequence[int]) -> "RowLayout":
         """The layout of the given rows, in that order."""

@@ -294,7 +294,7 @@ class LatentAdam(FitProtocol):
                          Adam(self.epochs, self.lr)).x
         with torch.no_grad():
             values, _ = a_space.values(base)
-            imitated_f = analytical.forward_indexed(layout.wi, layout.wo, values, None, layout.row_of_sample).clamp_min(0.0)
+            imitated_f = analytical.forward_indexed(layout.wi, layout.wo, values, None, layout.grid).clamp_min(0.0)
         latents = [torch.full((m, model.latent_dim), LATENT_INIT)]
         if trained is not None and model.uses_latent and len(trained):
             latents.append(trained.latent.detach().mean(0, keepdim=True).expand(m, -1))

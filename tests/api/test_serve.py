@@ -27,7 +27,7 @@ GRACE_S = 20  # NEUENH_SHUTDOWN_GRACE_S: a shutdown that waited on a running pla
 def test_serve_runs_jobs_on_ray_owns_its_store_and_shuts_down_cleanly(tmp_path):
     """Also issue 26, case 2: SIGTERM with a runaway plan running took 33 s (the grace ran out on the
     plan's thread) and left Ray's agents running; the plan's process is ended at once now."""
-    from scene_files import scene, write_tables
+    from scene_files import runaway, write_tables
 
     (tmp_path / "tables").mkdir()
     tables = write_tables(tmp_path / "tables")
@@ -53,9 +53,7 @@ def test_serve_runs_jobs_on_ray_owns_its_store_and_shuts_down_cleanly(tmp_path):
             assert f"in use by neuenh serve (pid {server.proc.pid}" in line and "Traceback" not in refused.stderr
 
         with server.client() as c:
-            runaway = scene(tables, ladder=["nbrdf"], fit={"samples": 300, "test_samples": 200, "epochs": 1000})
-            runaway["materials"] = [{"path": str(tables / "gloss.npz")}]
-            plan_id = c.post("/plans", json=runaway).json()["id"]
+            plan_id = c.post("/plans", json=runaway(tables)).json()["id"]
             wait_for(c, plan_id, until=lambda plan: plan["status"] == "RUNNING", timeout=120, kind="plans")
 
         ray_processes = server.children()  # and the plan's process

@@ -443,15 +443,13 @@ def test_plan_uploads_the_scenes_files_to_a_service_that_cannot_read_them(live_s
 def test_a_plan_cancelled_a_busy_service_and_a_damaged_file_each_explained(live_server, tmp_path):
     """Issue 26: plans can be cancelled from the client (cases 2); a busy fit slot (429, case 3) and
     a damaged stored file (507, case 10) are each one line saying what to do, not "the service failed"."""
-    from scene_files import scene, write_tables
+    from scene_files import runaway, write_tables
 
     tables = write_tables(tmp_path)
     server = live_server(data_roots=[tmp_path], api_token=TOKEN)
     with server.client(headers={"Authorization": f"Bearer {TOKEN}"}) as c:
         job = wait_for(c, c.post("/jobs", json=tiny_spec(max_rounds=1).model_dump(mode="json")).json()["id"])
-        runaway = scene(tables, ladder=["nbrdf"], fit={"samples": 300, "test_samples": 200, "epochs": 1000})
-        runaway["materials"] = [{"path": str(tables / "gloss.npz")}]
-        plan = c.post("/plans", json=runaway).json()
+        plan = c.post("/plans", json=runaway(tables)).json()
     cancelled = client("cancel", "--plan", plan["id"], url=server.url)
     assert cancelled.returncode == 0, cancelled.stderr
     assert cancelled.stdout.startswith(f"plan {plan['id']}: CANCELLED (it keeps its 0 planned material(s)")

@@ -408,14 +408,19 @@ def test_the_original_capacity_is_the_plain_fit_of_the_model_the_search_started_
 
 def test_adaptive_never_ends_worse_held_out_than_the_analytical_fit(enhanced):
     """Materials GGX cannot represent (the synthetic zoo): per material the adaptive fit's held-out
-    loss is at most the analytical-only fit's — equal when it keeps the analytical capacity, and
-    where it frees more, lower (up to the held-out sample's own noise, 2 % of the loss)."""
+    loss is at most the analytical-only fit's — equal when it keeps the analytical capacity (the
+    same fit, batched beside other rows: equal up to where L-BFGS ends on differently rounded float32
+    sums, which its last surrogate phase resolves to ``SURROGATE_EPS[-1]``), and where it frees more,
+    lower (up to the held-out sample's own noise, 2 % of the loss)."""
     materials = synthetic_zoo(2, seed=5)
     samples, test = sample_materials(materials, 300, seed=0), sample_materials(materials, 3000, seed=5)
     adaptive = Adaptive(**ADAPTIVE).fit(enhanced, samples)
     analytical = Adaptive(capacities=("analytical",), lbfgs_iterations=ADAPTIVE["lbfgs_iterations"]).fit(enhanced, samples)
     for mine, theirs, i in zip(adaptive.losses_on(enhanced, test), analytical.losses_on(enhanced, test), range(2)):
-        assert mine <= theirs * (1.0 if adaptive.capacity(i) == "analytical" else 1.02)
+        if adaptive.capacity(i) == "analytical":
+            assert mine <= theirs + SURROGATE_EPS[-1]
+        else:
+            assert mine <= theirs * 1.02
 
 
 def test_a_candidates_validation_loss_is_its_fit_of_the_other_samples_scored_on_the_held_out_fold(enhanced):

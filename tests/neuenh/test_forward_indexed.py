@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from neuenh.models import available_models, get_model
+from neuenh.rows import RowGrid
 from test_models import assert_finite_grads, stability_grid
 from ggx_states import PAPER_STATE
 
@@ -42,20 +43,34 @@ def grid_table(model, dtype):
     return torch.as_tensor(wi, dtype=dtype), torch.as_tensor(wo, dtype=dtype), values, latent, material
 
 
+def as_grid(wi, wo, material):
+    """The same samples regrouped as a ``RowGrid``: each material's first ``slots`` samples (the
+    fewest any material has), material by material; returns wi, wo, the grid and each sample's row."""
+    slots = int(torch.bincount(material).min())
+    order = torch.cat([torch.nonzero(material == j)[:slots, 0] for j in range(int(material.max()) + 1)])
+    return wi[order], wo[order], RowGrid(int(material.max()) + 1, slots), material[order]
+
+
 def value_and_grads(model, f, values, latent):
     loss = (torch.log1p(f.abs()) * torch.linspace(0.5, 1.5, f.numel(), dtype=f.dtype).reshape(f.shape)).sum()
     leaves = [*values.values(), latent, *model.neural.parameters()]
     return f.detach(), torch.autograd.grad(loss, leaves, allow_unused=True)
 
 
+@pytest.mark.parametrize("rows", ["index", "grid"])
 @pytest.mark.parametrize("name, state", CASES, ids=[f"{m}-{s}" for m, s in CASES])
-def test_forward_indexed_equals_forward_on_gathered_parameters(name, state):
+def test_forward_indexed_equals_forward_on_gathered_parameters(name, state, rows):
+    """Rows given as an index (any order) or as a grid (consecutive runs: a fit's layout)."""
     model = copy.deepcopy(get_model(name, state=state, seed=2)).double()
     wi, wo, values, latent, material = grid_table(model, torch.float64)
     assert 9 <= len(latent) < len(wi)  # several materials, each on several rows
+    given = material
+    if rows == "grid":
+        wi, wo, given, material = as_grid(wi, wo, material)
+        assert given.slots >= 2
     gathered = {k: v[material] for k, v in values.items()}
     want, want_grads = value_and_grads(model, model.forward(wi, wo, gathered, latent[material]), values, latent)
-    got, got_grads = value_and_grads(model, model.forward_indexed(wi, wo, values, latent, material), values, latent)
+    got, got_grads = value_and_grads(model, model.forward_indexed(wi, wo, values, latent, given), values, latent)
     scale = want.abs().max()
     assert torch.allclose(got, want, rtol=1e-12, atol=1e-13 * scale)
     for g, w in zip(got_grads, want_grads):
