@@ -18,9 +18,9 @@ from torch import nn
 from .graph import Expr, Graph, Operator, StateEncoding, Term, apply, fold
 from .materials import MaterialParams
 from .modules import ModuleConfig, NeuralModule, module_seed
+from .ops import TORCH, BatchVec3
 from .params import ParamSpec, ParamSpecs
 from .rows import RowIndex, gather_rows
-from .ops import TORCH, BatchVec3
 from .shading import Shading, frame_of, make_shading
 from .specialize import SpecializedBRDF
 

@@ -554,7 +554,7 @@ def test_a_plan_shows_its_materials_totals_and_plot(page, tmp_path):
     tables = write_tables(tmp_path / "roots")
     data = scene(tables)
     data["materials"] = [{**m, "path": str(tables / m["path"])} for m in data["materials"]]
-    with running_server(tmp_path / "data", data_roots=[tmp_path], api_token="t0k") as server:
+    with running_server(tmp_path / "data", data_roots=[tables], api_token="t0k") as server:
         with server.client(headers={"Authorization": "Bearer t0k"}) as c:
             plan_id = c.post("/plans", json=data).json()["id"]
             deadline = time.monotonic() + 120
