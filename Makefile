@@ -4,8 +4,9 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 # pytest-xdist processes for `make test`: the suite waits more than it computes (servers, Ray and
-# subprocesses starting), so two share even 2 cores well; each test file stays on one process.
-TEST_PROCESSES ?= 2
+# subprocesses starting), so three share even 2 cores well (two left a third of the cores idle:
+# docs/BENCHMARKS.md, "Test suite time"); each test file stays on one process.
+TEST_PROCESSES ?= 3
 
 .PHONY: install browser compiler gl mitsuba demo test bench report clean
 

@@ -1,6 +1,7 @@
 """Small job specs for fast orchestrator tests, and the reference a shared, crashed or distributed
 run of one must equal: the spec run alone, in this process."""
 
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import torch
@@ -43,6 +44,17 @@ def run_alone(where: Path, spec: dict) -> list[tuple]:
                     for r in jobs.rounds(job.id)]
     finally:
         torch.set_num_threads(threads)
+
+
+def run_alone_soon(where: Path, specs: list[dict]) -> Future:
+    """``run_alone`` of each spec in turn, in a thread of this process started now; the future's
+    result is their list. A test that then waits on a service training in its own processes gets
+    its reference meanwhile instead of after (the two still share the machine's cores)."""
+    pool = ThreadPoolExecutor(1, thread_name_prefix="run-alone")
+    try:
+        return pool.submit(lambda: [run_alone(where, spec) for spec in specs])
+    finally:
+        pool.shutdown(wait=False)
 
 
 def served_path(history: dict) -> list[tuple]:
