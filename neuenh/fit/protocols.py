@@ -250,17 +250,28 @@ class LatentAdam(FitProtocol):
     first (Adam, the same budget); the enhanced model is made to imitate that fit (all its
     parameters fitted to the analytical fit's predictions at the same directions, a third of the
     epochs), from latent 0.5 and from the training materials' mean code when ``trained`` is given.
-    Each imitation and the paper's start then start the fit to the measurements, stacked as rows of
-    one batch; after a quarter of the epochs each material keeps its lowest-loss start.
-    ``starts="paper"``: the paper's start alone."""
+    With ``trained``, also the ``screened`` training codes that fit the material best as they are:
+    every training material's latent code beside the material's analytical fit, scored on at most
+    ``screen_samples`` of its samples (no step taken). Each imitation, each screened code and the
+    paper's start then start the fit to the measurements, stacked as rows of one batch; after a
+    quarter of the epochs each material keeps its lowest-loss start. ``starts="paper"``: the
+    paper's start alone.
+
+    Why screened codes: the fit's end point depends on its start more than on anything else — one
+    material's held-out error moved 1.6× when only the order of its samples changed — and a few
+    hundred training codes are a cheap, diverse set of starts the modules were trained to read
+    (docs/BENCHMARKS.md, "Latent fits: screened starts")."""
 
     name: ClassVar[str] = "latent"
     epochs: int = 300
     lr: float = 0.05
     starts: str = "analytical"
+    screened: int = 8
+    screen_samples: int = 1000
 
     def __post_init__(self) -> None:
-        if self.epochs < 1 or self.lr <= 0 or self.starts not in ("analytical", "paper"):
+        if (self.epochs < 1 or self.lr <= 0 or self.starts not in ("analytical", "paper") or self.screened < 0
+                or self.screen_samples < 1):
             raise ValueError(f"invalid latent protocol {self} (starts: 'analytical' or 'paper')")
 
     @property
@@ -303,7 +314,26 @@ class LatentAdam(FitProtocol):
         imitate = rows.layout(torch.arange(m).repeat(k), None if train is None else train.repeat(k, 1)).with_targets(
             imitated_f.reshape(m, -1, 3).repeat(k, 1, 1))
         imitated = adam_rows(RowKernel(model, space), like, imitate, Adam(max(1, self.epochs // 3), self.lr)).x
-        return [paper, *imitated.reshape(k, m, -1)]
+        return [paper, *imitated.reshape(k, m, -1), *self.screened_starts(model, rows, trained, base, train)]
+
+    def screened_starts(self, model: BRDFModel, rows: Rows, trained: MaterialTable | None, base: torch.Tensor,
+                        train: torch.Tensor | None = None) -> list[torch.Tensor]:
+        """Up to ``screened`` starts (m, dim): for each material, the training codes of lowest loss
+        beside its analytical fit ``base`` (m, analytical dim), lowest first, scored on the first
+        ``screen_samples`` of its (``train``) slots — a random subset, the slots being shuffled."""
+        space = RowSpace(model)
+        if not self.screened or trained is None or not len(trained) or not space.latent:
+            return []
+        codes = trained.latent.detach().float()
+        usable = rows.valid if train is None else rows.valid & train
+        subset = rows.as_problems(torch.arange(rows.materials), usable & (usable.cumsum(1) <= self.screen_samples))
+        kernel, n = RowKernel(model, space), len(codes)
+        best = []
+        for i in range(rows.materials):  # one material at a time: n rows of its subset's slots
+            candidates = torch.cat([base[i].expand(n, -1), codes], 1)
+            loss = evaluate_rows(kernel, candidates, subset.layout(torch.full((n,), i))).train
+            best.append(candidates[loss.argsort()[: self.screened]])
+        return list(torch.stack(best, 1))
 
     def fit_rows(self, model: BRDFModel, rows: Rows, start: MaterialTable | None, trained: MaterialTable | None,
                  seed: int, train: torch.Tensor | None = None, val: torch.Tensor | None = None
