@@ -250,12 +250,12 @@ class LatentAdam(FitProtocol):
     first (Adam, the same budget); the enhanced model is made to imitate that fit (all its
     parameters fitted to the analytical fit's predictions at the same directions, a third of the
     epochs), from latent 0.5 and from the training materials' mean code when ``trained`` is given.
-    With ``trained``, also the ``screened`` training codes that fit the material best as they are:
-    every training material's latent code beside the material's analytical fit, scored on at most
-    ``screen_samples`` of its samples (no step taken). Each imitation, each screened code and the
-    paper's start then start the fit to the measurements, stacked as rows of one batch; after a
-    quarter of the epochs each material keeps its lowest-loss start. ``starts="paper"``: the
-    paper's start alone.
+    With ``trained``, also a start from the training codes: every training material's latent code
+    beside the material's analytical fit is scored on at most ``screen_samples`` of its samples (no
+    step taken); the ``screened`` of lowest loss race for a quarter of the epochs on those samples
+    only, and the winner's end point is one more start. Each imitation, that start and the paper's
+    then start the fit to the measurements, stacked as rows of one batch; after a quarter of the
+    epochs each material keeps its lowest-loss start. ``starts="paper"``: the paper's start alone.
 
     Why screened codes: the fit's end point depends on its start more than on anything else — one
     material's held-out error moved 1.6× when only the order of its samples changed — and a few
@@ -318,22 +318,32 @@ class LatentAdam(FitProtocol):
 
     def screened_starts(self, model: BRDFModel, rows: Rows, trained: MaterialTable | None, base: torch.Tensor,
                         train: torch.Tensor | None = None) -> list[torch.Tensor]:
-        """Up to ``screened`` starts (m, dim): for each material, the training codes of lowest loss
-        beside its analytical fit ``base`` (m, analytical dim), lowest first, scored on the first
-        ``screen_samples`` of its (``train``) slots — a random subset, the slots being shuffled."""
-        space = RowSpace(model)
-        if not self.screened or trained is None or not len(trained) or not space.latent:
+        """The training codes' start (class doc), [(m, dim)], or [] without training codes: the
+        ``screened_codes`` raced by Adam on the samples they were scored on; each material's end
+        point of lowest loss."""
+        if not self.screened or trained is None or not len(trained) or not RowSpace(model).latent:
             return []
-        codes = trained.latent.detach().float()
         usable = rows.valid if train is None else rows.valid & train
         subset = rows.as_problems(torch.arange(rows.materials), usable & (usable.cumsum(1) <= self.screen_samples))
-        kernel, n = RowKernel(model, space), len(codes)
+        screened = self.screened_codes(model, subset, trained, base)  # (m, k, dim)
+        m, k, dim = screened.shape
+        race = adam_rows(RowKernel(model, RowSpace(model)), screened.reshape(m * k, dim),
+                         subset.layout(torch.arange(m).repeat_interleave(k)), Adam(max(1, self.epochs // 4), self.lr))
+        winner = race.train.reshape(m, k).nan_to_num(torch.inf).argmin(1)
+        return [race.x.reshape(m, k, dim)[torch.arange(m), winner]]
+
+    def screened_codes(self, model: BRDFModel, rows: Rows, trained: MaterialTable, base: torch.Tensor) -> torch.Tensor:
+        """(m, k, dim): for each material of ``rows``, its analytical fit ``base`` (m, analytical
+        dim) beside each of the ``screened`` training codes of lowest loss on all its samples as they
+        are (no step taken), lowest first (k = at most ``screened``)."""
+        space = RowSpace(model)
+        kernel, codes = RowKernel(model, space), trained.latent.detach().float()
         best = []
-        for i in range(rows.materials):  # one material at a time: n rows of its subset's slots
-            candidates = torch.cat([base[i].expand(n, -1), codes], 1)
-            loss = evaluate_rows(kernel, candidates, subset.layout(torch.full((n,), i))).train
+        for i in range(rows.materials):  # one material at a time: a row per code, on its slots
+            candidates = torch.cat([base[i].expand(len(codes), -1), codes], 1)
+            loss = evaluate_rows(kernel, candidates, rows.layout(torch.full((len(codes),), i))).train
             best.append(candidates[loss.argsort()[: self.screened]])
-        return list(torch.stack(best, 1))
+        return torch.stack(best)
 
     def fit_rows(self, model: BRDFModel, rows: Rows, start: MaterialTable | None, trained: MaterialTable | None,
                  seed: int, train: torch.Tensor | None = None, val: torch.Tensor | None = None

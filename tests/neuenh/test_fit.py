@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from neuenh.data.directions import sample_directions
 from neuenh.data.samples import sample_materials
 from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
 from neuenh.fit import (SURROGATE_EPS, Adaptive, FitOptions, LatentAdam, PaperRMSProp, PlainLBFGS, fit_materials,
@@ -309,6 +310,76 @@ def test_latent_fit_keeps_each_materials_best_start(two_zoo_materials, enhanced)
     best = LatentAdam(epochs=40).fit(enhanced, samples, trained=trained)
     for mine, theirs in zip(best.losses, paper.losses):
         assert mine <= theirs * 1.02
+
+
+def _codes(model, n, seed):
+    """A training table of ``n`` materials with spread-out latent codes."""
+    g = torch.Generator().manual_seed(seed)
+    return MaterialTable(model.specs, tuple(f"t{i}" for i in range(n)), model.latent_dim,
+                         latent=torch.rand(n, model.latent_dim, generator=g))
+
+
+def test_screened_codes_are_the_training_codes_that_fit_best_as_they_are(enhanced, two_zoo_materials):
+    """Each material's screened codes sit beside its analytical row, lowest log-L1 first — ranked
+    here by the model's own forward pass (``per_material_loss``), not by the fit's kernel."""
+    samples, trained = two_zoo_materials, _codes(enhanced, 12, seed=1)
+    rows, space = Rows(samples, seed=0), RowSpace(enhanced)
+    n_base = space.base_dim - enhanced.latent_dim
+    base = torch.rand(rows.materials, n_base, generator=torch.Generator().manual_seed(2)) - 0.5
+    screened = LatentAdam(screened=3).screened_codes(enhanced, rows, trained, base)
+    assert screened.shape == (rows.materials, 3, space.dim)
+    for i in range(rows.materials):
+        mine = samples.of_material(i)
+        mine = Samples(mine.wi, mine.wo, mine.f_r, torch.zeros(len(mine), dtype=torch.long), samples.names[i : i + 1])
+        losses = []
+        for code in trained.latent:
+            table = space.to_table(torch.cat([base[i], code])[None],
+                                   MaterialTable(enhanced.specs, mine.names, enhanced.latent_dim))
+            losses.append(per_material_loss(enhanced, table, mine)[0])
+        assert all(torch.equal(row[:n_base], base[i]) for row in screened[i])
+        chosen = [int(torch.nonzero((trained.latent == row[n_base:]).all(1))[0]) for row in screened[i]]
+        # the kernel and the forward pass round differently: a per-sample log-L1 is off by a few float32
+        # eps per layer of the modules (absolute: log(1 + x) has slope <= 1), so ranks may swap only there
+        rounding = 64 * FLOAT32_EPS
+        assert [losses[c] for c in chosen] == pytest.approx(sorted(losses)[:3], abs=rounding)
+
+
+def test_a_material_measured_at_a_training_code_starts_there(enhanced):
+    """A material the model itself renders at one of the training codes (and known analytical
+    parameters): that code is screened first, and the start raced from it fits better than any
+    other training code as it is."""
+    truth = _random_table(enhanced, ("m",), seed=4)
+    trained = _codes(enhanced, 10, seed=5)
+    with torch.no_grad():
+        truth.latent.copy_(trained.latent[7])
+    wi, wo = (d.float() for d in sample_directions(800, seed=6, near_mirror=0.3))
+    with torch.no_grad():
+        f_r = enhanced.forward_indexed(wi, wo, truth.values(), truth.latent, torch.zeros(len(wi), dtype=torch.long))
+    samples = Samples(wi, wo, f_r.clamp_min(0), torch.zeros(len(wi), dtype=torch.long), ("m",))
+    rows, space = Rows(samples, seed=0), RowSpace(enhanced)
+    x_true = space.from_table(truth)
+    base, protocol = x_true[:, : space.base_dim - enhanced.latent_dim], LatentAdam(screened=3)
+    screened = protocol.screened_codes(enhanced, rows, trained, base)
+    assert torch.equal(screened[0, 0], x_true[0])
+    [start] = protocol.screened_starts(enhanced, rows, trained, base)
+    loss = lambda x: float(evaluate_rows(RowKernel(enhanced, space), x, rows.layout(torch.zeros(1, dtype=torch.long))).train[0])
+    assert loss(start) < loss(screened[0, 1:2])
+
+
+def test_screening_reads_only_the_fits_own_slots_and_needs_training_codes(enhanced, two_zoo_materials):
+    samples, trained = two_zoo_materials, _codes(enhanced, 6, seed=3)
+    rows = Rows(samples, seed=0)
+    base = torch.zeros(rows.materials, RowSpace(enhanced).base_dim - enhanced.latent_dim)
+    train = fold_masks(rows.valid, 2)[0]
+    protocol = LatentAdam(epochs=12, screened=2)
+    [clean] = protocol.screened_starts(enhanced, rows, trained, base, train)
+    rows.f_r = torch.where(train[..., None], rows.f_r, 1e6)  # what the fit does not see is changed
+    [changed] = protocol.screened_starts(enhanced, rows, trained, base, train)
+    assert clean.shape == (rows.materials, RowSpace(enhanced).dim) and torch.equal(clean, changed)
+    assert protocol.screened_starts(enhanced, rows, None, base) == []
+    assert LatentAdam(screened=0).screened_starts(enhanced, rows, trained, base) == []
+    with pytest.raises(ValueError, match="invalid latent protocol"):
+        LatentAdam(screened=-1)
 
 
 def test_stacked_adam_narrows_to_each_groups_best_start():
