@@ -55,7 +55,8 @@ def add_parser(commands) -> None:
                         f"({', '.join(shipped_models()) or 'none'}) or a bundle directory")
     p.add_argument("--starts", choices=("analytical", "paper"), default="analytical",
                    help="an enhanced model's starting points: analytical (default) fits the analytical "
-                        "model first and starts from it; paper: the range means and latent 0.5")
+                        "model first and starts from it and from the bundle's best-fitting training codes; "
+                        "paper: the range means and latent 0.5")
     p.add_argument("--method", choices=("fast", "paper"), default="fast",
                    help="fast (default): a plain model by L-BFGS, a model with modules at --capacity; paper: "
                         "RMSProp lr 1e-3, 1000 epochs, latent capacity")
