@@ -260,7 +260,7 @@ class LatentAdam(FitProtocol):
     Why screened codes: the fit's end point depends on its start more than on anything else — one
     material's held-out error moved 1.6× when only the order of its samples changed — and a few
     hundred training codes are a cheap, diverse set of starts the modules were trained to read
-    (docs/BENCHMARKS.md, "Latent fits: screened starts")."""
+    (docs/BENCHMARKS.md, "Latent fits: the training codes' start")."""
 
     name: ClassVar[str] = "latent"
     epochs: int = 300
@@ -321,13 +321,14 @@ class LatentAdam(FitProtocol):
         """The training codes' start (class doc), [(m, dim)], or [] without training codes: the
         ``screened_codes`` raced by Adam on the samples they were scored on; each material's end
         point of lowest loss."""
-        if not self.screened or trained is None or not len(trained) or not RowSpace(model).latent:
+        space = RowSpace(model)
+        if not self.screened or trained is None or not len(trained) or not space.latent:
             return []
         usable = rows.valid if train is None else rows.valid & train
         subset = rows.as_problems(torch.arange(rows.materials), usable & (usable.cumsum(1) <= self.screen_samples))
         screened = self.screened_codes(model, subset, trained, base)  # (m, k, dim)
         m, k, dim = screened.shape
-        race = adam_rows(RowKernel(model, RowSpace(model)), screened.reshape(m * k, dim),
+        race = adam_rows(RowKernel(model, space), screened.reshape(m * k, dim),
                          subset.layout(torch.arange(m).repeat_interleave(k)), Adam(max(1, self.epochs // 4), self.lr))
         winner = race.train.reshape(m, k).nan_to_num(torch.inf).argmin(1)
         return [race.x.reshape(m, k, dim)[torch.arange(m), winner]]
