@@ -313,10 +313,8 @@ def test_latent_fit_keeps_each_materials_best_start(two_zoo_materials, enhanced)
 
 
 def _codes(model, n, seed):
-    """A training table of ``n`` materials with spread-out latent codes."""
-    g = torch.Generator().manual_seed(seed)
-    return MaterialTable(model.specs, tuple(f"t{i}" for i in range(n)), model.latent_dim,
-                         latent=torch.rand(n, model.latent_dim, generator=g))
+    """A training table of ``n`` materials with spread-out latent codes (``_random_table``'s)."""
+    return _random_table(model, tuple(f"t{i}" for i in range(n)), seed)
 
 
 def test_screened_codes_are_the_training_codes_that_fit_best_as_they_are(enhanced, two_zoo_materials):
