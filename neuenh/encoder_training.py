@@ -30,6 +30,7 @@ from .encoder import EncoderConfig, MaterialEncoder
 from .fit import frozen
 from .materials import MaterialTable
 from .model import BRDFModel
+from .optimizers import Adam, CosineSchedule
 from .train import log_l1
 
 __all__ = ["EncoderTrainConfig", "FixedSets", "MeasurementPools", "encoder_loss", "start_losses", "train_encoder"]
@@ -226,8 +227,8 @@ def train_encoder(model: BRDFModel, pools: MeasurementPools, config: EncoderTrai
                 mean = [fitted.raw[name].detach()[known].mean(0) for name in encoder.outputs]
                 encoder.offset.copy_(torch.cat(mean + [fitted.latent.detach()[known].mean(0)]))
     latent_mean = fitted.latent.detach().mean(0) if fitted is not None and len(fitted) else None
-    optimizer = torch.optim.Adam(encoder.parameters(), lr=config.lr)
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.steps, eta_min=config.lr * 0.01)
+    optimizer = Adam(encoder.parameters(), lr=config.lr)
+    schedule = CosineSchedule(optimizer, config.steps, config.lr * 0.01)
     g = torch.Generator().manual_seed(config.seed)
     lo, hi = config.set_sizes
     history: list[dict] = []
@@ -254,7 +255,7 @@ def train_encoder(model: BRDFModel, pools: MeasurementPools, config: EncoderTrai
             if config.regression and fitted is not None:
                 rows_b = rows[materials]
                 total = total + config.regression * _regression(encoder, raw, latent, fitted, rows_b, rows_b >= 0)
-            optimizer.zero_grad(set_to_none=True)
+            optimizer.zero_grad()
             total.backward()
             torch.nn.utils.clip_grad_norm_(encoder.parameters(), 1.0)
             optimizer.step()

@@ -27,6 +27,7 @@ import torch
 from .checkpoint import Bundle
 from .data.samples import Samples, TrainingData
 from .model import BRDFModel
+from .optimizers import CosineSchedule, RMSProp
 from .materials import MaterialTable
 
 
@@ -138,9 +139,11 @@ def evaluate_loss(model: BRDFModel, materials: MaterialTable, samples: Samples, 
 def deterministic(enabled: bool = True) -> Iterator[None]:
     """Deterministic algorithms inside the block (restored afterwards): a compiled step's kernels
     otherwise accumulate scatters with atomics across threads, and losses vary in the last bits."""
+    if not enabled:  # nothing to switch; switching imports torch._inductor (~1 s in a fresh process)
+        yield
+        return
     saved = torch.are_deterministic_algorithms_enabled()
-    if enabled:
-        torch.use_deterministic_algorithms(True)
+    torch.use_deterministic_algorithms(True)
     try:
         yield
     finally:
@@ -157,9 +160,8 @@ def train_candidate(
     model = parent.model.enhance(state, seed)
     materials = copy.deepcopy(parent.materials)
     params = [*model.neural.parameters(), *materials.parameters()]
-    optimizer = torch.optim.RMSprop(params, lr=config.lr, alpha=config.rmsprop_alpha)
-    schedule = None if config.lr_final is None else torch.optim.lr_scheduler.CosineAnnealingLR(
-        optimizer, T_max=max(config.epochs, 1), eta_min=config.lr_final)
+    optimizer = RMSProp(params, lr=config.lr, alpha=config.rmsprop_alpha)
+    schedule = None if config.lr_final is None else CosineSchedule(optimizer, max(config.epochs, 1), config.lr_final)
     generator = torch.Generator().manual_seed(seed)
     train = data.train
     epoch_losses: list[float] = []
@@ -177,7 +179,7 @@ def train_candidate(
             for lo in range(0, len(train), config.batch_size):
                 index = order[lo : lo + config.batch_size]
                 loss = step_loss(train.wi[index], train.wo[index], train.f_r[index], train.material[index])
-                optimizer.zero_grad(set_to_none=True)
+                optimizer.zero_grad()
                 loss.backward()
                 optimizer.step()
                 total += float(loss.detach()) * len(index)

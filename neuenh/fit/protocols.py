@@ -45,6 +45,7 @@ import torch
 from ..data.samples import Samples
 from ..materials import LATENT_INIT, MaterialTable
 from ..model import BRDFModel
+from ..optimizers import RMSProp
 from ..train import log_l1, predict
 from .kernel import RowKernel, RowLosses, RowSpace, frozen
 from .layout import compacted, layout_rows, padded
@@ -145,7 +146,7 @@ class PaperRMSProp(FitProtocol):
         _check(model, samples, start)
         start_time = time.perf_counter()
         materials = paper_start(model, samples.names) if start is None else _copy(start)
-        optimizer = torch.optim.RMSprop(list(materials.parameters()), lr=self.lr, alpha=0.9)
+        optimizer = RMSProp(materials.parameters(), lr=self.lr, alpha=0.9)
         generator = torch.Generator().manual_seed(seed)
         trace: list[tuple[float, float]] = []
         full_batch = len(samples) <= self.batch_size
@@ -155,7 +156,7 @@ class PaperRMSProp(FitProtocol):
                 for lo in range(0, len(samples), self.batch_size):
                     index = order if full_batch else order[lo : lo + self.batch_size]
                     loss = log_l1(predict(model, materials, samples, index), samples.f_r[index], samples.wi[index]).mean()
-                    optimizer.zero_grad(set_to_none=True)
+                    optimizer.zero_grad()
                     loss.backward()
                     optimizer.step()
                 if trace_every and (epoch % trace_every == 0 or epoch == self.epochs - 1):

@@ -23,6 +23,7 @@ from torch import nn
 
 from ..data.nbrdf import network_input
 from ..data.samples import Samples
+from ..optimizers import Adam, CosineSchedule
 from ..train import log_l1
 
 __all__ = ["NBRDFConfig", "NBRDFFit", "NBRDFNetwork", "fit_nbrdf"]
@@ -81,16 +82,15 @@ def fit_nbrdf(samples: Samples, config: NBRDFConfig = NBRDFConfig(), seed: int =
             raise ValueError(f"material {samples.names[m]!r} has no samples to fit")
         wi, wo, f_r = samples.wi[rows], samples.wo[rows], samples.f_r[rows]
         net = NBRDFNetwork(config.hidden, seed=seed + m)
-        optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
-        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.epochs,
-                                                              eta_min=config.lr * 1e-3)
+        optimizer = Adam(net.parameters(), lr=config.lr)
+        schedule = CosineSchedule(optimizer, config.epochs, config.lr * 1e-3)
         generator = torch.Generator().manual_seed(seed + m)
         for _ in range(config.epochs):
             order = torch.randperm(len(rows), generator=generator)
             for lo in range(0, len(rows), config.batch_size):
                 index = order[lo : lo + config.batch_size]
                 loss = log_l1(net(wi[index], wo[index]), f_r[index], wi[index]).mean()
-                optimizer.zero_grad(set_to_none=True)
+                optimizer.zero_grad()
                 loss.backward()
                 optimizer.step()
             schedule.step()
