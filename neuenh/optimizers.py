@@ -20,12 +20,13 @@ A parameter without a gradient at a step is left as it is, its state too (as tor
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from typing import Iterable
 
 import torch
 
 
-class Optimizer:
+class Optimizer(ABC):
     """Parameters and a learning rate ``lr`` (a schedule may change it between steps)."""
 
     def __init__(self, params: Iterable[torch.Tensor], lr: float):
@@ -41,8 +42,9 @@ class Optimizer:
         for p in self.params:
             p.grad = None
 
+    @abstractmethod
     def step(self) -> None:
-        raise NotImplementedError
+        """One update of every parameter that has a gradient."""
 
 
 class RMSProp(Optimizer):
