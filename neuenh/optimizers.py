@@ -33,8 +33,8 @@ class Optimizer(ABC):
         self.params = list(params)
         if not self.params:
             raise ValueError("no parameters to optimise")
-        if not lr > 0:
-            raise ValueError(f"the learning rate must be positive, not {lr}")
+        if not lr >= 0:  # torch.optim's own precondition
+            raise ValueError(f"the learning rate must not be negative, not {lr}")
         self.lr = float(lr)
 
     def zero_grad(self) -> None:
@@ -98,16 +98,19 @@ class CosineSchedule:
     """The optimiser's learning rate annealed to ``final`` along half a cosine over ``steps`` calls
     of ``step()`` (Loshchilov & Hutter 2017, *SGDR*, eq. 5, without restarts), by the recursion
     ``torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=steps, eta_min=final)`` uses —
-    the same floats, not the closed form's."""
+    the same floats, not the closed form's. ``steps`` may be 0 (a run of no epochs), but such a
+    schedule cannot step."""
 
     def __init__(self, optimizer: Optimizer, steps: int, final: float = 0.0):
-        if steps < 1:
-            raise ValueError(f"a schedule needs at least one step, not {steps}")
+        if steps < 0:
+            raise ValueError(f"a schedule's steps must not be negative, not {steps}")
         self.optimizer, self.steps, self.final = optimizer, steps, final
         self.base = optimizer.lr
         self.epoch = 0
 
     def step(self) -> None:
+        if not self.steps:
+            raise ValueError("a schedule of 0 steps cannot step")
         self.epoch += 1
         e, n, lr, final = self.epoch, self.steps, self.optimizer.lr, self.final
         if (e - 1 - n) % (2 * n) == 0:  # past the trough the recursion's ratio is 0/0: torch's own special case

@@ -161,7 +161,7 @@ def train_candidate(
     materials = copy.deepcopy(parent.materials)
     params = [*model.neural.parameters(), *materials.parameters()]
     optimizer = RMSProp(params, lr=config.lr, alpha=config.rmsprop_alpha)
-    schedule = None if config.lr_final is None else CosineSchedule(optimizer, max(config.epochs, 1), config.lr_final)
+    schedule = None if config.lr_final is None else CosineSchedule(optimizer, config.epochs, config.lr_final)
     generator = torch.Generator().manual_seed(seed)
     train = data.train
     epoch_losses: list[float] = []

@@ -52,10 +52,13 @@ def test_the_same_parameters_as_torch_optim_after_every_step(case, schedule):
 def test_bad_settings_name_themselves():
     with pytest.raises(ValueError, match="no parameters"):
         RMSProp([], lr=1e-3)
-    with pytest.raises(ValueError, match="learning rate must be positive, not 0"):
-        Adam([torch.zeros(1, requires_grad=True)], lr=0)
-    with pytest.raises(ValueError, match="at least one step, not 0"):
-        CosineSchedule(Adam([torch.zeros(1, requires_grad=True)]), 0)
+    with pytest.raises(ValueError, match="learning rate must not be negative, not -0.1"):
+        Adam([torch.zeros(1, requires_grad=True)], lr=-0.1)
+    with pytest.raises(ValueError, match="steps must not be negative, not -1"):
+        CosineSchedule(Adam([torch.zeros(1, requires_grad=True)]), -1)
+    idle = CosineSchedule(Adam([torch.zeros(1, requires_grad=True)]), 0)  # a run of no epochs builds one
+    with pytest.raises(ValueError, match="0 steps cannot step"):
+        idle.step()
 
 
 def test_training_and_fitting_never_import_torch_dynamo():
