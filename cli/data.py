@@ -41,9 +41,10 @@ class DataCommandError(ValueError):
     """A user's mistake in a ``neuenh data`` command (one line, exit code 2)."""
 
 
-def add_parser(commands) -> None:
-    p = commands.add_parser("data", help="inspect measured data, materialise datasets, draw BRDF slices",
-                            description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def configure(p: argparse.ArgumentParser) -> None:
+    """``neuenh data``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
+    p.description = __doc__
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     sub = p.add_subparsers(dest="data_command", required=True, metavar="ACTION")
 
     i = sub.add_parser("inspect", help="what a data file is, its materials and value ranges")

@@ -13,6 +13,7 @@ training and the held-out errors. A bundle that has an encoder gets a new one.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
@@ -29,9 +30,9 @@ from neuenh.pretrained import bundle_path
 HELDOUT_SIZES = (1, 30, 300, 3000)
 
 
-def add_parser(commands) -> None:
-    p = commands.add_parser("encoder", help="train a bundle's encoder: measurements -> a material's start",
-                            description=__doc__.split("\n\n", 1)[1])
+def configure(p: argparse.ArgumentParser) -> None:
+    """``neuenh encoder``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
+    p.description = __doc__.split("\n\n", 1)[1]
     actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     train = actions.add_parser("train", help="train the encoder and write it into the bundle",
                                description=__doc__.split("\n\n", 1)[1])

@@ -19,6 +19,7 @@ Each format's files are described in docs/EXPORT.md and ``neuenh.export``.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -28,9 +29,9 @@ from neuenh.materials import MaterialParams
 from neuenh.pretrained import load_model
 
 
-def add_parser(commands) -> None:
-    p = commands.add_parser("export", help="write fitted materials as GLSL, ONNX or a Mitsuba 3 plugin",
-                            description=__doc__.split("\n\n", 1)[1].split("\n\n", 1)[1])
+def configure(p: argparse.ArgumentParser) -> None:
+    """``neuenh export``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
+    p.description = __doc__.split("\n\n", 1)[1].split("\n\n", 1)[1]
     p.add_argument("model", metavar="MODEL", nargs="?",
                    help="a bundle folder, a shipped model or an analytical model (not with --plan)")
     p.add_argument("--format", required=True, choices=FORMATS, help="what to write")

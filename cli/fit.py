@@ -46,9 +46,10 @@ from neuenh.pretrained import load_model, shipped_models
 from .tables import fit_report
 
 
-def add_parser(commands) -> None:
-    p = commands.add_parser("fit", help="fit measured materials with a model (module weights frozen)",
-                            description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def configure(p: argparse.ArgumentParser) -> None:
+    """``neuenh fit``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
+    p.description = __doc__
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("tables", nargs="+", metavar="MEASUREMENTS", help="one table (.npz or CSV) per material")
     p.add_argument("--model", default="ggx",
                    help=f"an analytical model ({', '.join(available_models())}), a shipped model "

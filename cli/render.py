@@ -52,9 +52,10 @@ from neuenh.pretrained import bundle_path, load_model
 DEFAULT_SAMPLES = 16
 
 
-def add_parser(commands) -> None:
-    p = commands.add_parser("render", help="render a sphere with a model and/or measured ground truth",
-                            description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def configure(p: argparse.ArgumentParser) -> None:
+    """``neuenh render``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
+    p.description = __doc__
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("--model", help="an analytical model (ggx, ...) or a bundle directory "
                                    "(default: ggx when no truth is given)")
     p.add_argument("--params", type=Path, help="parameters as printed by `neuenh fit --json`")

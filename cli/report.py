@@ -29,9 +29,10 @@ import os
 from pathlib import Path
 
 
-def add_parser(commands) -> None:
-    p = commands.add_parser("report", help="measure every model on the RGL materials; write RESULTS.md and plots",
-                            description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def configure(p: argparse.ArgumentParser) -> None:
+    """``neuenh report``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
+    p.description = __doc__
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("--rgl", type=Path, default=Path("../shared/data/rgl"), help="folder of RGL .bsdf files")
     p.add_argument("--model", default="enhanced-ggx", help="the enhanced model: a shipped name or a bundle folder")
     p.add_argument("--baselines", type=Path, default=Path("models/baselines"),

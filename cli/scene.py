@@ -12,6 +12,7 @@ it is planned: running the same command again after an interruption plans only t
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
@@ -24,9 +25,9 @@ from neuenh.scene.outputs import write_plan
 from .tables import plan_totals
 
 
-def add_parser(commands) -> None:
-    p = commands.add_parser("scene", help="plan a scene: per material, the cheapest model within tolerance",
-                            description=__doc__.split("\n\n", 1)[1])
+def configure(p: argparse.ArgumentParser) -> None:
+    """``neuenh scene``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
+    p.description = __doc__.split("\n\n", 1)[1]
     actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     plan = actions.add_parser("plan", help="choose each material's rung and write the plan",
                               description=__doc__.split("\n\n", 1)[1])

@@ -27,12 +27,15 @@ from neuenh_service.orchestrator.runner import Orchestrator, Progress, train_pla
 from neuenh_service.orchestrator.spec import load_spec, parse_spec
 from neuenh_service.storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore, trained_epochs
 
+from .progress import ProgressDisplay
+
 SUCCESS = {JobStatus.CONVERGED, JobStatus.STOPPED}
 
 
-def add_parser(commands) -> None:
-    p = commands.add_parser("search", help="run a search job in-process on embedded Ray",
-                            description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def configure(p: argparse.ArgumentParser) -> None:
+    """``neuenh search``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
+    p.description = __doc__
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("spec", type=Path, metavar="SPEC.yaml")
     p.add_argument("--data-dir", type=Path, default=Path(os.environ.get("NEUENH_DATA_DIR", "neuenh-data")),
                    help="job store and artifacts (default: $NEUENH_DATA_DIR or ./neuenh-data)")
@@ -157,34 +160,3 @@ def format_summary(s: dict) -> str:
                          f"  -> enhancement lowers the validation loss by {100 * s['improvement']:.1f}%")
         lines += [f"  bundle        {s['bundle']}", f"  history       {s['history']}"]
     return "\n".join(lines)
-
-
-class ProgressDisplay:
-    """One live line on a terminal (round, candidates done/total, best loss, elapsed); a line per
-    committed round otherwise."""
-
-    def __init__(self, stream):
-        self.stream = stream
-        self.live = stream.isatty()
-
-    def __call__(self, p: Progress) -> None:
-        best = f"{p.best_val_loss:.5f}" if p.best_val_loss is not None else "-"
-        text = (f"round {p.round}  candidates {p.done}/{p.total}  best {best}  "
-                f"{_clock(p.elapsed_s)}  {p.message}")
-        if self.live:
-            self.stream.write("\r\033[K" + text)
-            self.stream.flush()
-        elif p.message in ("committed", "converged", "cancelled"):
-            self.stream.write(f"round {p.round}: {p.message}, winner {p.state} {p.score} {best} at {_clock(p.elapsed_s)}\n")
-
-    def note(self, text: str) -> None:
-        self.stream.write(text + "\n")
-
-    def done(self) -> None:
-        if self.live:
-            self.stream.write("\n")
-
-
-def _clock(seconds: float) -> str:
-    m, s = divmod(int(seconds), 60)
-    return f"{m:02d}:{s:02d}"

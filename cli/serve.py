@@ -18,9 +18,10 @@ import argparse
 from pathlib import Path
 
 
-def add_parser(commands) -> None:
-    p = commands.add_parser("serve", help="run the search service (API, dashboard, job worker)",
-                            description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def configure(p: argparse.ArgumentParser) -> None:
+    """``neuenh serve``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
+    p.description = __doc__
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
     p.add_argument("--host", help="listen address (default 127.0.0.1)")
     p.add_argument("--port", type=int, help="listen port (default 8000; 0 picks a free one)")
     p.add_argument("--data-dir", type=Path, help="job store and artifacts (default ./neuenh-data)")

@@ -2,7 +2,7 @@
 
 Committed rounds come from ``GET /v1/jobs/{id}/history?since_round=k``, polled incrementally, so
 none is missed however fast the job runs; on a terminal the live progress of the round in flight
-comes from ``GET /v1/jobs/{id}``. Both are shown by ``cli.search.ProgressDisplay``, as ``neuenh
+comes from ``GET /v1/jobs/{id}``. Both are shown by ``cli.progress.ProgressDisplay``, as ``neuenh
 search`` shows them: a live line on a terminal (kept, one per committed round), one line per
 committed round otherwise. Losing the service for a while (a restart: jobs resume) is waited out
 for ``reconnect_s`` before giving up with exit code 3.
@@ -17,6 +17,7 @@ from datetime import datetime
 from types import SimpleNamespace
 from typing import TextIO
 
+from ..progress import ProgressDisplay
 from .api import UNREACHABLE, Api, ClientError
 from .commands import job_status, note, print_json, rounds_committed
 
@@ -54,8 +55,6 @@ def follow(api: Api, job_id: str, stream: TextIO, *, interval: float = 0.5, reco
 
 class _Follower:
     def __init__(self, api: Api, job_id: str, stream: TextIO, interval: float, reconnect_s: float):
-        from ..search import ProgressDisplay  # (imports the orchestrator, so only when following)
-
         self.api, self.job_id, self.interval, self.reconnect_s = api, job_id, interval, reconnect_s
         self.display = ProgressDisplay(stream)
         self.line_open = False  # a live line is on screen without its newline

@@ -274,6 +274,26 @@ def test_history_into_a_closed_pipe_ends_quietly(server, submitted):
     assert p.wait(60) == 141 and p.stderr.read() == ""
 
 
+# neuenh-client ARGS in a fresh process, then whether it imported torch, on the last line of stderr
+TORCH_PROBE = """
+import atexit, runpy, sys
+atexit.register(lambda: print("torch imported" if "torch" in sys.modules else "torch not imported", file=sys.stderr))
+runpy.run_module("neuenh_service.cli.client", run_name="__main__", alter_sys=True)
+"""
+
+
+@pytest.mark.parametrize("command", ["status", "history", "watch"])
+def test_what_only_reads_the_service_answers_without_importing_torch(server, submitted, command):
+    """torch is ~1.5 s of a client's start: only what validates or loads a model locally imports it."""
+    job_id = submitted[1]["id"]
+    out = subprocess.run([sys.executable, "-c", TORCH_PROBE, command, job_id], capture_output=True, text=True,
+                         env=environ(server.url, TOKEN), timeout=60)
+    assert out.returncode == 0, out.stderr
+    *shown, probe = out.stderr.splitlines()
+    assert job_id in out.stdout + "".join(shown) or command == "history" and out.stdout.startswith("round")
+    assert probe == "torch not imported"
+
+
 def test_watch_a_live_job_ctrl_c_then_cancel(server, api, submitted):
     job_id = api.post("/jobs", json=long_job()).json()["id"]
     watcher = popen("watch", job_id, "--interval", "0.1", url=server.url)

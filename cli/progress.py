@@ -1,0 +1,41 @@
+"""The progress of a search on a stream: one live line on a terminal, a line per committed round
+otherwise. ``neuenh search`` shows its own job with it, ``neuenh-client`` a served one (without
+importing the orchestrator or torch: ``watch`` answers in a fraction of a second)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, TextIO
+
+if TYPE_CHECKING:
+    from neuenh_service.orchestrator.runner import Progress
+
+
+class ProgressDisplay:
+    """One live line on a terminal (round, candidates done/total, best loss, elapsed); a line per
+    committed round otherwise."""
+
+    def __init__(self, stream: TextIO):
+        self.stream = stream
+        self.live = stream.isatty()
+
+    def __call__(self, p: Progress) -> None:
+        best = f"{p.best_val_loss:.5f}" if p.best_val_loss is not None else "-"
+        text = (f"round {p.round}  candidates {p.done}/{p.total}  best {best}  "
+                f"{_clock(p.elapsed_s)}  {p.message}")
+        if self.live:
+            self.stream.write("\r\033[K" + text)
+            self.stream.flush()
+        elif p.message in ("committed", "converged", "cancelled"):
+            self.stream.write(f"round {p.round}: {p.message}, winner {p.state} {p.score} {best} at {_clock(p.elapsed_s)}\n")
+
+    def note(self, text: str) -> None:
+        self.stream.write(text + "\n")
+
+    def done(self) -> None:
+        if self.live:
+            self.stream.write("\n")
+
+
+def _clock(seconds: float) -> str:
+    m, s = divmod(int(seconds), 60)
+    return f"{m:02d}:{s:02d}"

@@ -1,0 +1,52 @@
+"""``neuenh`` itself: every command is listed and parses its own arguments, and the answers that
+need no command (``--help``, ``--version``) come without importing any command's module — most of
+them import torch, ~1.5 s a process."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from cli_runs import neuenh_here
+from neuenh_service.cli.main import COMMANDS
+
+# main(ARGS) in a fresh process, then whether torch was imported, on the last line of stderr
+PROBE = """
+import sys
+from neuenh_service.cli.main import main
+try:
+    code = main(sys.argv[1:])
+except SystemExit as exc:
+    code = exc.code
+print("torch imported" if "torch" in sys.modules else "torch not imported", file=sys.stderr)
+sys.exit(code)
+"""
+
+
+@pytest.mark.parametrize("flag", ["--help", "--version"])
+def test_help_and_version_answer_without_importing_torch(flag):
+    out = subprocess.run([sys.executable, "-c", PROBE, flag], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stderr.splitlines()[-1] == "torch not imported"
+    if flag == "--version":
+        assert out.stdout.startswith("neuenh ") and out.stdout.split()[1][0].isdigit()
+    else:
+        for name, summary in COMMANDS.items():
+            assert f"{name}  " in out.stdout and summary in " ".join(out.stdout.split()), name
+
+
+@pytest.mark.parametrize("name", COMMANDS)
+def test_every_command_parses_its_own_arguments(name):
+    done = neuenh_here(name, "--help")
+    assert done.returncode == 0, done.stderr
+    usage = " ".join(done.stdout.split())
+    bare = f"usage: neuenh {name} [-h] options: -h, --help show this help message and exit"  # a parser left empty
+    assert usage.startswith(f"usage: neuenh {name} [-h] ") and usage != bare and "options:" in usage
+
+
+def test_an_unknown_command_is_a_usage_error_naming_the_commands():
+    done = neuenh_here("fitt", "a.npz")
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert "invalid choice: 'fitt'" in done.stderr and all(repr(name) in done.stderr for name in COMMANDS)
