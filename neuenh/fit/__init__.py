@@ -17,10 +17,11 @@ from .kernel import frozen
 from .optim import SURROGATE_EPS
 from .options import FitOptions
 from .protocols import FitProtocol, LatentAdam, PaperRMSProp, PlainLBFGS
-from .result import FitResult, model_for, per_material_loss
+from .result import FitResult, losses_at_own_capacity, material_model, model_for, per_material_loss
 
 __all__ = ["Adaptive", "CAPACITIES", "FitOptions", "FitProtocol", "FitResult", "LatentAdam", "PaperRMSProp",
-           "PlainLBFGS", "SURROGATE_EPS", "default_protocol", "fit_materials", "frozen", "model_for", "per_material_loss"]
+           "PlainLBFGS", "SURROGATE_EPS", "default_protocol", "fit_materials", "frozen", "losses_at_own_capacity",
+           "material_model", "model_for", "per_material_loss"]
 
 
 def default_protocol(model: BRDFModel) -> FitProtocol:

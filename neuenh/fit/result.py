@@ -33,18 +33,13 @@ class FitResult:
         return self.materials.fits[i][1] or "latent"
 
     def material_model(self, model: BRDFModel, i: int) -> tuple[BRDFModel, MaterialParams]:
-        """Material ``i`` as the model that evaluates it and the record that model reads
-        (``evaluate``, ``unclipped``, ``specialize``): ``model_for``'s (an analytical model for an
-        analytical capacity), else ``model`` (the record's corrections are added to its module weights)."""
-        own = model_for(model, self.materials.as_params(i))
-        return own, own.used_params(self.materials.as_params(i))
+        """``material_model`` of material ``i`` of this fit's table."""
+        return material_model(model, self.materials, i)
 
     @property
     def at_own_capacity(self) -> bool:
-        """Whether some material needs more than ``model`` and its table row (corrections or an
-        analytical model of its own): then only ``material_model`` evaluates it."""
-        return any(self.capacity(i) in ANALYTICAL_CAPACITIES or self.materials.fits[i][0]
-                   for i in range(len(self.materials)))
+        """``needs_own_model`` of this fit's table."""
+        return needs_own_model(self.materials)
 
     @property
     def loss(self) -> float:
@@ -62,22 +57,8 @@ class FitResult:
                               for i, name in enumerate(self.materials.names)]}
 
     def losses_on(self, model: BRDFModel, samples: Samples) -> list[float]:
-        """Each material's mean log-L1 over ``samples`` (same materials, same order), at its own
-        capacity and corrections (``material_model``)."""
-        if not self.at_own_capacity:
-            return per_material_loss(model, self.materials, samples)
-        return [float(log_l1(f_r, rows.f_r, rows.wi).double().mean()) if len(rows) else math.nan
-                for f_r, rows in zip(self.predictions(model, samples), map(samples.of_material, range(len(samples.names))))]
-
-    @torch.no_grad()
-    def predictions(self, model: BRDFModel, samples: Samples) -> list[torch.Tensor]:
-        """Each material's unclipped prediction (what the loss sees) at its own samples' directions."""
-        out = []
-        for i in range(len(samples.names)):
-            own, params = self.material_model(model, i)
-            rows = samples.of_material(i)
-            out.append(own.unclipped(rows.wi, rows.wo, params) if len(rows) else rows.f_r)
-        return out
+        """``losses_at_own_capacity`` of this fit's table."""
+        return losses_at_own_capacity(model, self.materials, samples)
 
 
 # Capacities that fit an analytical model of the same graph instead of the modules, and whether that
@@ -100,10 +81,51 @@ def model_for(model: BRDFModel, params: MaterialParams) -> BRDFModel:
     return model
 
 
+def material_model(model: BRDFModel, materials: MaterialTable, i: int) -> tuple[BRDFModel, MaterialParams]:
+    """Material ``i`` of ``materials`` (fitted with ``model``) as the model that evaluates it and the
+    record that model reads (``evaluate``, ``unclipped``, ``specialize``): ``model_for``'s (an
+    analytical model for an analytical capacity), else ``model`` (the record's corrections are added
+    to its module weights)."""
+    own = model_for(model, materials.as_params(i))
+    return own, own.used_params(materials.as_params(i))
+
+
+def needs_own_model(materials: MaterialTable) -> bool:
+    """Whether some material of ``materials`` needs more than the fitting model and its table row
+    (corrections, or an analytical model of its own): then only ``material_model`` evaluates it."""
+    return any(corrections or capacity in ANALYTICAL_CAPACITIES for corrections, capacity, _ in materials.fits)
+
+
+def losses_at_own_capacity(model: BRDFModel, materials: MaterialTable, samples: Samples) -> list[float]:
+    """Each material's mean log-L1 over ``samples`` (same materials, same order), at its own capacity
+    and corrections (``material_model``): what a table saved by any fit — a bundle's too — measures."""
+    if not needs_own_model(materials):
+        return per_material_loss(model, materials, samples)
+    out = []
+    with torch.no_grad():
+        for i in range(len(samples.names)):
+            rows = samples.of_material(i)
+            if not len(rows):
+                out.append(math.nan)
+                continue
+            own, params = material_model(model, materials, i)
+            out.append(float(log_l1(own.unclipped(rows.wi, rows.wo, params), rows.f_r, rows.wi).double().mean()))
+    return out
+
+
 @torch.no_grad()
 def per_material_loss(model: BRDFModel, materials: MaterialTable, samples: Samples) -> list[float]:
     """Mean log-L1 of each material over its samples (NaN for a material with none), every
-    material read from its table row (no corrections)."""
+    material read from its table row by ``model`` itself, all in one batch. A table with corrections
+    or analytical capacities (``needs_own_model``) is refused: ``model`` alone would measure those
+    materials with other weights or another formula than they were fitted with
+    (``losses_at_own_capacity`` measures them)."""
+    if needs_own_model(materials):
+        own = [f"{name} ({capacity or 'latent'}{', corrected' if corrections else ''})"
+               for name, (corrections, capacity, _) in zip(materials.names, materials.fits)
+               if corrections or capacity in ANALYTICAL_CAPACITIES]
+        raise ValueError(f"materials fitted at their own capacity: {', '.join(own)}; "
+                         "measure them with losses_at_own_capacity")
     sums = torch.zeros(len(samples.names), dtype=torch.float64)
     counts = torch.zeros(len(samples.names), dtype=torch.float64)
     for lo in range(0, len(samples), 200_000):

@@ -33,7 +33,7 @@ from ..data.samples import Samples
 from ..data.table import savez
 from ..files import atomic_write
 from ..data.directions import sample_directions
-from ..fit import FitOptions, FitResult, fit_materials, per_material_loss
+from ..fit import FitOptions, FitResult, fit_materials, losses_at_own_capacity, material_model
 from ..materials import MaterialTable
 from ..model import BRDFModel
 
@@ -51,24 +51,24 @@ def _check_names(materials: MaterialTable, samples: Samples) -> None:
 def heldout_log_l1(model: BRDFModel, fitted: FitResult | MaterialTable, samples: Samples) -> list[float]:
     """Mean log-L1 of each material (``materials.names`` order) over its held-out ``samples``.
 
-    Exactly ``fit.per_material_loss`` — the training loss ``train.log_l1`` on the raw model output,
-    float64 accumulation, NaN for a material without samples — after checking that ``samples``
-    names the same materials in the same order (its material indices index ``materials``); a
-    ``FitResult`` is measured at each material's own capacity and corrections. The samples must
-    not have been used to fit them; that is the caller's responsibility.
+    Exactly ``fit.losses_at_own_capacity`` — the training loss ``train.log_l1`` on the raw model
+    output, float64 accumulation, NaN for a material without samples, each material at the capacity
+    and with the corrections its record carries (a ``FitResult``'s table or a bundle's alike) —
+    after checking that ``samples`` names the same materials in the same order (its material indices
+    index ``materials``). The samples must not have been used to fit them; that is the caller's
+    responsibility.
     """
-    if isinstance(fitted, FitResult):
-        _check_names(fitted.materials, samples)
-        return fitted.losses_on(model, samples)
-    _check_names(fitted, samples)
-    return per_material_loss(model, fitted, samples)
+    materials = fitted.materials if isinstance(fitted, FitResult) else fitted
+    _check_names(materials, samples)
+    return losses_at_own_capacity(model, materials, samples)
 
 
 @torch.no_grad()
 def predict_f_r(model: BRDFModel, fitted: FitResult | MaterialTable, samples: Samples) -> torch.Tensor:
     """The fitted model's ``f_r`` (n, 3), without the cosine, at every row of ``samples``, each
-    with its material's fitted parameters: what ``model.evaluate(wi, wo, materials.as_params(i))``
-    returns, computed by each material's specialized evaluator (``BRDFModel.specialize``). (The
+    with its material's fitted record at its own capacity: what ``own.evaluate(wi, wo, params)``
+    returns for ``own, params = fit.material_model(model, materials, i)``, computed by each
+    material's specialized evaluator (``BRDFModel.specialize``). (The
     loss sees the value before clipping at zero; the two differ only where an enhanced model's
     module predicts a negative value.)"""
     materials = fitted.materials if isinstance(fitted, FitResult) else fitted
@@ -76,7 +76,7 @@ def predict_f_r(model: BRDFModel, fitted: FitResult | MaterialTable, samples: Sa
     out = torch.zeros(len(samples), 3)
     for i in torch.unique(samples.material).tolist():
         rows = torch.nonzero(samples.material == i).squeeze(1)
-        own, params = fitted.material_model(model, i) if isinstance(fitted, FitResult) else (model, materials.as_params(i))
+        own, params = material_model(model, materials, i)
         out[rows] = own.specialize(params)(samples.wi[rows], samples.wo[rows]).float()
     return out
 

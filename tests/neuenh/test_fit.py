@@ -3,6 +3,7 @@ independent references, the row layout, and what each protocol promises of its o
 
 import copy
 import math
+import re
 
 import numpy as np
 import pytest
@@ -22,6 +23,7 @@ from neuenh.fit.protocols import Rows
 from neuenh.materials import MaterialTable
 from neuenh.models import get_model
 from neuenh.pretrained import load_model
+from neuenh.study.heldout import heldout_log_l1, predict_f_r
 from neuenh.train import log_l1
 from ggx_states import PAPER_STATE
 
@@ -473,6 +475,36 @@ def test_the_original_capacity_is_the_plain_fit_of_the_model_the_search_started_
     from_plain = MaterialTable(plain_model.specs, samples.names, plain_model.latent_dim,
                                {name: original.materials.raw[name].detach() for name in plain_model.specs.names})
     assert original.losses == pytest.approx(per_material_loss(plain_model, from_plain, samples), rel=1e-6)
+
+
+@pytest.mark.parametrize("capacity", ["analytical", "last-layer"])
+def test_a_table_on_its_own_is_measured_at_each_materials_own_capacity(enhanced, capacity):
+    """A fit's table alone, as a bundle holds it, measures what the fit measures: ``heldout_log_l1``
+    and ``predict_f_r`` on the table equal them on the ``FitResult`` and an independent path — the
+    capacity's model built by hand (the graph's analytical state; or a copy of the model with the
+    record's corrections added to its weights) reading the same values without the record's capacity.
+    ``per_material_loss``, which reads every row with the fitting model alone, refuses that table."""
+    samples = sample_materials(synthetic_zoo(1, seed=6), 300, seed=0)
+    test = sample_materials(synthetic_zoo(1, seed=6), 2000, seed=7)
+    result = Adaptive(**{**ADAPTIVE, "capacities": (capacity,)}).fit(enhanced, samples)
+    table = result.materials
+    record = table.as_params(0)
+    if capacity == "analytical":
+        by_hand = enhanced.enhance(enhanced.analytical_state(keep_alternatives=True), 0)
+    else:
+        assert record.corrections
+        by_hand = copy.deepcopy(enhanced)
+        weights = by_hand.neural.state_dict()
+        by_hand.neural.load_state_dict({k: w + record.corrections.get(k, 0) for k, w in weights.items()})
+    bare = MaterialTable(by_hand.specs, table.names, by_hand.latent_dim,
+                         {name: table.raw[name] for name in by_hand.specs.names},
+                         table.latent if by_hand.latent_dim else None)
+    expected = per_material_loss(by_hand, bare, test)
+    assert heldout_log_l1(enhanced, table, test) == heldout_log_l1(enhanced, result, test)
+    assert heldout_log_l1(enhanced, table, test) == pytest.approx(expected, rel=1e-5)
+    assert torch.equal(predict_f_r(enhanced, table, test), predict_f_r(enhanced, result, test))
+    with pytest.raises(ValueError, match=re.escape(f"fitted at their own capacity: {table.names[0]} ({capacity}")):
+        per_material_loss(enhanced, table, test)
 
 
 def test_adaptive_never_ends_worse_held_out_than_the_analytical_fit(enhanced):
