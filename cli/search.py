@@ -23,7 +23,7 @@ from pathlib import Path
 from neuenh.checkpoint import Bundle
 from neuenh.files import atomic_write
 from neuenh_service.orchestrator.dataset import prepare_dataset
-from neuenh_service.orchestrator.runner import Orchestrator, Progress, train_plain_baseline
+from neuenh_service.orchestrator.runner import Orchestrator, train_plain_baseline
 from neuenh_service.orchestrator.spec import load_spec, parse_spec
 from neuenh_service.storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore, trained_epochs
 

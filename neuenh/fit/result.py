@@ -93,7 +93,14 @@ def material_model(model: BRDFModel, materials: MaterialTable, i: int) -> tuple[
 def needs_own_model(materials: MaterialTable) -> bool:
     """Whether some material of ``materials`` needs more than the fitting model and its table row
     (corrections, or an analytical model of its own): then only ``material_model`` evaluates it."""
-    return any(corrections or capacity in ANALYTICAL_CAPACITIES for corrections, capacity, _ in materials.fits)
+    return bool(_at_own_capacity(materials))
+
+
+def _at_own_capacity(materials: MaterialTable) -> list[str]:
+    """Each material that ``needs_own_model``, as "name (capacity[, corrected])"."""
+    return [f"{name} ({capacity or 'latent'}{', corrected' if corrections else ''})"
+            for name, (corrections, capacity, _) in zip(materials.names, materials.fits)
+            if corrections or capacity in ANALYTICAL_CAPACITIES]
 
 
 def losses_at_own_capacity(model: BRDFModel, materials: MaterialTable, samples: Samples) -> list[float]:
@@ -120,10 +127,7 @@ def per_material_loss(model: BRDFModel, materials: MaterialTable, samples: Sampl
     or analytical capacities (``needs_own_model``) is refused: ``model`` alone would measure those
     materials with other weights or another formula than they were fitted with
     (``losses_at_own_capacity`` measures them)."""
-    if needs_own_model(materials):
-        own = [f"{name} ({capacity or 'latent'}{', corrected' if corrections else ''})"
-               for name, (corrections, capacity, _) in zip(materials.names, materials.fits)
-               if corrections or capacity in ANALYTICAL_CAPACITIES]
+    if own := _at_own_capacity(materials):
         raise ValueError(f"materials fitted at their own capacity: {', '.join(own)}; "
                          "measure them with losses_at_own_capacity")
     sums = torch.zeros(len(samples.names), dtype=torch.float64)
