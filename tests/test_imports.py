@@ -13,6 +13,7 @@ that imports its own submodules is no circle).
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -34,6 +35,7 @@ FORBIDDEN = {"neuenh": {"ray", "fastapi", "starlette", "uvicorn", "sqlite3"},
              "cli": {"ray", "fastapi", "starlette"}}
 
 
+@functools.cache
 def modules() -> dict[str, tuple[str, Path]]:
     """Importable module name -> (room, file) of every module of every room."""
     out = {}
@@ -70,14 +72,18 @@ def imports_of(module: str, path: Path, known: set[str]) -> tuple[set[str], set[
     return internal, top
 
 
-GRAPH = {name: imports_of(name, path, set(modules())) for name, (_, path) in modules().items()}
+@functools.cache
+def graph() -> dict[str, tuple[set[str], set[str]]]:
+    """Module -> ``imports_of`` it, read once by the process that runs these tests (not at collection)."""
+    known = set(modules())
+    return {name: imports_of(name, path, known) for name, (_, path) in modules().items()}
 
 
 def test_the_graph_sees_the_rooms():
     """The walk finds what it must: every room, and an edge known to exist."""
     rooms = {room for room, _ in modules().values()}
     assert rooms == set(ROOMS)
-    assert "neuenh.params" in GRAPH["neuenh.materials"][0]
+    assert "neuenh.params" in graph()["neuenh.materials"][0]
 
 
 def test_no_import_circle():
@@ -88,7 +94,7 @@ def test_no_import_circle():
     def visit(name: str) -> None:
         state[name] = 1
         stack.append(name)
-        for target in sorted(GRAPH[name][0]):
+        for target in sorted(graph()[name][0]):
             if state.get(target) == 1:
                 circle = stack[stack.index(target):] + [target]
                 pytest.fail("import circle: " + " -> ".join(circle))
@@ -97,7 +103,7 @@ def test_no_import_circle():
         stack.pop()
         state[name] = 2
 
-    for name in sorted(GRAPH):
+    for name in sorted(graph()):
         if name not in state:
             visit(name)
 
@@ -106,9 +112,9 @@ def test_no_import_circle():
 def test_imports_flow_one_way_between_rooms(room):
     order = list(ROOMS)
     where = modules()
-    wrong = sorted(f"{name} imports {target}" for name, (internal, _) in GRAPH.items() if where[name][0] == room
+    wrong = sorted(f"{name} imports {target}" for name, (internal, _) in graph().items() if where[name][0] == room
                    for target in internal if order.index(where[target][0]) > order.index(room))
     assert not wrong, f"{room} imports a room after it: {wrong}"
-    heavy = sorted(f"{name} imports {top}" for name, (_, tops) in GRAPH.items() if where[name][0] == room
+    heavy = sorted(f"{name} imports {top}" for name, (_, tops) in graph().items() if where[name][0] == room
                    for top in tops & FORBIDDEN[room])
     assert not heavy, f"{room} imports what it must not: {heavy}"
