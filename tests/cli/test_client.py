@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
+from cli_runs import run_probing_torch
 from jobspecs import fit_scored_spec, tiny_spec
 
 from live_api import live_server, running_server, wait_for  # noqa: F401  (live_server: fixture)
@@ -274,24 +275,13 @@ def test_history_into_a_closed_pipe_ends_quietly(server, submitted):
     assert p.wait(60) == 141 and p.stderr.read() == ""
 
 
-# neuenh-client ARGS in a fresh process, then whether it imported torch, on the last line of stderr
-TORCH_PROBE = """
-import atexit, runpy, sys
-atexit.register(lambda: print("torch imported" if "torch" in sys.modules else "torch not imported", file=sys.stderr))
-runpy.run_module("neuenh_service.cli.client", run_name="__main__", alter_sys=True)
-"""
-
-
 @pytest.mark.parametrize("command", ["status", "history", "watch"])
 def test_what_only_reads_the_service_answers_without_importing_torch(server, submitted, command):
     """torch is ~1.5 s of a client's start: only what validates or loads a model locally imports it."""
     job_id = submitted[1]["id"]
-    out = subprocess.run([sys.executable, "-c", TORCH_PROBE, command, job_id], capture_output=True, text=True,
-                         env=environ(server.url, TOKEN), timeout=60)
-    assert out.returncode == 0, out.stderr
-    *shown, probe = out.stderr.splitlines()
-    assert job_id in out.stdout + "".join(shown) or command == "history" and out.stdout.startswith("round")
-    assert probe == "torch not imported"
+    out, imported_torch = run_probing_torch("neuenh_service.cli.client", command, job_id, env=environ(server.url, TOKEN))
+    assert out.returncode == 0 and not imported_torch, out.stderr
+    assert job_id in out.stdout + out.stderr or command == "history" and out.stdout.startswith("round")
 
 
 def test_watch_a_live_job_ctrl_c_then_cancel(server, api, submitted):

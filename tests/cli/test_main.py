@@ -4,32 +4,16 @@ them import torch, ~1.5 s a process."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import pytest
 
-from cli_runs import neuenh_here
+from cli_runs import neuenh_here, run_probing_torch
 from neuenh_service.cli.main import COMMANDS
-
-# main(ARGS) in a fresh process, then whether torch was imported, on the last line of stderr
-PROBE = """
-import sys
-from neuenh_service.cli.main import main
-try:
-    code = main(sys.argv[1:])
-except SystemExit as exc:
-    code = exc.code
-print("torch imported" if "torch" in sys.modules else "torch not imported", file=sys.stderr)
-sys.exit(code)
-"""
 
 
 @pytest.mark.parametrize("flag", ["--help", "--version"])
 def test_help_and_version_answer_without_importing_torch(flag):
-    out = subprocess.run([sys.executable, "-c", PROBE, flag], capture_output=True, text=True, timeout=60)
-    assert out.returncode == 0, out.stderr
-    assert out.stderr.splitlines()[-1] == "torch not imported"
+    out, imported_torch = run_probing_torch("neuenh_service.cli.main", flag)
+    assert out.returncode == 0 and not imported_torch, out.stderr
     if flag == "--version":
         assert out.stdout.startswith("neuenh ") and out.stdout.split()[1][0].isdigit()
     else:
