@@ -25,6 +25,9 @@ from typing import Iterable
 
 import torch
 
+# Adam's constants (Kingma & Ba 2015, Alg. 1; PyTorch's defaults), also the row-wise fit's (``neuenh.fit.optim``).
+ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8
+
 
 class Optimizer(ABC):
     """Parameters and a learning rate ``lr`` (a schedule may change it between steps)."""
@@ -70,8 +73,8 @@ class Adam(Optimizer):
     """Adam (Kingma & Ba 2015, *Adam: A Method for Stochastic Optimization*, Algorithm 1), as
     ``torch.optim.Adam(params, lr, betas, eps)``; each parameter counts its own steps."""
 
-    def __init__(self, params: Iterable[torch.Tensor], lr: float = 1e-3, betas: tuple[float, float] = (0.9, 0.999),
-                 eps: float = 1e-8):
+    def __init__(self, params: Iterable[torch.Tensor], lr: float = 1e-3, betas: tuple[float, float] = ADAM_BETAS,
+                 eps: float = ADAM_EPS):
         super().__init__(params, lr)
         self.betas, self.eps = betas, eps
         self.steps = [0] * len(self.params)

@@ -17,11 +17,10 @@ from typing import Sequence
 import torch
 
 from ..lbfgs import minimize_rows
+from ..optimizers import ADAM_BETAS, ADAM_EPS
 from .kernel import RowKernel, RowLosses
 from .layout import RowLayout
 
-# Adam's constants (Kingma & Ba 2015, Alg. 1; PyTorch's defaults).
-ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8
 # The fast fit's L-BFGS minimises a Charbonnier surrogate of the log-L1, sqrt(r^2 + eps^2) - eps per
 # channel: smooth, so curvature pairs are meaningful, and within eps of |r| everywhere. Each phase
 # starts from the last one's result with a smaller eps (the second is below the residuals that
