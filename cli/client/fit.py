@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from neuenh.data.table import check_table
+
 from ..tables import fit_report
 from .api import FIT_TIMEOUT_S, Api
 from .commands import Commands, job_arg, json_arg, print_json
@@ -27,10 +29,8 @@ def add_parser(commands: Commands) -> None:
 
 
 def run(args, api: Api) -> int:
-    from neuenh.data.table import load_table
-
-    for table in args.tables:  # a bad table is a usage error before anything is uploaded
-        load_table(table)
+    for table in args.tables:  # a bad table is a usage error before anything is uploaded (numpy only: no torch)
+        check_table(table)
     data = {"method": args.method, "capacity": args.capacity,
             **{k: str(v) for k, v in (("epochs", args.epochs), ("lbfgs_iterations", args.lbfgs_iterations))
                if v is not None}}

@@ -28,7 +28,9 @@ Both formats are validated the same way — unit directions (|norm - 1| <= 1e-3)
 non-negative, matching lengths, at least one row, at most the reader's ``max_rows`` (an npz's from
 its headers, before inflating; a CSV's counted as it streams) — and every problem is a
 ``TableError`` naming the file, the row (0-based, the same in both formats; CSV errors add the
-1-based line of the file) and what is wrong.
+1-based line of the file) and what is wrong. ``load_table`` returns a checked table as ``Samples``;
+``check_table`` only checks it, with numpy alone (``neuenh-client fit`` checks tables before
+uploading them without importing torch).
 
 **Weights.** ``Samples`` has no weight field and training does not weight the loss, so a table's
 weights are not used by training or fitting today. They are validated, kept as ``Table.weight``
@@ -43,13 +45,17 @@ import os
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from ..files import atomic_write
 from .errors import DataError, check_file
-from .samples import Samples
+
+if TYPE_CHECKING:  # torch is imported where a table becomes Samples: checking a table needs only numpy
+    import torch
+
+    from .samples import Samples
 
 CSV_COLUMNS = ("wi_x", "wi_y", "wi_z", "wo_x", "wo_y", "wo_z", "r", "g", "b")
 WEIGHT = "weight"
@@ -112,6 +118,26 @@ def load_table(path: str | os.PathLike, name: str | None = None, max_rows: int |
     """The table at ``path`` (npz or CSV, told apart by content); ``name`` defaults to the stem.
     ``max_rows``: refuse a larger table before reading its values (an npz's row counts come from
     its arrays' headers, before anything is decompressed)."""
+    import torch
+
+    from .samples import Samples
+
+    path, arrays, fmt = _checked(path, max_rows)
+    t = {k: torch.as_tensor(np.asarray(arrays[k]), dtype=torch.float32) for k in _KEYS}
+    weight = torch.as_tensor(np.asarray(arrays[WEIGHT]), dtype=torch.float32) if WEIGHT in arrays else None
+    samples = Samples(t["wi"], t["wo"], t["f_r"], torch.zeros(len(t["wi"]), dtype=torch.long),
+                      (path.stem if name is None else name,))
+    return Table(samples, weight, fmt)
+
+
+def check_table(path: str | os.PathLike, max_rows: int | None = None) -> int:
+    """The number of rows of the table at ``path`` once it is validated as ``load_table`` validates
+    it (a ``TableError`` otherwise), without building ``Samples``: numpy only, no torch."""
+    return len(_checked(path, max_rows)[1]["wi"])
+
+
+def _checked(path: str | os.PathLike, max_rows: int | None) -> tuple[Path, dict[str, np.ndarray], str]:
+    """The validated arrays of the table at ``path`` and its format ("npz" or "csv")."""
     path = check_file(path, TableError)
     try:
         with open(path, "rb") as f:
@@ -122,10 +148,8 @@ def load_table(path: str | os.PathLike, name: str | None = None, max_rows: int |
         arrays, fmt = _read_npz(path, max_rows), "npz"
     else:
         arrays, fmt = _read_csv(path, max_rows), "csv"
-    samples, weight = _validated(path, arrays, fmt)
-    if name is not None:
-        samples = Samples(samples.wi, samples.wo, samples.f_r, samples.material, (name,))
-    return Table(samples, weight, fmt)
+    _validate(path, arrays)
+    return path, arrays, fmt
 
 
 def read_table(path: str | os.PathLike, name: str | None = None, max_rows: int | None = None) -> Samples:
@@ -289,7 +313,8 @@ def _csv_values(path: Path, lines: list[tuple[int, str]], header: list[str], fir
         raise  # pragma: no cover - numpy refused a value float() accepts
 
 
-def _validated(path: Path, arrays: dict[str, np.ndarray], fmt: str) -> tuple[Samples, torch.Tensor | None]:
+def _validate(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Every check of the module doc, on the arrays a reader returned (its ``_lines`` taken off)."""
     lines = arrays.pop("_lines", None)
 
     def where(row: int) -> str:
@@ -334,10 +359,6 @@ def _validated(path: Path, arrays: dict[str, np.ndarray], fmt: str) -> tuple[Sam
             raise TableError(f"{path}: {key} has negative values (first at {where(row)})")
     if WEIGHT in arrays and not (arrays[WEIGHT] > 0).any():
         raise TableError(f"{path}: weight is zero on every row")
-    t = {k: torch.as_tensor(np.asarray(arrays[k]), dtype=torch.float32) for k in _KEYS}
-    weight = torch.as_tensor(np.asarray(arrays[WEIGHT]), dtype=torch.float32) if WEIGHT in arrays else None
-    samples = Samples(t["wi"], t["wo"], t["f_r"], torch.zeros(n, dtype=torch.long), (path.stem,))
-    return samples, weight
 
 
 # -- writing ---------------------------------------------------------------------------------
@@ -345,11 +366,9 @@ def write_table(path: str | os.PathLike, wi, wo, f_r, weight=None) -> Path:
     """Write a table that ``read_table`` reads, atomically: CSV when ``path`` ends in ``.csv``
     (float32 values printed exactly, 9 significant digits), else ``.npz`` (float32 arrays)."""
     path = Path(path)
-    arrays = {k: np.asarray(torch.as_tensor(v).detach().cpu().numpy() if isinstance(v, torch.Tensor) else v,
-                            dtype=np.float32) for k, v in (("wi", wi), ("wo", wo), ("f_r", f_r))}
+    arrays = {k: _float32(v) for k, v in (("wi", wi), ("wo", wo), ("f_r", f_r))}
     if weight is not None:
-        arrays[WEIGHT] = np.asarray(weight.detach().cpu().numpy() if isinstance(weight, torch.Tensor) else weight,
-                                    dtype=np.float32).reshape(-1)
+        arrays[WEIGHT] = _float32(weight).reshape(-1)
     if path.suffix.lower() == ".csv":
         columns = [arrays["wi"], arrays["wo"], arrays["f_r"]]
         header = ",".join(CSV_COLUMNS)
@@ -359,6 +378,13 @@ def write_table(path: str | os.PathLike, wi, wo, f_r, weight=None) -> Path:
         return atomic_write(path, lambda tmp: np.savetxt(tmp, np.concatenate(columns, axis=1), delimiter=",",
                                                          fmt="%.9g", header=header, comments=""))
     return atomic_write(path, lambda tmp: savez(tmp, arrays))
+
+
+def _float32(values) -> np.ndarray:
+    """``values`` (a torch tensor, an array or nested lists) as a float32 numpy array."""
+    if hasattr(values, "detach"):  # a torch tensor, perhaps requiring grad (torch itself not needed here)
+        values = values.detach().cpu().numpy()
+    return np.asarray(values, dtype=np.float32)
 
 
 def savez(path: Path, arrays) -> None:

@@ -165,8 +165,10 @@ def test_usage_errors_exit_2_before_contacting_the_service(tmp_path, closed_url,
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "keep.txt").write_text("mine")
     paths = {"BAD_SPEC": bad_spec, "BAD_TABLE": tmp_path / "bad.npz", "FULL_DIR": tmp_path / "full"}
-    out = client(*[paths.get(a, a) for a in args], url=closed_url, cwd=tmp_path)
+    out, imported_torch = run_probing_torch("neuenh_service.cli.client", *[paths.get(a, a) for a in args],
+                                            env=environ(closed_url, TOKEN), cwd=tmp_path)
     assert out.returncode == 2  # 3 would mean it tried the (closed) service
+    assert not imported_torch or args[0] == "submit"  # a job spec is checked by the service's spec module (torch)
     one_line_error(out, message)
     assert (tmp_path / "full" / "keep.txt").read_text() == "mine"
 
@@ -392,9 +394,11 @@ def ggx_table(tmp_path_factory):
 
 @pytest.mark.parametrize("as_json", [True, False], ids=["json", "table"])
 def test_fit_measurements_with_a_jobs_model(server, submitted, ggx_table, as_json):
+    """The table is checked here and fitted on the service: the client itself never imports torch."""
     job = submitted[1]
-    out = client("fit", job["id"], ggx_table, "--epochs", "40", *(["--json"] if as_json else []), url=server.url)
-    assert out.returncode == 0, out.stderr
+    out, imported_torch = run_probing_torch("neuenh_service.cli.client", "fit", job["id"], ggx_table, "--epochs", "40",
+                                            *(["--json"] if as_json else []), env=environ(server.url, TOKEN))
+    assert out.returncode == 0 and not imported_torch, out.stderr
     if as_json:
         report = json.loads(out.stdout)
         (m,) = report["materials"]

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import torch
 
-from neuenh.data.table import TableError, read_table, write_table
+from neuenh.data.table import TableError, check_table, read_table, write_table
 
 
 def _good(n=50):
@@ -18,6 +18,7 @@ def test_round_trip(tmp_path):
     path = write_table(tmp_path / "mat.npz", **arrays)
     samples = read_table(path)
     assert samples.names == ("mat",) and len(samples) == 50
+    assert check_table(path) == 50
     assert torch.allclose(samples.f_r, torch.as_tensor(arrays["f_r"], dtype=torch.float32))
 
 
@@ -51,11 +52,12 @@ def _nan(a):
     ],
     ids=["missing", "shape", "complex", "length", "nan", "negative", "non-unit", "empty"],
 )
-def test_bad_tables_name_the_file_and_the_problem(tmp_path, arrays, match):
+@pytest.mark.parametrize("reader", [read_table, check_table], ids=["read", "check"])
+def test_bad_tables_name_the_file_and_the_problem(tmp_path, arrays, match, reader):
     path = tmp_path / "bad.npz"
     np.savez(path, **arrays)
     with pytest.raises(TableError, match=match) as info:
-        read_table(path)
+        reader(path)
     assert "bad.npz" in str(info.value)
 
 

@@ -10,7 +10,7 @@ import torch
 from neuenh.data import load_measured
 from neuenh.data.errors import DataError
 from neuenh.data.measured import TableMaterial, detect_format
-from neuenh.data.table import CSV_COLUMNS, TableError, load_table, read_table, write_table
+from neuenh.data.table import CSV_COLUMNS, TableError, check_table, load_table, read_table, write_table
 
 from data_files import hemisphere
 
@@ -91,10 +91,11 @@ def test_csv_header_with_a_typo_gets_a_precise_error_not_unrecognised(tmp_path):
     ([], "# nothing but comments", "the table is empty"),
 ], ids=["missing-column", "unknown-column", "duplicate-column", "short-row", "not-a-number", "nan", "negative", "beyond-float32",
         "non-unit", "negative-weight", "zero-weights", "header-only", "no-header"])
-def test_bad_csv_names_file_row_and_problem(tmp_path, rows, header, match):
+@pytest.mark.parametrize("reader", [read_table, check_table], ids=["read", "check"])
+def test_bad_csv_names_file_row_and_problem(tmp_path, rows, header, match, reader):
     path = _csv(tmp_path / "bad.csv", rows, header)
     with pytest.raises(TableError, match=match) as info:
-        read_table(path)
+        reader(path)
     assert str(info.value).startswith(str(path))
 
 
