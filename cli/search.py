@@ -28,6 +28,7 @@ from neuenh_service.orchestrator.spec import load_spec, parse_spec
 from neuenh_service.storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore, trained_epochs
 
 from .progress import ProgressDisplay
+from .tables import against_plain
 
 SUCCESS = {JobStatus.CONVERGED, JobStatus.STOPPED}
 
@@ -157,6 +158,6 @@ def format_summary(s: dict) -> str:
         if "plain_val_loss_same_epochs" in s:
             lines.append(f"  plain {s['model']} trained the same {s['plain_epochs']} epochs: "
                          f"{s['plain_val_loss_same_epochs']:.5f}"
-                         f"  -> enhancement lowers the validation loss by {100 * s['improvement']:.1f}%")
+                         f"  -> {against_plain(s['val_loss'], s['plain_val_loss_same_epochs'], 'plain ' + s['model'])}")
         lines += [f"  bundle        {s['bundle']}", f"  history       {s['history']}"]
     return "\n".join(lines)

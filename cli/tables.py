@@ -16,6 +16,14 @@ def table(rows: Sequence[Sequence[str]], right: Collection[int] = ()) -> str:
                      for r in rows)
 
 
+def against_plain(enhanced: float, plain: float, plain_name: str = "plain GGX") -> str:
+    """The enhanced model's validation loss against ``plain_name``'s trained for the same epochs, in
+    words that stay true when the enhancement loses (a short search can end above the plain model)."""
+    if enhanced < plain:
+        return f"the enhancement lowers the validation loss by {100 * (1 - enhanced / plain):.1f}%"
+    return f"the enhancement does not lower the validation loss: {100 * (enhanced / plain - 1):.1f}% above {plain_name}'s"
+
+
 def fit_report(report: dict) -> str:
     """A fit's report (``neuenh fit --json``'s, or ``POST /v1/jobs/{id}/fit``'s answer): a line for
     the fit, then one per material with its loss, its parameter count and capacity, and its analytical

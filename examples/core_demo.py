@@ -7,7 +7,8 @@
 3. Saves the enhanced model as a bundle, then fits materials neither model has seen with both,
    module weights frozen, and reports the held-out loss of each.
 
-Run with ``make demo`` (or ``.venv/bin/python examples/core_demo.py --out runs/demo``).
+Run with ``.venv/bin/python examples/core_demo.py --out runs/core-demo`` (``make demo`` runs the service
+demo, ``examples/service_demo.py``).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
 from neuenh.fit import fit_materials
 from neuenh.train import TrainConfig, train_candidate
 from neuenh.data.samples import TrainingData
+from neuenh_service.cli.tables import against_plain
 
 PLAIN, PAPER = "00000000000", "00011100100"
 
@@ -49,8 +51,7 @@ def main() -> None:
         results[label] = r
         print(f"  {label:13s} {r.bundle.model.describe():42s} val log-L1 {r.val_loss:.4f}  "
               f"({r.bundle.model.n_weights()} weights, {r.wall_s:.0f} s)")
-    gain = 1 - results["enhanced GGX"].val_loss / results["plain GGX"].val_loss
-    print(f"enhancement lowers the validation loss by {100 * gain:.0f}% at the same training budget")
+    print(f"{against_plain(results['enhanced GGX'].val_loss, results['plain GGX'].val_loss)} at the same training budget")
 
     bundle_dir = results["enhanced GGX"].bundle.save(args.out / "enhanced-ggx")
     print(f"enhanced model saved to {bundle_dir}/ (model.json, weights.safetensors, materials.safetensors)")

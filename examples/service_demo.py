@@ -95,6 +95,7 @@ def summarise(history: dict, results: Path, spec_path: Path, data_dir: Path) -> 
     """The final state, and its gain over plain GGX trained for the same number of epochs on the
     same data (trained here, after the service stopped, so the comparison is fair)."""
     from neuenh.checkpoint import Bundle
+    from neuenh_service.cli.tables import against_plain
     from neuenh_service.orchestrator.dataset import prepare_dataset
     from neuenh_service.orchestrator.runner import train_plain_baseline
     from neuenh_service.orchestrator.spec import load_spec
@@ -113,7 +114,7 @@ def summarise(history: dict, results: Path, spec_path: Path, data_dir: Path) -> 
           end=" ", flush=True)
     data, _ = prepare_dataset(spec, LocalArtifactStore(data_dir / "artifacts"))
     plain = train_plain_baseline(spec, data, epochs).val_loss
-    print(f"{plain:.5f}\n             -> the enhancement lowers the validation loss by {100 * (1 - final / plain):.1f}%")
+    print(f"{plain:.5f}\n             -> {against_plain(final, plain)}")
     print(f"model        {shown(results / 'model')}  (load with neuenh.checkpoint.Bundle.load, "
           f"or: neuenh fit --model {shown(results / 'model')} measurements.npz)")
     print(f"history      {shown(results / 'history.json')}")
