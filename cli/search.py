@@ -156,8 +156,8 @@ def format_summary(s: dict) -> str:
         if s.get("fit_score") is not None:
             lines.append(f"  fit score     {s['fit_score']:.5f} (log-L1 on the held-out materials, fitted with the modules frozen)")
         if "plain_val_loss_same_epochs" in s:
-            lines.append(f"  plain {s['model']} trained the same {s['plain_epochs']} epochs: "
-                         f"{s['plain_val_loss_same_epochs']:.5f}"
-                         f"  -> {against_plain(s['val_loss'], s['plain_val_loss_same_epochs'], 'plain ' + s['model'])}")
+            plain = s["plain_val_loss_same_epochs"]
+            words = against_plain(s["val_loss"], plain, f"plain {s['model']}", kept_plain=set(s["state"]) == {"0"})
+            lines.append(f"  plain {s['model']} trained the same {s['plain_epochs']} epochs: {plain:.5f}  -> {words}")
         lines += [f"  bundle        {s['bundle']}", f"  history       {s['history']}"]
     return "\n".join(lines)

@@ -16,9 +16,13 @@ def table(rows: Sequence[Sequence[str]], right: Collection[int] = ()) -> str:
                      for r in rows)
 
 
-def against_plain(enhanced: float, plain: float, plain_name: str = "plain GGX") -> str:
+def against_plain(enhanced: float, plain: float, plain_name: str = "plain GGX", kept_plain: bool = False) -> str:
     """The enhanced model's validation loss against ``plain_name``'s trained for the same epochs, in
-    words that stay true when the enhancement loses (a short search can end above the plain model)."""
+    words that stay true when the enhancement loses (a short search can end above the plain model)
+    and when the search ended at the plain model itself (``kept_plain``: no enhancement to credit)."""
+    if kept_plain:
+        return (f"the search kept {plain_name}: no module paid on this data "
+                f"({100 * abs(1 - enhanced / plain):.1f}% {'below' if enhanced < plain else 'above'} one run of as many epochs)")
     if enhanced < plain:
         return f"the enhancement lowers the validation loss by {100 * (1 - enhanced / plain):.1f}%"
     return f"the enhancement does not lower the validation loss: {100 * (enhanced / plain - 1):.1f}% above {plain_name}'s"

@@ -105,3 +105,19 @@ def test_a_job_stored_by_an_earlier_neuenh_is_found_by_its_spec(tmp_path):
         kept, _ = jobs.create_job(old_form, idempotency_key="spec-old-2")
         jobs.create_job({**old_form, "latent_dim": 5}, idempotency_key="spec-other")
         assert same_spec_job(jobs, spec).id == kept.id
+
+
+@pytest.mark.parametrize("state, val_loss, words", [
+    ("00000010000", 0.03927, "-> the enhancement does not lower the validation loss: 15.3% above plain ggx's"),
+    ("00000010000", 0.03000, "-> the enhancement lowers the validation loss by 11.9%"),
+    ("00000000000", 0.03250, "-> the search kept plain ggx: no module paid on this data"),
+], ids=["enhanced-above", "enhanced-below", "kept-plain"])
+def test_the_summary_credits_an_enhancement_only_when_there_is_one(state, val_loss, words):
+    """The fair baseline's line: a search that ended at its start state has no enhancement to credit."""
+    from neuenh_service.cli.search import format_summary
+
+    summary = {"job": "j", "status": "CONVERGED", "rounds": 1, "state": state, "formula": "M + S", "weights": 0,
+               "path": [state], "val_loss": val_loss, "round0_plain_val_loss": 0.1, "model": "ggx",
+               "plain_val_loss_same_epochs": 0.03405, "plain_epochs": 60, "bundle": "b", "history": "h"}
+    (line,) = [ln for ln in format_summary(summary).splitlines() if "trained the same 60 epochs" in ln]
+    assert words in line
