@@ -157,7 +157,7 @@ def format_summary(s: dict) -> str:
             lines.append(f"  fit score     {s['fit_score']:.5f} (log-L1 on the held-out materials, fitted with the modules frozen)")
         if "plain_val_loss_same_epochs" in s:
             plain = s["plain_val_loss_same_epochs"]
-            words = against_plain(s["val_loss"], plain, f"plain {s['model']}", kept_plain=set(s["state"]) == {"0"})
+            words = against_plain(s["val_loss"], plain, s["state"], f"plain {s['model']}")
             lines.append(f"  plain {s['model']} trained the same {s['plain_epochs']} epochs: {plain:.5f}  -> {words}")
         lines += [f"  bundle        {s['bundle']}", f"  history       {s['history']}"]
     return "\n".join(lines)

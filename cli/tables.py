@@ -16,11 +16,11 @@ def table(rows: Sequence[Sequence[str]], right: Collection[int] = ()) -> str:
                      for r in rows)
 
 
-def against_plain(enhanced: float, plain: float, plain_name: str = "plain GGX", kept_plain: bool = False) -> str:
-    """The enhanced model's validation loss against ``plain_name``'s trained for the same epochs, in
-    words that stay true when the enhancement loses (a short search can end above the plain model)
-    and when the search ended at the plain model itself (``kept_plain``: no enhancement to credit)."""
-    if kept_plain:
+def against_plain(enhanced: float, plain: float, state: str, plain_name: str = "plain GGX") -> str:
+    """The validation loss of the model at ``state`` against ``plain_name``'s trained for the same
+    epochs, in words that stay true when the enhancement loses (a short search can end above the plain
+    model) and when ``state`` is the plain model itself (no enhancement to credit)."""
+    if set(state) == {"0"}:  # every position at its original term: the very model the baseline trains
         return (f"the search kept {plain_name}: no module paid on this data "
                 f"({100 * abs(1 - enhanced / plain):.1f}% {'below' if enhanced < plain else 'above'} one run of as many epochs)")
     if enhanced < plain:

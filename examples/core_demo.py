@@ -51,7 +51,7 @@ def main() -> None:
         results[label] = r
         print(f"  {label:13s} {r.bundle.model.describe():42s} val log-L1 {r.val_loss:.4f}  "
               f"({r.bundle.model.n_weights()} weights, {r.wall_s:.0f} s)")
-    print(f"{against_plain(results['enhanced GGX'].val_loss, results['plain GGX'].val_loss)} at the same training budget")
+    print(f"{against_plain(results['enhanced GGX'].val_loss, results['plain GGX'].val_loss, PAPER)} at the same training budget")
 
     bundle_dir = results["enhanced GGX"].bundle.save(args.out / "enhanced-ggx")
     print(f"enhanced model saved to {bundle_dir}/ (model.json, weights.safetensors, materials.safetensors)")

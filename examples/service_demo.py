@@ -114,7 +114,7 @@ def summarise(history: dict, results: Path, spec_path: Path, data_dir: Path) -> 
           end=" ", flush=True)
     data, _ = prepare_dataset(spec, LocalArtifactStore(data_dir / "artifacts"))
     plain = train_plain_baseline(spec, data, epochs).val_loss
-    print(f"{plain:.5f}\n             -> {against_plain(final, plain, kept_plain=set(history['current_state']) == {'0'})}")
+    print(f"{plain:.5f}\n             -> {against_plain(final, plain, history['current_state'])}")
     print(f"model        {shown(results / 'model')}  (load with neuenh.checkpoint.Bundle.load, "
           f"or: neuenh fit --model {shown(results / 'model')} measurements.npz)")
     print(f"history      {shown(results / 'history.json')}")

@@ -86,8 +86,9 @@ def material_model(model: BRDFModel, materials: MaterialTable, i: int) -> tuple[
     record that model reads (``evaluate``, ``unclipped``, ``specialize``): ``model_for``'s (an
     analytical model for an analytical capacity), else ``model`` (the record's corrections are added
     to its module weights)."""
-    own = model_for(model, materials.as_params(i))
-    return own, own.used_params(materials.as_params(i))
+    params = materials.as_params(i)
+    own = model_for(model, params)
+    return own, own.used_params(params)
 
 
 def needs_own_model(materials: MaterialTable) -> bool:
