@@ -23,23 +23,27 @@ def _deterministic_threads():
 
 
 # The files that take longest, heaviest first (seconds of test time summed over each file's tests,
-# `pytest -n 3 --dist loadfile --no-loadscope-reorder --durations=0` on a quiet 2-core EPYC, stop 37).
-# `make test` hands files to its processes in collection order (--no-loadscope-reorder; xdist's own
-# reorder puts files with the most tests first, which left test_compose's two tests to start near the
-# end while another process sat idle): starting the longest first leaves only short files for the end.
+# `pytest -n 3 --dist loadfile --no-loadscope-reorder` on a quiet 2-core EPYC with an empty inductor
+# cache, as in a clean clone, stop 41). `make test` hands files to its processes in collection order
+# (--no-loadscope-reorder; xdist's own reorder puts files with the most tests first, which left
+# test_compose's two tests to start near the end while another process sat idle): starting the
+# longest first leaves only short files for the end.
 HEAVIEST_FIRST = (
-    "tests/api/test_shared_cluster.py",  # 123 s
-    "tests/cli/test_client.py",  # 122 s
-    "tests/deploy/test_compose.py",  # 69 s
-    "tests/workers/test_ray_cluster.py",  # 54 s
-    "tests/api/test_dashboard.py",  # 52 s
-    "tests/cli/test_service_demo.py",  # 42 s
-    "tests/deploy/test_scaling.py",  # 41 s
-    "tests/neuenh/test_fit.py",  # 34 s
-    "tests/api/test_serve.py",  # 34 s
-    "tests/cli/test_search_cli.py",  # 32 s
-    "tests/api/test_plans.py",  # 31 s
-    "tests/cli/test_report_cli.py",  # 27 s
+    "tests/cli/test_client.py",  # 107 s
+    "tests/api/test_shared_cluster.py",  # 98 s
+    "tests/deploy/test_compose.py",  # 57 s
+    "tests/api/test_dashboard.py",  # 44 s
+    "tests/neuenh/test_train.py",  # 44 s: its compiled step compiles from nothing in a new checkout
+    "tests/workers/test_ray_cluster.py",  # 41 s
+    "tests/cli/test_service_demo.py",  # 36 s
+    "tests/neuenh/test_fit.py",  # 29 s
+    "tests/api/test_plans.py",  # 28 s
+    "tests/cli/test_export_cli.py",  # 28 s
+    "tests/cli/test_fit_cli.py",  # 26 s
+    "tests/cli/test_report_cli.py",  # 24 s
+    "tests/cli/test_scene_cli.py",  # 20 s
+    "tests/api/test_serve.py",  # 20 s
+    "tests/orchestrator/test_runner.py",  # 20 s
 )
 
 
