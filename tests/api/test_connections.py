@@ -40,8 +40,11 @@ def test_idle_connections_are_closed_and_health_stays_reachable(tmp_path):
                 while client.get("/v1/health").status_code != 503:
                     assert time.monotonic() - opened < 1.5, "the idle connections never filled the slots"
                     time.sleep(0.05)
-                time.sleep(max(0.0, opened + 2.5 - time.monotonic()))  # past the head deadline
-                assert client.get("/v1/health").status_code == 200
+                # freed once the head deadline (2 s) has closed them: polled, because a loaded machine
+                # acts on the deadline late (a fixed look at 2.5 s failed once under a full make test)
+                while client.get("/v1/health").status_code != 200:
+                    assert time.monotonic() - opened < 2.0 + 10.0, "the idle connections still hold the slots"
+                    time.sleep(0.1)
             for sock in idle:  # the server closed every idle one (EOF)
                 sock.settimeout(5)
                 assert sock.recv(1) == b""
