@@ -66,6 +66,21 @@ class Samples:
         return Samples(self.wi[rows], self.wo[rows], self.f_r[rows], new[rows],
                        tuple(self.names[i] for i in materials))
 
+    def at_most(self, n: int, seed: int) -> "Samples":
+        """At most ``n`` rows of each material: a seeded random ``n`` of a material that has more,
+        every row of the others; rows keep their order. ``self`` when no material has more."""
+        if n < 1:
+            raise ValueError(f"samples: at_most needs n >= 1, got {n}")
+        counts = torch.bincount(self.material, minlength=len(self.names))
+        if len(self) == 0 or int(counts.max()) <= n:
+            return self
+        generator = torch.Generator().manual_seed(seed)
+        keep = []
+        for i in range(len(self.names)):
+            rows = torch.nonzero(self.material == i).squeeze(1)
+            keep.append(rows[torch.randperm(len(rows), generator=generator)[:n]] if len(rows) > n else rows)
+        return self.subset(torch.cat(keep).sort().values)
+
     def split(self, val_fraction: float, seed: int) -> tuple["Samples", "Samples"]:
         """Seeded random split into (train, validation); every material keeps its share."""
         if not 0.0 <= val_fraction < 1.0:

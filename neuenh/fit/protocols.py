@@ -261,7 +261,12 @@ class LatentAdam(FitProtocol):
     Why screened codes: the fit's end point depends on its start more than on anything else — one
     material's held-out error moved 1.6× when only the order of its samples changed — and a few
     hundred training codes are a cheap, diverse set of starts the modules were trained to read
-    (docs/BENCHMARKS.md, "Latent fits: the training codes' start")."""
+    (docs/BENCHMARKS.md, "Latent fits: the training codes' start").
+
+    A material with more than ``sample_cap`` samples is fitted to a seeded random ``sample_cap`` of
+    them (None: all): its few dozen parameters end where 100,000 samples put them from about 20,000
+    on, while the fit's time grows with every sample (docs/BENCHMARKS.md, "Latent fits of many
+    samples")."""
 
     name: ClassVar[str] = "latent"
     epochs: int = 300
@@ -269,10 +274,11 @@ class LatentAdam(FitProtocol):
     starts: str = "analytical"
     screened: int = 8
     screen_samples: int = 1000
+    sample_cap: int | None = 20_000
 
     def __post_init__(self) -> None:
         if (self.epochs < 1 or self.lr <= 0 or self.starts not in ("analytical", "paper") or self.screened < 0
-                or self.screen_samples < 1):
+                or self.screen_samples < 1 or (self.sample_cap is not None and self.sample_cap < 1)):
             raise ValueError(f"invalid latent protocol {self} (starts: 'analytical' or 'paper')")
 
     @property
@@ -282,6 +288,8 @@ class LatentAdam(FitProtocol):
     def fit(self, model, samples, *, start=None, trained=None, seed=0) -> FitResult:
         _check(model, samples, start)
         start_time = time.perf_counter()
+        if self.sample_cap is not None:
+            samples = samples.at_most(self.sample_cap, seed)
         rows = Rows(samples, seed)
         with frozen(model):
             x, losses = self.fit_rows(model, rows, start, trained, seed)

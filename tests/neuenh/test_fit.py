@@ -314,6 +314,21 @@ def test_latent_fit_keeps_each_materials_best_start(two_zoo_materials, enhanced)
         assert mine <= theirs * 1.02
 
 
+def test_a_latent_fit_over_its_cap_fits_a_seeded_draw_of_each_materials_samples(enhanced, two_zoo_materials):
+    """``sample_cap``: a material with more samples is fitted to ``Samples.at_most``'s draw of them —
+    the very fit of that draw with no cap —; under the cap the fit is the uncapped one."""
+    samples = two_zoo_materials  # 600 samples of each material
+    capped = LatentAdam(epochs=9, sample_cap=200).fit(enhanced, samples, seed=2)
+    drawn = LatentAdam(epochs=9, sample_cap=None).fit(enhanced, samples.at_most(200, seed=2), seed=2)
+    assert capped.losses == drawn.losses and torch.equal(capped.materials.latent, drawn.materials.latent)
+    uncapped = LatentAdam(epochs=9, sample_cap=None).fit(enhanced, samples, seed=2)
+    assert LatentAdam(epochs=9, sample_cap=600).fit(enhanced, samples, seed=2).losses == uncapped.losses
+    assert capped.losses != uncapped.losses
+    assert capped.protocol["sample_cap"] == 200 and LatentAdam().sample_cap == 20_000
+    with pytest.raises(ValueError, match="invalid latent protocol"):
+        LatentAdam(sample_cap=0)
+
+
 def _codes(model, n, seed):
     """A training table of ``n`` materials with spread-out latent codes (``_random_table``'s)."""
     return _random_table(model, tuple(f"t{i}" for i in range(n)), seed)

@@ -88,3 +88,19 @@ def test_sample_sets_split_per_material():
     assert torch.bincount(val.material).tolist() == [200, 200, 200]
     again = samples.split(0.2, seed=1)[1]
     assert torch.equal(val.wi, again.wi)
+
+
+def test_at_most_draws_only_from_materials_over_the_cap():
+    samples = Samples.concat([sample_materials(synthetic_zoo(1, seed=s), n, seed=s) for s, n in ((0, 50), (1, 300))])
+    assert samples.at_most(300, seed=0) is samples  # no material over the cap: the same rows, no copy
+    capped = samples.at_most(120, seed=4)
+    assert torch.bincount(capped.material).tolist() == [50, 120]
+    assert torch.equal(capped.of_material(0).wi, samples.of_material(0).wi)  # under the cap: every row
+    # the capped material's rows are its own (matched by their f_r), distinct and in their order
+    own = samples.of_material(1).f_r
+    where = [int(torch.nonzero((own == row).all(1))[0]) for row in capped.of_material(1).f_r]
+    assert len(set(where)) == 120 and where == sorted(where)
+    assert torch.equal(samples.at_most(120, seed=4).wi, capped.wi)  # seeded
+    assert not torch.equal(samples.at_most(120, seed=5).wi, capped.wi)
+    with pytest.raises(ValueError, match="n >= 1"):
+        samples.at_most(0, seed=0)
