@@ -101,8 +101,9 @@ class Settings(BaseSettings):
         "CPU threads a scene plan's process uses; a running plan holds as many of the cluster's fair share"))
     max_render_size: int = Field(256, ge=8, description="largest render.size (pixels per side) of a scene plan")
     max_fit_work: int = Field(10_000_000, ge=1, description=(
-        "most measurement-epochs one POST /v1/jobs/{id}/fit may ask: rows uploaded x the fit's epochs "
-        "(its method's default when unset); ~60 us each on a busy 2-core machine, so the default is minutes"))
+        "most measurement-epochs one POST /v1/jobs/{id}/fit may ask: the rows the fit reads (a latent fit, at "
+        "most 20,000 of each material's) x its epochs (its method's default when unset); ~60 us each on a busy "
+        "2-core machine, so the default is minutes"))
 
     shutdown_grace_s: float = Field(
         30.0, ge=0.0, description="how long shutdown waits for the running job to reach a safe stop")

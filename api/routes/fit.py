@@ -70,10 +70,11 @@ def fit_job(
     with fit_slot(fit_lock):  # reading uploads costs memory like a fit: one at a time too (else 429)
         samples = _read_uploads(files, settings.max_samples)
         protocol = options.protocol_for(model)
-        work = len(samples) * protocol.budget_epochs
+        fitted = protocol.fitted_samples(samples)
+        work = fitted * protocol.budget_epochs
         if work > settings.max_fit_work:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                f"files: {len(samples)} measurements x {protocol.budget_epochs} epochs of the "
+                                f"files: {fitted} measurements fitted x {protocol.budget_epochs} epochs of the "
                                 f"{protocol.name} fit = {work} exceed this service's limit of {settings.max_fit_work} per fit "
                                 "(NEUENH_MAX_FIT_WORK); send fewer rows or ask fewer epochs")
         result = fit_materials(model, samples, protocol, trained=bundle.materials)

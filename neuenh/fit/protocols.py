@@ -67,6 +67,10 @@ class FitProtocol(ABC):
         """The protocol's name and budget, as plain data (fit reports, provenance)."""
         return {"name": self.name, **dataclasses.asdict(self)}
 
+    def fitted_samples(self, samples: Samples) -> int:
+        """How many of ``samples`` the fit reads: what ``budget_epochs`` counts epochs over."""
+        return len(samples)
+
     @property
     @abstractmethod
     def budget_epochs(self) -> int:
@@ -284,6 +288,11 @@ class LatentAdam(FitProtocol):
     @property
     def budget_epochs(self) -> int:
         return self.epochs
+
+    def fitted_samples(self, samples: Samples) -> int:
+        if self.sample_cap is None:
+            return len(samples)
+        return int(torch.bincount(samples.material, minlength=len(samples.names)).clamp(max=self.sample_cap).sum())
 
     def fit(self, model, samples, *, start=None, trained=None, seed=0) -> FitResult:
         _check(model, samples, start)

@@ -325,6 +325,9 @@ def test_a_latent_fit_over_its_cap_fits_a_seeded_draw_of_each_materials_samples(
     assert LatentAdam(epochs=9, sample_cap=600).fit(enhanced, samples, seed=2).losses == uncapped.losses
     assert capped.losses != uncapped.losses
     assert capped.protocol["sample_cap"] == 200 and LatentAdam().sample_cap == 20_000
+    # what a service's work limit counts: the samples each protocol reads
+    assert [p.fitted_samples(samples) for p in (LatentAdam(sample_cap=200), LatentAdam(sample_cap=None),
+                                                 LatentAdam(sample_cap=601), PlainLBFGS())] == [400, 1200, 1200, 1200]
     with pytest.raises(ValueError, match="invalid latent protocol"):
         LatentAdam(sample_cap=0)
 
