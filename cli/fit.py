@@ -100,7 +100,7 @@ def run(args) -> int:
     metrics: dict = {"fit_loss": result.losses}
     if test is not None:
         heldout = heldout_log_l1(model, result, test)
-        counts = torch.bincount(test.material, minlength=len(test.names)).tolist()
+        counts = test.counts().tolist()
         for entry, loss, count, path in zip(report["materials"], heldout, counts, args.test):
             entry.update(heldout_log_l1=loss, heldout_samples=count, heldout_table=str(path))
         metrics["heldout_log_l1"] = heldout

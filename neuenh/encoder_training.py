@@ -71,7 +71,7 @@ class MeasurementPools:
         self.pools = (uniform, mirror)
         self.ranges = []
         for pool in self.pools:
-            counts = torch.bincount(pool.material, minlength=len(self.names))
+            counts = pool.counts()
             if not bool((pool.material[1:] >= pool.material[:-1]).all()) or int(counts.min()) < 1:
                 raise ValueError("every material needs measurements, its rows together")
             self.ranges.append((torch.cumsum(counts, 0) - counts, counts))

@@ -46,6 +46,10 @@ class Samples:
     def __len__(self) -> int:
         return self.wi.shape[0]
 
+    def counts(self) -> torch.Tensor:
+        """The number of rows of each material, in ``names`` order (int64, zeros included)."""
+        return torch.bincount(self.material, minlength=len(self.names))
+
     def subset(self, index: torch.Tensor) -> "Samples":
         return Samples(self.wi[index], self.wo[index], self.f_r[index], self.material[index], self.names)
 
@@ -71,8 +75,7 @@ class Samples:
         every row of the others; rows keep their order. ``self`` when no material has more."""
         if n < 1:
             raise ValueError(f"samples: at_most needs n >= 1, got {n}")
-        counts = torch.bincount(self.material, minlength=len(self.names))
-        if len(self) == 0 or int(counts.max()) <= n:
+        if len(self) == 0 or int(self.counts().max()) <= n:
             return self
         generator = torch.Generator().manual_seed(seed)
         keep = []

@@ -83,7 +83,7 @@ def padded(samples: Samples, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor,
     padded with copies of its first sample: ``wi, wo, f_r`` (m, slots, 3) and ``valid`` (m, slots)
     bool. The shuffle makes any range of slots a random subset (minibatches, folds)."""
     m = len(samples.names)
-    counts = torch.bincount(samples.material, minlength=m)
+    counts = samples.counts()
     if int(counts.min()) == 0:
         empty = [samples.names[i] for i in range(m) if counts[i] == 0]
         raise ValueError(f"no samples to fit for material(s) {', '.join(empty)}")

@@ -292,7 +292,7 @@ class LatentAdam(FitProtocol):
     def fitted_samples(self, samples: Samples) -> int:
         if self.sample_cap is None:
             return len(samples)
-        return int(torch.bincount(samples.material, minlength=len(samples.names)).clamp(max=self.sample_cap).sum())
+        return int(samples.counts().clamp(max=self.sample_cap).sum())
 
     def fit(self, model, samples, *, start=None, trained=None, seed=0) -> FitResult:
         _check(model, samples, start)

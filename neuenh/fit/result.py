@@ -49,7 +49,7 @@ class FitResult:
         """The fit as plain data (``neuenh fit --json`` and ``POST /v1/jobs/{id}/fit``): per material
         its loss, sample count and record as its capacity's model reads it (``MaterialParams.to_json``:
         parameters, latent code, corrections, capacity, parameter count)."""
-        counts = torch.bincount(samples.material, minlength=len(self.materials)).tolist()
+        counts = samples.counts().tolist()
         return {"model": model.name, "state": model.state, "protocol": self.protocol,
                 "wall_s": round(self.wall_s, 3),
                 "materials": [{"name": name, "loss": self.losses[i], "samples": counts[i],

@@ -92,6 +92,7 @@ def test_sample_sets_split_per_material():
 
 def test_at_most_draws_only_from_materials_over_the_cap():
     samples = Samples.concat([sample_materials(synthetic_zoo(1, seed=s), n, seed=s) for s, n in ((0, 50), (1, 300))])
+    assert samples.counts().tolist() == [50, 300]
     assert samples.at_most(300, seed=0) is samples  # no material over the cap: the same rows, no copy
     capped = samples.at_most(120, seed=4)
     assert torch.bincount(capped.material).tolist() == [50, 120]
