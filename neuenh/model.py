@@ -344,9 +344,10 @@ class BRDFModel(nn.Module):
         frame = frame_of(TORCH, values)
         frame = None if frame is None else tuple(BatchVec3(gather(axis.array)) for axis in frame)
         shading = make_shading(wi, wo, {k: gather(v) for k, v in values.items()}, frame=frame)
-        per_material = Shading(None, None, None, None, None, None, None, values, None)
+        per_material = Shading.of_params(values, TORCH)
         modules_read = _reads_latent(self, digits)
-        material_input = None
+        # Both bound either way: torch.compile breaks its graph on a closure over an unbound name.
+        material_input = directions = None
         if modules_read:
             parts = [self.module_specs.unit_vector(values).to(wi.dtype)]
             if self.latent_dim:

@@ -45,7 +45,12 @@ class Shading:
     cos_d: Any  # (n, 1) wi.h (= wo.h) clamped to [COS_EPS, 1]
     params: Mapping[str, Any]  # physical parameter values, each (n, width) (or constants)
     above: Any  # (n, 1) bool: both directions above both horizons
-    xp: Any = TORCH  # the math vocabulary the values belong to (neuenh.ops)
+    xp: Any  # the math vocabulary the values belong to (neuenh.ops)
+
+    @classmethod
+    def of_params(cls, params: Mapping[str, Any], xp) -> "Shading":
+        """What a term that reads no direction sees: the parameters alone."""
+        return cls(None, None, None, None, None, None, None, params, None, xp)
 
 
 def shading_frame(xp, normal_angles, t_theta) -> tuple[Any, Any, Any]:
@@ -56,13 +61,18 @@ def shading_frame(xp, normal_angles, t_theta) -> tuple[Any, Any, Any]:
     nx, ny, nz = a * inv_len, b * inv_len, inv_len
     # The smallest rotation taking z to n maps x and y to these (nz > 0 for every allowed tilt).
     k = 1.0 / (1.0 + nz)
-    t0 = xp.vec3(1.0 - nx * nx * k, -nx * ny * k, -nx)
-    b0 = xp.vec3(-nx * ny * k, 1.0 - ny * ny * k, -ny)
+    t0 = (1.0 - nx * nx * k, -nx * ny * k, -nx)
+    b0 = (-nx * ny * k, 1.0 - ny * ny * k, -ny)
     normal = xp.vec3(nx, ny, nz)
     if t_theta is None:
-        return t0, b0, normal
+        return xp.vec3(*t0), xp.vec3(*b0), normal
+    # Rotated about n by t_theta: t = c t0 + s b0, b = c b0 - s t0, written per component. Scalar
+    # arithmetic, because torch.compile cannot trace a tensor times a Vec3 made in an inner function:
+    # it split the compiled training step in six (docs/BENCHMARKS.md, "The compiled training step").
     c, s = xp.cos(t_theta), xp.sin(t_theta)
-    return c * t0 + s * b0, c * b0 - s * t0, normal
+    t = xp.vec3(*(c * u + s * v for u, v in zip(t0, b0)))
+    b = xp.vec3(*(c * v - s * u for u, v in zip(t0, b0)))
+    return t, b, normal
 
 
 def frame_of(xp, params: Mapping[str, Any]) -> tuple[Any, Any, Any] | None:

@@ -122,7 +122,7 @@ class SpecializedBRDF:
         params = {k: _constant(v[0]) for k, v in values.items()}
         modules: dict[str, FoldedModule] = {}
         constants: dict[str, torch.Tensor] = {}
-        param_shading = Shading(None, None, None, None, None, None, None, params, None, TORCH)
+        param_shading = Shading.of_params(params, TORCH)
         chosen = model.chosen_terms()
         for expr, digit in zip(model.graph.positions, model.digits):
             expr = chosen.get(expr.name, expr)

@@ -20,7 +20,7 @@ import copy
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Callable, Iterator
 
 import torch
 
@@ -135,6 +135,19 @@ def evaluate_loss(model: BRDFModel, materials: MaterialTable, samples: Samples, 
     return total / len(samples)
 
 
+def batch_loss(model: BRDFModel, materials: MaterialTable) -> Callable[..., torch.Tensor]:
+    """The mean log-L1 of one batch ``(wi, wo, f_r, material)``: what a training step differentiates
+    and ``TrainConfig.compile`` compiles. Every model and state traces into one torch.compile graph
+    (tests/neuenh/test_train.py): a graph break costs the compiled step a fifth of its speed (docs/BENCHMARKS.md,
+    "The compiled training step")."""
+
+    def loss(wi: torch.Tensor, wo: torch.Tensor, f_r: torch.Tensor, material: torch.Tensor) -> torch.Tensor:
+        pred = model.forward_indexed(wi, wo, materials.values(), materials.latent, material)
+        return log_l1(pred, f_r, wi).mean()
+
+    return loss
+
+
 @contextlib.contextmanager
 def deterministic(enabled: bool = True) -> Iterator[None]:
     """Deterministic algorithms inside the block (restored afterwards): a compiled step's kernels
@@ -167,11 +180,8 @@ def train_candidate(
     epoch_losses: list[float] = []
     error = None
 
-    def batch_loss(wi: torch.Tensor, wo: torch.Tensor, f_r: torch.Tensor, material: torch.Tensor) -> torch.Tensor:
-        pred = model.forward_indexed(wi, wo, materials.values(), materials.latent, material)
-        return log_l1(pred, f_r, wi).mean()
-
-    step_loss = torch.compile(batch_loss, dynamic=False) if config.compile else batch_loss
+    loss_of = batch_loss(model, materials)
+    step_loss = torch.compile(loss_of, dynamic=False) if config.compile else loss_of
     with deterministic(config.compile):
         for _epoch in range(config.epochs):
             order = torch.randperm(len(train), generator=generator)
