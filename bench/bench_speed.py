@@ -13,8 +13,9 @@ Training: one step of ``train.train_candidate`` (forward, the log-L1, backward i
 latent and analytical parameters) of the shipped state over all its training materials, at
 batches of 4096 and 100,000 samples: the reference path (``forward`` on per-sample gathered
 parameters, what training ran before issue 13) against ``forward_indexed`` (per-material work once
-per material). ``--compile`` adds ``torch.compile`` of the indexed step (its compile time reported
-apart; the pinned torch on this CPU).
+per material). ``--compile`` adds ``torch.compile`` of the indexed step (``train.batch_loss``, as
+``TrainConfig(compile=True)`` compiles it), in float32 and with bfloat16 matrix products
+(``TrainConfig.precision``); compile times reported apart; the pinned torch on this CPU.
 
 ONNX (issue 16): the same materials' ``neuenh.export.onnx.material_graph`` run by onnxruntime (one
 intra-op thread, all graph optimizations), measured in the same interleaved run as the torch rows,
@@ -104,13 +105,15 @@ def onnx_section(batch: dict, small: dict) -> list[str]:
 
 
 TRAIN_BATCHES = (4096, 100_000)
+# --compile's rows: the step as ``TrainConfig(compile=True)`` compiles it, at each precision.
+COMPILED = {"torch.compile": "float32", "torch.compile, bfloat16 products": "bfloat16"}
 
 
 def training_cases(compile_step: bool) -> tuple[dict, dict]:
     """(cases by row name, compile seconds by row name): one training step per case."""
     from neuenh.data.directions import sample_directions
     from neuenh.pretrained import load_model
-    from neuenh.train import log_l1
+    from neuenh.train import batch_loss, log_l1
 
     model, materials = load_model("enhanced-ggx")
     cases, compile_s = {}, {}
@@ -124,18 +127,16 @@ def training_cases(compile_step: bool) -> tuple[dict, dict]:
             values, latent = materials.gather(material)
             log_l1(model(wi, wo, values, latent), target, wi).mean().backward()
 
-        def indexed_loss(wi, wo, material, target):
-            pred = model.forward_indexed(wi, wo, materials.values(), materials.latent, material)
-            return log_l1(pred, target, wi).mean()
-
+        step = (wi, wo, target, material)
         cases[f"reference, batch {n}"] = reference
-        cases[f"indexed, batch {n}"] = lambda f=indexed_loss, a=(wi, wo, material, target): f(*a).backward()
+        cases[f"indexed, batch {n}"] = lambda f=batch_loss(model, materials), a=step: f(*a).backward()
         if compile_step:
-            compiled = torch.compile(indexed_loss)
-            start = time.perf_counter()
-            compiled(wi, wo, material, target).backward()
-            compile_s[f"torch.compile, batch {n}"] = time.perf_counter() - start
-            cases[f"torch.compile, batch {n}"] = lambda f=compiled, a=(wi, wo, material, target): f(*a).backward()
+            for path, precision in COMPILED.items():
+                compiled = torch.compile(batch_loss(model, materials, precision), dynamic=False)
+                start = time.perf_counter()
+                compiled(*step).backward()
+                compile_s[f"{path}, batch {n}"] = time.perf_counter() - start
+                cases[f"{path}, batch {n}"] = lambda f=compiled, a=step: f(*a).backward()
     return cases, compile_s
 
 

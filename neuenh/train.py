@@ -20,7 +20,7 @@ import copy
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Iterator
+from typing import Callable, Iterator, Literal
 
 import torch
 
@@ -47,6 +47,10 @@ class FitScoreConfig:
             raise ValueError(f"invalid fit score config {self}")
 
 
+# TrainConfig.precision -> the dtype of the step's matrix products under autocast (None: no autocast).
+PRECISIONS: dict[str, torch.dtype | None] = {"float32": None, "bfloat16": torch.bfloat16}
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     epochs: int = 30
@@ -58,16 +62,23 @@ class TrainConfig:
     # ``lr_final`` over the candidate's epochs, so candidates are compared settled, not mid-step.
     lr_final: float | None = None
     # Compile the training step with torch.compile (needs a C++ compiler): measured in
-    # bench/bench_speed.py at 1.5x (batch 4096) and 1.8x (batch 1e5) the eager step, after about
-    # 8 s of compiling per batch shape, so it pays from about 700 steps of 1e5 samples on.
+    # bench/bench_speed.py at 2.1x (batch 4096) and 1.7x (batch 1e5) the eager step, after 5-20 s
+    # of compiling per batch shape, so it pays from a few hundred steps on.
     compile: bool = False
+    # "bfloat16": the step's matrix products in bfloat16 (torch.autocast: the modules' activations
+    # between layers too; analytical terms, loss, parameters and optimiser stay float32). On CPUs with
+    # bfloat16 arithmetic (AVX512_BF16, AMX) the compiled step at batch 1e5 runs 1.8x the float32 one,
+    # at 4,096 about as fast, and near convergence it trains 3-10 % worse (docs/BENCHMARKS.md, "The compiled
+    # training step"). Validation, fit scores and fits always run in float32.
+    precision: Literal["float32", "bfloat16"] = "float32"
     # After training, score the candidate by fitting the data's held-out materials (``neuenh.selection``
     # does, in the worker); None: no fit score.
     fit_score: FitScoreConfig | None = None
 
     def __post_init__(self) -> None:
         if self.epochs < 0 or self.batch_size < 1 or self.lr <= 0 or not 0 <= self.rmsprop_alpha < 1 \
-                or (self.lr_final is not None and not 0 < self.lr_final <= self.lr):
+                or (self.lr_final is not None and not 0 < self.lr_final <= self.lr) \
+                or self.precision not in PRECISIONS:
             raise ValueError(f"invalid training config {self}")
 
     def to_json(self) -> dict:
@@ -75,6 +86,8 @@ class TrainConfig:
                "batch_size": self.batch_size}
         if self.compile:
             out["compile"] = True
+        if self.precision != "float32":
+            out["precision"] = self.precision
         return out if self.lr_final is None else {**out, "lr_final": self.lr_final}
 
 
@@ -135,14 +148,17 @@ def evaluate_loss(model: BRDFModel, materials: MaterialTable, samples: Samples, 
     return total / len(samples)
 
 
-def batch_loss(model: BRDFModel, materials: MaterialTable) -> Callable[..., torch.Tensor]:
+def batch_loss(model: BRDFModel, materials: MaterialTable, precision: str = "float32") -> Callable[..., torch.Tensor]:
     """The mean log-L1 of one batch ``(wi, wo, f_r, material)``: what a training step differentiates
     and ``TrainConfig.compile`` compiles. Every model and state traces into one torch.compile graph
     (tests/neuenh/test_train.py): a graph break costs the compiled step a fifth of its speed (docs/BENCHMARKS.md,
-    "The compiled training step")."""
+    "The compiled training step"). ``precision``: see ``TrainConfig.precision``."""
+    low = PRECISIONS[precision]
+    products = contextlib.nullcontext if low is None else lambda: torch.autocast("cpu", dtype=low)
 
     def loss(wi: torch.Tensor, wo: torch.Tensor, f_r: torch.Tensor, material: torch.Tensor) -> torch.Tensor:
-        pred = model.forward_indexed(wi, wo, materials.values(), materials.latent, material)
+        with products():  # the modules cast their outputs back to the inputs' float32
+            pred = model.forward_indexed(wi, wo, materials.values(), materials.latent, material)
         return log_l1(pred, f_r, wi).mean()
 
     return loss
@@ -180,7 +196,7 @@ def train_candidate(
     epoch_losses: list[float] = []
     error = None
 
-    loss_of = batch_loss(model, materials)
+    loss_of = batch_loss(model, materials, config.precision)
     step_loss = torch.compile(loss_of, dynamic=False) if config.compile else loss_of
     with deterministic(config.compile):
         for _epoch in range(config.epochs):

@@ -139,8 +139,13 @@ class TrainSpec(_Strict):
         "lr_final over its epochs, so candidates are compared settled"))
     compile: bool = Field(False, description=(
         "compile each candidate's training step with torch.compile (the workers need a C++ compiler): "
-        "1.5-1.8x faster steps after ~8 s of compiling per batch shape, so worth it for long candidates "
-        "(from ~700 steps of 100K samples; docs/BENCHMARKS.md)"))
+        "steps 2.1x (batch 4096) and 1.7x (batch 100K) faster after 5-20 s of compiling per batch shape, so "
+        "worth it for long candidates (from a few hundred steps; docs/BENCHMARKS.md)"))
+    precision: Literal["float32", "bfloat16"] = Field("float32", description=(
+        "'bfloat16': each training step's matrix products in bfloat16 (parameters, optimiser and loss stay "
+        "float32; validation, fit scores and fits run in float32): on CPUs with bfloat16 arithmetic "
+        "(AVX512_BF16, AMX) a compiled step of 100K samples 1.8x the float32 one, of 4096 about as fast; "
+        "near convergence it trains 3-10% worse (docs/BENCHMARKS.md)"))
 
     @model_validator(mode="after")
     def _check_lr(self) -> "TrainSpec":
@@ -267,7 +272,7 @@ class JobSpec(_Strict):
     def train_config(self, epochs: int | None = None) -> TrainConfig:
         return TrainConfig(epochs=self.search.epochs_per_round if epochs is None else epochs,
                            lr=self.train.lr, batch_size=self.train.batch_size, lr_final=self.train.lr_final,
-                           compile=self.train.compile,
+                           compile=self.train.compile, precision=self.train.precision,
                            fit_score=self.search.fit_score.config(self.train.seed) if self.holds_out() else None)
 
     def polish_config(self) -> TrainConfig:

@@ -149,3 +149,41 @@ def test_the_training_step_traces_into_one_graph(model_name, alternatives, state
     torch._dynamo.reset()
     explained = torch._dynamo.explain(batch_loss(model, bundle.materials))(wi, wo, torch.rand(n, 3), torch.arange(n) % 3)
     assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
+
+
+def test_bfloat16_precision_runs_the_products_in_bfloat16_and_keeps_loss_and_gradients_float32(small_data):
+    """``TrainConfig(precision="bfloat16")``: every matrix product of the step (forward and backward)
+    reads bfloat16 operands (float32 ones by default); the loss, the parameters and their gradients
+    stay float32, and a candidate records the precision it trained at."""
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    products = {torch.ops.aten.mm.default, torch.ops.aten.addmm.default}
+
+    class Dtypes(TorchDispatchMode):
+        def __init__(self):
+            super().__init__()
+            self.products: set[torch.dtype] = set()  # the products' operand dtypes
+
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            if func in products:
+                self.products |= {a.dtype for a in args if isinstance(a, torch.Tensor)}
+            return func(*args, **(kwargs or {}))
+
+    bundle = Bundle.initial("ggx", small_data.names)
+    model = bundle.model.enhance(PAPER_STATE, seed=0)
+    train = small_data.train
+    batch = (train.wi[:256], train.wo[:256], train.f_r[:256], train.material[:256])
+    for precision, product_dtypes in (("float32", {torch.float32}), ("bfloat16", {torch.bfloat16})):
+        with Dtypes() as mode:
+            loss = batch_loss(model, bundle.materials, precision)(*batch)
+            loss.backward()
+        assert mode.products == product_dtypes, precision
+        assert loss.dtype == torch.float32 and torch.isfinite(loss)
+        grads = [p.grad for p in model.neural.parameters()]
+        assert all(g.dtype == torch.float32 and torch.isfinite(g).all() for g in grads)
+        model.neural.zero_grad()
+    result = train_candidate(bundle, PAPER_STATE, small_data, dataclasses.replace(QUICK, precision="bfloat16"), seed=5)
+    assert result.ok and result.bundle.training["precision"] == "bfloat16"
+    assert "precision" not in train_candidate(bundle, PAPER_STATE, small_data, QUICK, seed=5).bundle.training
+    with pytest.raises(ValueError, match="invalid training config"):
+        TrainConfig(precision="float16")
