@@ -67,7 +67,7 @@ class TrainConfig:
     compile: bool = False
     # "bfloat16": the step's matrix products in bfloat16 (torch.autocast: the modules' activations
     # between layers too; analytical terms, loss, parameters and optimiser stay float32). On CPUs with
-    # bfloat16 arithmetic (AVX512_BF16, AMX) the compiled step at batch 1e5 runs 1.8x the float32 one,
+    # bfloat16 arithmetic (AVX512_BF16, AMX) the compiled step at batch 1e5 runs 1.7x the float32 one,
     # at 4,096 about as fast, and near convergence it trains 3-10 % worse (docs/BENCHMARKS.md, "The compiled
     # training step"). Validation, fit scores and fits always run in float32.
     precision: Literal["float32", "bfloat16"] = "float32"

@@ -144,7 +144,7 @@ class TrainSpec(_Strict):
     precision: Literal["float32", "bfloat16"] = Field("float32", description=(
         "'bfloat16': each training step's matrix products in bfloat16 (parameters, optimiser and loss stay "
         "float32; validation, fit scores and fits run in float32): on CPUs with bfloat16 arithmetic "
-        "(AVX512_BF16, AMX) a compiled step of 100K samples 1.8x the float32 one, of 4096 about as fast; "
+        "(AVX512_BF16, AMX) a compiled step of 100K samples 1.7x the float32 one, of 4096 about as fast; "
         "near convergence it trains 3-10% worse (docs/BENCHMARKS.md)"))
 
     @model_validator(mode="after")
