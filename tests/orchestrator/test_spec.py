@@ -15,6 +15,13 @@ def test_the_reference_spec_decays_its_lr_and_polishes():
     assert spec.train_config().lr_final == spec.train.lr_final == 5e-4
     polish = spec.polish_config()
     assert (polish.epochs, polish.lr, polish.lr_final) == (40, 5e-3, 5e-4)
+    assert spec.train_config().precision == polish.precision == "float32"
+
+
+def test_a_bfloat16_spec_trains_every_stage_at_that_precision():
+    spec = parse_spec({**BASE, "train": {"precision": "bfloat16", "compile": True}, "search": {"polish_epochs": 5}})
+    assert {(c.precision, c.compile) for c in (spec.train_config(), spec.train_config(7), spec.polish_config())} \
+        == {("bfloat16", True)}
 
 
 @pytest.mark.parametrize(
@@ -27,6 +34,7 @@ def test_the_reference_spec_decays_its_lr_and_polishes():
         ({"search": {"fixed": {"Q": 1}}}, "unknown position 'Q'"),
         ({"search": {"fixed": {"D": 2}}}, "digit 2 for D is not in 0..1"),
         ({"train": {"lr": 0}}, "train.lr"),
+        ({"train": {"precision": "float16"}}, "train.precision: Input should be 'float32' or 'bfloat16'"),
         ({"data": [{"source": "merl_raw"}]}, "does not match any of the expected tags"),
         ({"data": [{"source": "synthetic_zoo", "families": ["velvet"]}]}, "unknown zoo families"),
         ({"train": {"lr": 1e-3, "lr_final": 1e-2}}, r"train: .*lr_final \(0.01\) must not exceed lr \(0.001\)"),
@@ -40,7 +48,7 @@ def test_the_reference_spec_decays_its_lr_and_polishes():
                                                {"source": "synthetic_ggx", "materials": 4}]},
          r"every data source, but data\[1\] \(synthetic_ggx\) holds none out"),
     ],
-    ids=["no-data", "model", "typo", "radius", "position", "digit", "lr", "source", "family", "lr-final", "polish",
+    ids=["no-data", "model", "typo", "radius", "position", "digit", "lr", "precision", "source", "family", "lr-final", "polish",
          "alternatives-model", "alternatives-digit", "alternatives-allowed", "table-near-mirror",
          "fit-score-without-holdout", "fit-score-blind-to-a-source"],
 )
