@@ -167,7 +167,10 @@ def batch_loss(model: BRDFModel, materials: MaterialTable, precision: str = "flo
 @contextlib.contextmanager
 def deterministic(enabled: bool = True) -> Iterator[None]:
     """Deterministic algorithms inside the block (restored afterwards): a compiled step's kernels
-    otherwise accumulate scatters with atomics across threads, and losses vary in the last bits."""
+    otherwise accumulate scatters with atomics across threads, and losses vary in the last bits.
+    With one thread those adds run in loop order, so ``train_candidate`` asks for this only with
+    more: deterministic kernels cost the compiled step 7 % at batch 4,096 and 14 % at 1e5
+    (docs/BENCHMARKS.md, "The compiled training step")."""
     if not enabled:  # nothing to switch; switching imports torch._inductor (~1 s in a fresh process)
         yield
         return
@@ -198,7 +201,7 @@ def train_candidate(
 
     loss_of = batch_loss(model, materials, config.precision)
     step_loss = torch.compile(loss_of, dynamic=False) if config.compile else loss_of
-    with deterministic(config.compile):
+    with deterministic(config.compile and torch.get_num_threads() > 1):
         for _epoch in range(config.epochs):
             order = torch.randperm(len(train), generator=generator)
             total = 0.0
