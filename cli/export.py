@@ -23,10 +23,12 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from neuenh.export import FORMATS, export
-from neuenh.materials import MaterialParams
-from neuenh.pretrained import load_model
+
+if TYPE_CHECKING:  # the models' modules import torch (~1.5 s): `neuenh export --help` need not pay it
+    from neuenh.materials import MaterialParams
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -67,6 +69,8 @@ def run(args) -> int:
             print(f"skipped {name!r}: planned with the per-material NBRDF rung, which the exporters do not write "
                   f"(its network's weights are in {args.plan})", file=sys.stderr)
     else:
+        from neuenh.pretrained import load_model
+
         model, trained = load_model(args.model, "MODEL")
         materials = fit_report_materials(args.params, model) if args.params else bundle_materials(trained, args.model)
         groups = by_own_model(args.output, model, materials)
@@ -120,6 +124,7 @@ def fit_report_materials(path: Path, model) -> dict[str, MaterialParams]:
         raise ValueError(f"{path} is a fit of {of[0]} in state {of[1]}, but the model is {model.name} in state "
                          f"{model.state}; export the model it was fitted with")
     from neuenh.fit.result import ANALYTICAL_CAPACITIES
+    from neuenh.materials import MaterialParams
 
     fitted = {}
     for name, entry in entries.items():

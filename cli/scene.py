@@ -17,12 +17,14 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from neuenh.files import atomic_write
-from neuenh.scene import MaterialPlan, load_scene, plan_scene
-from neuenh.scene.outputs import write_plan
 
 from .tables import plan_totals
+
+if TYPE_CHECKING:  # neuenh.scene imports torch (~1.5 s): `neuenh scene --help` need not pay it
+    from neuenh.scene import MaterialPlan
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -41,6 +43,9 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    from neuenh.scene import load_scene, plan_scene
+    from neuenh.scene.outputs import write_plan
+
     spec, base = load_scene(args.scene)
     progress = Progress(sys.stderr)
     kept = args.output / "materials"
@@ -74,6 +79,8 @@ def _file(name: str) -> str:
 
 def _read_done(folder: Path) -> dict[str, MaterialPlan]:
     """Materials an interrupted run planned; an unreadable file is planned again."""
+    from neuenh.scene import MaterialPlan
+
     out = {}
     for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
         try:

@@ -20,11 +20,7 @@ import sys
 import time
 from pathlib import Path
 
-from neuenh.checkpoint import Bundle
 from neuenh.files import atomic_write
-from neuenh_service.orchestrator.dataset import prepare_dataset
-from neuenh_service.orchestrator.runner import Orchestrator, train_plain_baseline
-from neuenh_service.orchestrator.spec import load_spec, parse_spec
 from neuenh_service.storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore, trained_epochs
 
 from .progress import ProgressDisplay
@@ -52,6 +48,10 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    # The job's modules here and below, not at the top: they import torch (~1.5 s), which
+    # `neuenh search --help` and a usage error need not pay.
+    from neuenh_service.orchestrator.spec import load_spec
+
     spec = load_spec(args.spec)
     args.data_dir.mkdir(parents=True, exist_ok=True)
     with OwnerLock(args.data_dir / "owner.lock", owner="neuenh search"):  # not while a server runs its jobs
@@ -69,6 +69,7 @@ def _search(spec, args) -> int:
     if args.new:
         key += f"-{time.time_ns()}"
     earlier = None if args.new else same_spec_job(jobs, spec)
+    from neuenh_service.orchestrator.runner import Orchestrator
     from neuenh_service.workers.ray_executor import RayExecutor  # Ray only when a job really runs
 
     display = ProgressDisplay(sys.stderr)
@@ -90,7 +91,7 @@ def _search(spec, args) -> int:
 
 def same_spec_job(jobs, spec):
     """The newest job of the store (not cancelled) whose stored spec is ``spec`` as this neuenh reads it."""
-    from neuenh_service.orchestrator.spec import SpecError
+    from neuenh_service.orchestrator.spec import SpecError, parse_spec
 
     wanted = spec.model_dump(mode="json")
     for job in jobs.list_jobs(limit=500).jobs:
@@ -105,6 +106,10 @@ def same_spec_job(jobs, spec):
 
 
 def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
+    from neuenh.checkpoint import Bundle
+    from neuenh_service.orchestrator.dataset import prepare_dataset
+    from neuenh_service.orchestrator.runner import train_plain_baseline
+
     rounds = jobs.rounds(job.id)
     summary: dict = {"job": job.id, "status": job.status.value, "reason": job.reason, "error": job.error,
                      "rounds": len(rounds), "model": spec.model}

@@ -30,6 +30,18 @@ def test_every_command_parses_its_own_arguments(name):
     assert usage.startswith(f"usage: neuenh {name} [-h] ") and usage != bare and "options:" in usage
 
 
+# The commands whose parsers read names from torch's side (models, capacities, the latent's initial
+# value, the encoder's protocols) to list them in --help; the others answer --help without it.
+HELP_LISTS_TORCH_NAMES = {"fit", "data", "render", "encoder"}
+
+
+@pytest.mark.parametrize("name", sorted(set(COMMANDS) - HELP_LISTS_TORCH_NAMES))
+def test_a_commands_help_needs_no_torch(name):
+    out, imported_torch = run_probing_torch("neuenh_service.cli.main", name, "--help")
+    assert out.returncode == 0 and f"usage: neuenh {name}" in out.stdout, out.stderr
+    assert not imported_torch, f"neuenh {name} --help imported torch"
+
+
 def test_an_unknown_command_is_a_usage_error_naming_the_commands():
     done = neuenh_here("fitt", "a.npz")
     assert done.returncode == 2 and "Traceback" not in done.stderr
