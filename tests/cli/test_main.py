@@ -30,8 +30,8 @@ def test_every_command_parses_its_own_arguments(name):
     assert usage.startswith(f"usage: neuenh {name} [-h] ") and usage != bare and "options:" in usage
 
 
-# The commands whose parsers read names from torch's side (models, capacities, the latent's initial
-# value, the encoder's protocols) to list them in --help; the others answer --help without it.
+# The commands whose --help still imports torch: fit's lists the models and capacities, encoder's shows
+# its training defaults, data's and render's modules use torch throughout. The others answer without it.
 HELP_LISTS_TORCH_NAMES = {"fit", "data", "render", "encoder"}
 
 
