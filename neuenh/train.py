@@ -47,8 +47,10 @@ class FitScoreConfig:
             raise ValueError(f"invalid fit score config {self}")
 
 
-# TrainConfig.precision -> the dtype of the step's matrix products under autocast (None: no autocast).
-PRECISIONS: dict[str, torch.dtype | None] = {"float32": None, "bfloat16": torch.bfloat16}
+# TrainConfig.precision (and the job spec's train.precision) -> the dtype of the step's matrix
+# products under autocast (None: no autocast).
+Precision = Literal["float32", "bfloat16"]
+PRECISIONS: dict[Precision, torch.dtype | None] = {"float32": None, "bfloat16": torch.bfloat16}
 
 
 @dataclass(frozen=True)
@@ -70,7 +72,7 @@ class TrainConfig:
     # bfloat16 arithmetic (AVX512_BF16, AMX) the compiled step at batch 1e5 runs 1.7x the float32 one,
     # at 4,096 about as fast, and near convergence it trains 3-10 % worse (docs/BENCHMARKS.md, "The compiled
     # training step"). Validation, fit scores and fits always run in float32.
-    precision: Literal["float32", "bfloat16"] = "float32"
+    precision: Precision = "float32"
     # After training, score the candidate by fitting the data's held-out materials (``neuenh.selection``
     # does, in the worker); None: no fit score.
     fit_score: FitScoreConfig | None = None
@@ -148,7 +150,7 @@ def evaluate_loss(model: BRDFModel, materials: MaterialTable, samples: Samples, 
     return total / len(samples)
 
 
-def batch_loss(model: BRDFModel, materials: MaterialTable, precision: str = "float32") -> Callable[..., torch.Tensor]:
+def batch_loss(model: BRDFModel, materials: MaterialTable, precision: Precision = "float32") -> Callable[..., torch.Tensor]:
     """The mean log-L1 of one batch ``(wi, wo, f_r, material)``: what a training step differentiates
     and ``TrainConfig.compile`` compiles. Every model and state traces into one torch.compile graph
     (tests/neuenh/test_train.py): a graph break costs the compiled step a fifth of its speed (docs/BENCHMARKS.md,

@@ -28,7 +28,7 @@ from neuenh.model import BRDFModel
 from neuenh.models import available_models, get_model, models_with_alternatives
 from neuenh.modules import ModuleConfig
 from neuenh.search import Constraints
-from neuenh.train import FitScoreConfig, TrainConfig
+from neuenh.train import FitScoreConfig, Precision, TrainConfig
 
 
 def lone_surrogate_path(value: Any, path: str = "") -> str | None:
@@ -141,7 +141,7 @@ class TrainSpec(_Strict):
         "compile each candidate's training step with torch.compile (the workers need a C++ compiler): "
         "steps 2.1x (batch 4096) and 1.7x (batch 100K) faster after 5-20 s of compiling per batch shape, so "
         "worth it for long candidates (from a few hundred steps; docs/BENCHMARKS.md)"))
-    precision: Literal["float32", "bfloat16"] = Field("float32", description=(
+    precision: Precision = Field("float32", description=(
         "'bfloat16': each training step's matrix products in bfloat16 (parameters, optimiser and loss stay "
         "float32; validation, fit scores and fits run in float32): on CPUs with bfloat16 arithmetic "
         "(AVX512_BF16, AMX) a compiled step of 100K samples 1.7x the float32 one, of 4096 about as fast; "
