@@ -13,7 +13,8 @@ Training: one step of ``train.train_candidate`` (forward, the log-L1, backward i
 latent and analytical parameters) of the shipped state over all its training materials, at
 batches of 4096 and 100,000 samples: the reference path (``forward`` on per-sample gathered
 parameters, what training ran before issue 13) against ``forward_indexed`` (per-material work once
-per material). ``--compile`` adds ``torch.compile`` of the indexed step (``train.batch_loss``, as
+per material; the batch in slices of ``train.STEP_ROWS`` rows, ``train.backward_in_slices``, as
+``train_candidate`` takes it). ``--compile`` adds ``torch.compile`` of the indexed step (``train.batch_loss``, as
 ``TrainConfig(compile=True)`` compiles it), in float32 and with bfloat16 matrix products
 (``TrainConfig.precision``); compile times reported apart; the pinned torch on this CPU.
 
@@ -113,7 +114,7 @@ def training_cases(compile_step: bool) -> tuple[dict, dict]:
     """(cases by row name, compile seconds by row name): one training step per case."""
     from neuenh.data.directions import sample_directions
     from neuenh.pretrained import load_model
-    from neuenh.train import batch_loss, log_l1
+    from neuenh.train import backward_in_slices, batch_loss, log_l1
 
     model, materials = load_model("enhanced-ggx")
     cases, compile_s = {}, {}
@@ -129,14 +130,14 @@ def training_cases(compile_step: bool) -> tuple[dict, dict]:
 
         step = (wi, wo, target, material)
         cases[f"reference, batch {n}"] = reference
-        cases[f"indexed, batch {n}"] = lambda f=batch_loss(model, materials), a=step: f(*a).backward()
+        cases[f"indexed, batch {n}"] = lambda f=batch_loss(model, materials), a=step: backward_in_slices(f, *a)
         if compile_step:
             for path, precision in COMPILED.items():
                 compiled = torch.compile(batch_loss(model, materials, precision), dynamic=False)
                 start = time.perf_counter()
-                compiled(*step).backward()
+                backward_in_slices(compiled, *step)
                 compile_s[f"{path}, batch {n}"] = time.perf_counter() - start
-                cases[f"{path}, batch {n}"] = lambda f=compiled, a=step: f(*a).backward()
+                cases[f"{path}, batch {n}"] = lambda f=compiled, a=step: backward_in_slices(f, *a)
     return cases, compile_s
 
 

@@ -9,7 +9,7 @@ import torch
 
 from neuenh.checkpoint import Bundle
 from neuenh.data.samples import Samples
-from neuenh.train import TrainConfig, batch_loss, log_l1, train_candidate
+from neuenh.train import STEP_ROWS, TrainConfig, backward_in_slices, batch_loss, log_l1, train_candidate
 from neuenh.data.samples import TrainingData
 from ggx_states import ALTERNATIVES_STATE, PAPER_STATE
 
@@ -112,6 +112,55 @@ def test_lr_final_decays_the_learning_rate_by_a_cosine():
     assert decayed[0] == steady[0] and decayed[1:] != steady[1:]
     with pytest.raises(ValueError, match="invalid training config"):
         TrainConfig(lr=1e-3, lr_final=2e-3)
+
+
+def _gradient(model, materials, batch, rows):
+    """The flattened gradient (float64) of ``batch``'s mean loss, taken ``rows`` rows at a time, and that loss."""
+    params = [*model.neural.parameters(), *materials.parameters()]
+    for p in params:
+        p.grad = None
+    loss = backward_in_slices(batch_loss(model, materials), *batch, rows=rows)
+    return torch.cat([p.grad.flatten().double() for p in params]), loss
+
+
+@pytest.mark.parametrize("n, rows", [(3000, 1000), (3000, 700), (500, 1000)])
+def test_a_batch_taken_in_slices_has_the_batch_means_gradient(small_data, n, rows):
+    """``backward_in_slices``: whatever the slicing (a remainder included), the loss is the batch's mean
+    and the gradient its gradient. Both are checked against the same step in float64: the sliced one's
+    error is no more than twice the one-pass float32 error measured here (the reference path's own
+    rounding: slicing only reorders the sums). A batch of at most ``rows`` is one pass, bit for bit."""
+    bundle = Bundle.initial("ggx", small_data.names)
+    model = bundle.model.enhance(PAPER_STATE, seed=0)
+    train = small_data.train
+    batch = (train.wi[:n], train.wo[:n], train.f_r[:n] * 3, train.material[:n])  # * 3: a gradient far from zero
+    exact_model, exact_materials = copy.deepcopy(model).double(), copy.deepcopy(bundle.materials)
+    for p in exact_materials.parameters():
+        p.data = p.data.double()
+    exact, exact_loss = _gradient(exact_model, exact_materials, [x.double() if x.is_floating_point() else x
+                                                                 for x in batch], rows=n)
+    whole, whole_loss = _gradient(model, bundle.materials, batch, rows=n)
+    sliced, sliced_loss = _gradient(model, bundle.materials, batch, rows=rows)
+    if n <= rows:
+        assert torch.equal(sliced, whole) and sliced_loss == whole_loss
+    eps = torch.finfo(torch.float32).eps
+    assert abs(sliced_loss - exact_loss) <= n * eps * exact_loss  # a sum of n positive terms
+    one_pass_error = (whole - exact).norm()
+    assert 0 < one_pass_error < 1e-3 * exact.norm()
+    assert (sliced - exact).norm() <= 2 * one_pass_error
+
+
+def test_a_batch_larger_than_a_slice_trains_on_its_whole_mean(small_data):
+    """``train_candidate`` takes a batch over ``STEP_ROWS`` rows in slices: its first epoch's loss (one
+    batch, measured before the update) is still the whole batch's mean loss."""
+    train = small_data.train
+    assert len(train) > STEP_ROWS, "a batch that needs two slices"
+    bundle = Bundle.initial("ggx", small_data.names)
+    config = TrainConfig(epochs=1, batch_size=len(train))
+    result = train_candidate(bundle, PAPER_STATE, small_data, config, seed=0)
+    model = bundle.model.enhance(PAPER_STATE, seed=0)
+    with torch.no_grad():
+        whole = float(batch_loss(model, bundle.materials)(train.wi, train.wo, train.f_r, train.material))
+    assert result.epoch_losses[0] == pytest.approx(whole, rel=len(train) * torch.finfo(torch.float32).eps)
 
 
 @pytest.mark.skipif(shutil.which(os.environ.get("CXX", "g++")) is None,
