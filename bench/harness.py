@@ -235,13 +235,24 @@ def machine() -> dict:
         "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "cpu": info["model"], "cores": info["cores"], "threads_per_core": info.get("threads_per_core", 1),
         "ram_gib": ram, "python": platform.python_version(), "torch": torch.__version__,
-        "threads": torch.get_num_threads(), "git": git,
+        "threads": torch.get_num_threads(), "git": git, "isa": vector_isa(info["flags"]),
     }
+
+
+def vector_isa(flags: set[str]) -> str:
+    """The vector instructions torch's CPU kernels use here (its dispatch level), and bfloat16
+    arithmetic where the CPU has it: these machines differ in both (AVX2 alone, AVX-512 with BF16,
+    AMX), and speeds only compare between runs on the same."""
+    import torch
+
+    level = torch.backends.cpu.get_cpu_capability()
+    return level + (" with bfloat16" if flags & {"avx512_bf16", "amx_bf16"} else "")
 
 
 def machine_line(env: dict) -> str:
     """``Machine: ...`` for a section."""
-    return (f"Machine: {env['cpu']}, {env['cores']} logical CPUs, {env['ram_gib']:.0f} GiB; Python "
+    isa = f" ({env['isa']})" if env.get("isa") else ""  # records written before it was kept have none
+    return (f"Machine: {env['cpu']}{isa}, {env['cores']} logical CPUs, {env['ram_gib']:.0f} GiB; Python "
             f"{env['python']}, torch {env['torch']} ({env['threads']} threads); git {env['git']}")
 
 

@@ -19,6 +19,7 @@ import contextlib
 import copy
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable, Iterator, Literal
 
@@ -53,6 +54,13 @@ Precision = Literal["float32", "bfloat16"]
 PRECISIONS: dict[Precision, torch.dtype | None] = {"float32": None, "bfloat16": torch.bfloat16}
 
 
+def native_bfloat16() -> bool:
+    """Whether this CPU multiplies bfloat16 in hardware (AVX512_BF16 or AMX tiles). Elsewhere (AVX2
+    alone) bfloat16 products are emulated: the compiled step 6-7x slower than in float32
+    (docs/BENCHMARKS.md, "The compiled training step")."""
+    return torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported()
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     epochs: int = 30
@@ -71,7 +79,8 @@ class TrainConfig:
     # between layers too; analytical terms, loss, parameters and optimiser stay float32). On CPUs with
     # bfloat16 arithmetic (AVX512_BF16, AMX) the compiled step at batch 1e5 runs 1.7x the float32 one,
     # at 4,096 about as fast, and near convergence it trains 3-10 % worse (docs/BENCHMARKS.md, "The compiled
-    # training step"). Validation, fit scores and fits always run in float32.
+    # training step"). Validation, fit scores and fits always run in float32. Without it (AVX2 alone)
+    # the products are emulated and the step is 6-7x slower: ``train_candidate`` warns.
     precision: Precision = "float32"
     # After training, score the candidate by fitting the data's held-out materials (``neuenh.selection``
     # does, in the worker); None: no fit score.
@@ -216,6 +225,10 @@ def train_candidate(
     start = time.perf_counter()
     if parent.materials is None or parent.materials.names != data.names:
         raise ValueError("the parent bundle's materials must be the training data's materials, in order")
+    if config.precision == "bfloat16" and not native_bfloat16():
+        warnings.warn("train.precision bfloat16 on a CPU without bfloat16 arithmetic (AVX512_BF16 or AMX): its "
+                      "products are emulated, and the step is several times slower than in float32",
+                      RuntimeWarning, stacklevel=2)
     model = parent.model.enhance(state, seed)
     materials = copy.deepcopy(parent.materials)
     params = [*model.neural.parameters(), *materials.parameters()]

@@ -145,7 +145,8 @@ class TrainSpec(_Strict):
         "'bfloat16': each training step's matrix products in bfloat16 (parameters, optimiser and loss stay "
         "float32; validation, fit scores and fits run in float32): on CPUs with bfloat16 arithmetic "
         "(AVX512_BF16, AMX) a compiled step of 100K samples 1.7x the float32 one, of 4096 about as fast; "
-        "near convergence it trains 3-10% worse (docs/BENCHMARKS.md)"))
+        "near convergence it trains 3-10% worse; on CPUs without it (AVX2 alone) the products are emulated and "
+        "the step is 6-7x slower than in float32 (docs/BENCHMARKS.md)"))
 
     @model_validator(mode="after")
     def _check_lr(self) -> "TrainSpec":

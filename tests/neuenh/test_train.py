@@ -2,6 +2,7 @@ import copy
 import dataclasses
 import os
 import shutil
+import warnings
 
 import numpy as np
 import pytest
@@ -200,10 +201,11 @@ def test_the_training_step_traces_into_one_graph(model_name, alternatives, state
     assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
 
 
-def test_bfloat16_precision_runs_the_products_in_bfloat16_and_keeps_loss_and_gradients_float32(small_data):
+def test_bfloat16_precision_runs_the_products_in_bfloat16_and_keeps_loss_and_gradients_float32(small_data, monkeypatch):
     """``TrainConfig(precision="bfloat16")``: every matrix product of the step (forward and backward)
     reads bfloat16 operands (float32 ones by default); the loss, the parameters and their gradients
-    stay float32, and a candidate records the precision it trained at."""
+    stay float32, and a candidate records the precision it trained at; on a CPU without bfloat16
+    arithmetic (emulated products, several times slower) training says so."""
     from torch.utils._python_dispatch import TorchDispatchMode
 
     products = {torch.ops.aten.mm.default, torch.ops.aten.addmm.default}
@@ -231,8 +233,14 @@ def test_bfloat16_precision_runs_the_products_in_bfloat16_and_keeps_loss_and_gra
         grads = [p.grad for p in model.neural.parameters()]
         assert all(g.dtype == torch.float32 and torch.isfinite(g).all() for g in grads)
         model.neural.zero_grad()
-    result = train_candidate(bundle, PAPER_STATE, small_data, dataclasses.replace(QUICK, precision="bfloat16"), seed=5)
+    monkeypatch.setattr("neuenh.train.native_bfloat16", lambda: True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning where the CPU has bfloat16 arithmetic
+        result = train_candidate(bundle, PAPER_STATE, small_data, dataclasses.replace(QUICK, precision="bfloat16"), seed=5)
     assert result.ok and result.bundle.training["precision"] == "bfloat16"
+    monkeypatch.setattr("neuenh.train.native_bfloat16", lambda: False)
+    with pytest.warns(RuntimeWarning, match="without bfloat16 arithmetic"):
+        train_candidate(bundle, PAPER_STATE, small_data, dataclasses.replace(QUICK, precision="bfloat16", epochs=0), seed=5)
     assert "precision" not in train_candidate(bundle, PAPER_STATE, small_data, QUICK, seed=5).bundle.training
     with pytest.raises(ValueError, match="invalid training config"):
         TrainConfig(precision="float16")
