@@ -56,7 +56,7 @@ PRECISIONS: dict[Precision, torch.dtype | None] = {"float32": None, "bfloat16": 
 
 def native_bfloat16() -> bool:
     """Whether this CPU multiplies bfloat16 in hardware (AVX512_BF16 or AMX tiles). Elsewhere (AVX2
-    alone) bfloat16 products are emulated: the compiled step 6-7x slower than in float32
+    alone) bfloat16 products are emulated: the compiled step about 7x slower than in float32
     (docs/BENCHMARKS.md, "The compiled training step")."""
     return torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported()
 
@@ -72,15 +72,15 @@ class TrainConfig:
     # ``lr_final`` over the candidate's epochs, so candidates are compared settled, not mid-step.
     lr_final: float | None = None
     # Compile the training step with torch.compile (needs a C++ compiler): measured in
-    # bench/bench_speed.py at 2.1x (batch 4096) and 1.7x (batch 1e5) the eager step, after 5-20 s
+    # bench/bench_speed.py at 2.1-2.5x (batch 4096) and 2.1x (batch 1e5, in slices) the eager step, after 5-20 s
     # of compiling per batch shape, so it pays from a few hundred steps on.
     compile: bool = False
     # "bfloat16": the step's matrix products in bfloat16 (torch.autocast: the modules' activations
     # between layers too; analytical terms, loss, parameters and optimiser stay float32). On CPUs with
-    # bfloat16 arithmetic (AVX512_BF16, AMX) the compiled step at batch 1e5 runs 1.7x the float32 one,
+    # bfloat16 arithmetic (AVX512_BF16, AMX) the compiled step at batch 1e5 ran 1.7x the float32 one (unsliced),
     # at 4,096 about as fast, and near convergence it trains 3-10 % worse (docs/BENCHMARKS.md, "The compiled
     # training step"). Validation, fit scores and fits always run in float32. Without it (AVX2 alone)
-    # the products are emulated and the step is 6-7x slower: ``train_candidate`` warns.
+    # the products are emulated and the step is about 7x slower: ``train_candidate`` warns.
     precision: Precision = "float32"
     # After training, score the candidate by fitting the data's held-out materials (``neuenh.selection``
     # does, in the worker); None: no fit score.
@@ -178,8 +178,8 @@ def batch_loss(model: BRDFModel, materials: MaterialTable, precision: Precision 
 # A step differentiates its batch this many rows at a time, the slices' gradients added up: the batch
 # mean's gradient, more accurate (float32 sums over fewer rows at once: at 1e5, 4e-6 relative to float64
 # against 2e-5 in one pass) and faster where a batch's activations outgrow the CPU's caches (1e5 rows of
-# 32 float32 are 12.8 MB a layer): the compiled step at batch 1e5 1.2-1.3x faster in slices of 10,000
-# (8,192-12,500 alike), the eager step unchanged (docs/BENCHMARKS.md, "The compiled training step").
+# 32 float32 are 12.8 MB a layer): at batch 1e5 the compiled step 1.13-1.33x faster in slices of 10,000
+# (8,192-12,500 alike), the eager one 1.15-1.24x (docs/BENCHMARKS.md, "The compiled training step").
 STEP_ROWS = 10_000
 
 

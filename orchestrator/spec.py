@@ -139,14 +139,14 @@ class TrainSpec(_Strict):
         "lr_final over its epochs, so candidates are compared settled"))
     compile: bool = Field(False, description=(
         "compile each candidate's training step with torch.compile (the workers need a C++ compiler): "
-        "steps 2.1x (batch 4096) and 1.7x (batch 100K) faster after 5-20 s of compiling per batch shape, so "
+        "steps 2.1-2.5x (batch 4096) and 2.1x (batch 100K) faster after 5-20 s of compiling per batch shape, so "
         "worth it for long candidates (from a few hundred steps; docs/BENCHMARKS.md)"))
     precision: Precision = Field("float32", description=(
         "'bfloat16': each training step's matrix products in bfloat16 (parameters, optimiser and loss stay "
         "float32; validation, fit scores and fits run in float32): on CPUs with bfloat16 arithmetic "
-        "(AVX512_BF16, AMX) a compiled step of 100K samples 1.7x the float32 one, of 4096 about as fast; "
+        "(AVX512_BF16, AMX) a compiled step of 100K samples 1.7x the float32 one in one pass, of 4096 about as fast; "
         "near convergence it trains 3-10% worse; on CPUs without it (AVX2 alone) the products are emulated and "
-        "the step is 6-7x slower than in float32 (docs/BENCHMARKS.md)"))
+        "the step is about 7x slower than in float32 (docs/BENCHMARKS.md)"))
 
     @model_validator(mode="after")
     def _check_lr(self) -> "TrainSpec":
