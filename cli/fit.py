@@ -1,7 +1,7 @@
 """``neuenh fit``: fit measured materials with an analytical model or a trained bundle.
 
     neuenh fit --model ggx measurements.npz [more.csv ...] [--capacity auto|latent|...] [--method fast|paper]
-               [--json] [-o DIR] [--test held_out.npz [more_held_out.csv ...]] [--predictions out.npz]
+               [--jobs N] [--json] [-o DIR] [--test held_out.npz [more_held_out.csv ...]] [--predictions out.npz]
 
 Each table is one material (``.npz`` with ``wi``, ``wo``, ``f_r``, or CSV; see neuenh.data.table). The
 module weights of a bundle stay frozen; only per-material parameters are optimised (neuenh.fit). A
@@ -39,7 +39,7 @@ from neuenh.checkpoint import Bundle
 from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
 from neuenh.study.heldout import heldout_log_l1, predict_f_r, write_predictions
-from neuenh.fit import CAPACITIES, FitOptions, fit_materials, model_for
+from neuenh.fit import CAPACITIES, FitOptions, fit_in_processes, model_for
 from neuenh.models import available_models
 from neuenh.pretrained import load_model, shipped_models
 
@@ -72,6 +72,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=None, help=(
         "torch CPU threads (default: all); on a machine busy with other work 1 can be several times "
         "faster, since idle threads wait by spinning (docs/BENCHMARKS.md, 'Fit threads')"))
+    p.add_argument("--jobs", type=int, default=1, metavar="N", help=(
+        "fit the materials in N processes of one thread each (default 1: here). Each process takes a few "
+        "seconds to start, so it pays for many materials: enhanced-ggx, 8 of 3,000 samples, 1.5-1.7x "
+        "faster with 2. A material's result is its share's fit alone: N changes the rounding, not the method"))
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("-o", "--output", type=Path, help="write a bundle with the fitted materials here")
     p.add_argument("--test", nargs="+", metavar="TABLE", type=Path,
@@ -85,6 +89,8 @@ def configure(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
+    if args.jobs < 1:
+        raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
     _check_heldout_args(args)
     model, trained = load_model(args.model, "--model")
     samples = Samples.concat([read_table(t) for t in args.tables])
@@ -95,7 +101,7 @@ def run(args) -> int:
         test = Samples.concat([read_table(t, name=samples.names[i]) for i, t in enumerate(args.test)])
     options = FitOptions(method=args.method, capacity=args.capacity, epochs=args.epochs,
                          lbfgs_iterations=args.lbfgs_iterations, starts=args.starts)
-    result = fit_materials(model, samples, options.protocol_for(model), trained=trained)
+    result = fit_in_processes(model, samples, options.protocol_for(model), args.jobs, trained=trained)
     report = result.report(model, samples)
     metrics: dict = {"fit_loss": result.losses}
     if test is not None:

@@ -253,6 +253,19 @@ class MaterialTable(nn.Module):
         table.fits = [self.fits[i] for i in index.tolist()]
         return table
 
+    @staticmethod
+    def concat(tables: Sequence["MaterialTable"]) -> "MaterialTable":
+        """The materials of ``tables`` (of one model: the same specs and latent size) in one table, in
+        order, each with its record (corrections included)."""
+        first = tables[0]
+        if any(tuple(t.specs) != tuple(first.specs) or t.latent_dim != first.latent_dim for t in tables):
+            raise ValueError("material tables of different models cannot be joined")
+        table = MaterialTable(first.specs, [name for t in tables for name in t.names], first.latent_dim,
+                              {k: torch.cat([t.raw[k].detach() for t in tables]) for k in first.raw},
+                              torch.cat([t.latent.detach() for t in tables]))
+        table.fits = [fit for t in tables for fit in t.fits]
+        return table
+
     def tensors(self) -> dict[str, torch.Tensor]:
         """Flat name -> tensor mapping for safetensors: ``raw.<name>``, ``latent`` and, for a
         material ``i`` with corrections, ``correction.<i>.<module weight key>``."""

@@ -91,8 +91,9 @@ def test_fit_with_the_shipped_enhanced_ggx_out_of_the_box(table):
         (["fit", "missing.npz"], "missing.npz: no such file"),
         (["fit", "--model", "phong", "TABLE"], "--model 'phong' is neither an analytical model"),
         (["fit", "BAD"], "f_r has negative values"),
+        (["fit", "--jobs", "0", "TABLE"], "--jobs must be at least 1, got 0"),
     ],
-    ids=["missing-file", "unknown-model", "bad-table"],
+    ids=["missing-file", "unknown-model", "bad-table", "no-jobs"],
 )
 def test_user_mistakes_exit_2_with_one_line(table, tmp_path, args, message):
     bad = tmp_path / "bad.npz"
@@ -102,6 +103,35 @@ def test_user_mistakes_exit_2_with_one_line(table, tmp_path, args, message):
     assert out.returncode == 2
     assert message in out.stderr and "Traceback" not in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1
+
+
+def test_jobs_fit_the_materials_in_processes_each_as_its_share_alone(tmp_path):
+    """``--jobs 2``: three tables fitted in two spawned processes of one thread; the report lists
+    them in the given order, each record (corrections included) and loss exactly what
+    ``fit_materials`` of its share alone gives in this one-thread process
+    (``neuenh.fit.parallel.shares``): the processes change where a fit runs, not what it computes."""
+    from neuenh.data.samples import Samples
+    from neuenh.data.table import read_table
+    from neuenh.fit import FitOptions, fit_materials
+    from neuenh.fit.parallel import shares
+    from neuenh.pretrained import load_model
+
+    tables = [write_table(tmp_path / f"{m.name}.npz", *m.samples(300, seed=i))
+              for i, m in enumerate(synthetic_ggx(3, seed=5))]
+    out = neuenh("fit", "--model", "enhanced-ggx", *tables, "--capacity", "last-layer", "--epochs", "8",
+                 "--jobs", "2", "--json")
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    assert torch.get_num_threads() == 1, "the suite runs one torch thread (tests/conftest.py)"
+    (model, trained), samples = load_model("enhanced-ggx"), Samples.concat([read_table(t) for t in tables])
+    protocol = FitOptions(capacity="last-layer", epochs=8).protocol_for(model)
+    expected = []
+    for share in shares(3, 2):
+        part = samples.select(share)
+        expected += fit_materials(model, part, protocol, trained=trained).report(model, part)["materials"]
+    assert [m["name"] for m in report["materials"]] == [t.stem for t in tables]
+    assert all(m["capacity"] == "last-layer" and m["corrections"] for m in report["materials"])
+    assert report["materials"] == expected and report["protocol"]["processes"] == 2
 
 
 def test_usage_error_from_argparse_exits_2():

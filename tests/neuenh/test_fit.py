@@ -19,6 +19,7 @@ from neuenh.fit.capacity import capacity_space, gap_errors, simplest_within
 from neuenh.fit.kernel import LayerCorrection, RowKernel, RowSpace
 from neuenh.fit.layout import compacted, fold_masks, layout_rows, padded
 from neuenh.fit.optim import Adam, adam_rows, evaluate_rows, lbfgs_rows
+from neuenh.fit.parallel import fit_in_processes, shares
 from neuenh.fit.protocols import Rows
 from neuenh.materials import MaterialTable
 from neuenh.models import get_model
@@ -577,3 +578,28 @@ def test_corrections_are_the_materials_own_keyed_like_the_module_weights(enhance
     assert enhanced.used_params(record).n_params == enhanced.n_material_params() + sum(
         shapes[k].numel() for k in record.corrections)
     assert result.losses_on(enhanced, samples) == pytest.approx(result.losses, rel=1e-4)
+
+
+@pytest.mark.parametrize("materials, jobs", [(5, 2), (7, 3), (2, 4), (1, 1), (6, 1)])
+def test_shares_are_consecutive_runs_of_nearly_equal_size(materials, jobs):
+    parts = shares(materials, jobs)
+    assert [i for part in parts for i in part] == list(range(materials))
+    assert len(parts) == min(jobs, materials) and all(parts)
+    assert max(map(len, parts)) - min(map(len, parts)) <= 1
+
+
+def test_shares_need_one_job():
+    with pytest.raises(ValueError, match="jobs must be at least 1"):
+        shares(3, 0)
+
+
+def test_one_job_is_fit_materials_itself(two_zoo_materials):
+    """``fit_in_processes`` with one job (or one material) fits here, as ``fit_materials`` does; the
+    split over processes is checked end to end by ``neuenh fit --jobs`` (tests/cli/test_fit_cli.py)."""
+    model = get_model("ggx")
+    protocol = PlainLBFGS(iterations=5, warmup_epochs=5)
+    single = fit_in_processes(model, two_zoo_materials, protocol, 1)
+    assert single.losses == fit_materials(model, two_zoo_materials, protocol).losses
+    assert "processes" not in single.protocol
+    assert fit_in_processes(model, two_zoo_materials.select([1]), protocol, 4).losses == \
+        fit_materials(model, two_zoo_materials.select([1]), protocol).losses

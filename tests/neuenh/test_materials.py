@@ -121,3 +121,24 @@ def test_a_bundle_without_corrections_has_the_files_it_always_had(tmp_path):
     with safe_open(tmp_path / "materials.safetensors", framework="pt") as f:
         assert sorted(f.metadata()) == ["names"] and not [k for k in f.keys() if k.startswith("correction.")]
     assert Bundle.load(tmp_path).materials.as_params(0).corrections == {}
+
+
+def test_tables_join_in_order_with_every_record():
+    """``MaterialTable.concat``: the materials of each table in order, values, latent codes and
+    corrections (with capacity and count) as they were; tables of another model are refused."""
+    model = get_model("ggx", state=PAPER_STATE)
+    first, second = MaterialTable(model.specs, ["a", "b"], 27), MaterialTable(model.specs, ["c"], 27)
+    with torch.no_grad():
+        second.latent.fill_(0.25)
+        second.raw["rho_d"].fill_(-1.0)
+    second.set_corrections(0, {"F.layers.3.bias": torch.ones(1)}, "last-layer", 1)
+    joined = MaterialTable.concat([first, second])
+    assert joined.names == ("a", "b", "c")
+    for i, (table, j) in enumerate([(first, 0), (first, 1), (second, 0)]):
+        mine, theirs = joined.as_params(i), table.as_params(j)
+        assert all(torch.equal(mine.values[k], v) for k, v in theirs.values.items())
+        assert torch.equal(mine.latent, theirs.latent) and (mine.capacity, mine.n_params) == (theirs.capacity,
+                                                                                               theirs.n_params)
+    assert torch.equal(joined.as_params(2).corrections["F.layers.3.bias"], torch.ones(1))
+    with pytest.raises(ValueError, match="different models"):
+        MaterialTable.concat([first, MaterialTable(get_model("ward").specs, ["w"], 27)])

@@ -1,0 +1,59 @@
+"""Fit many materials in several processes: ``fit_in_processes(model, samples, protocol, jobs)``.
+
+A fit's materials are independent problems (each row's objective is its own: ``kernel``), but one
+process fits them with one core: its second torch thread buys nothing at a few thousand samples a
+material and costs several times beside other work, since idle OpenMP threads spin at each of the
+fit's small parallel regions (docs/BENCHMARKS.md, "Fit threads"). So a studio's hundreds of
+materials go to ``jobs`` processes of one thread each instead: the materials split into ``jobs``
+consecutive shares of (nearly) equal counts, each share fitted by ``fit_materials`` in a process of
+its own (started fresh: ``spawn``), the results joined in the materials' order.
+
+Each material's record and loss are exactly what ``fit_materials`` of its share alone gives in one
+thread (``shares`` says which): a fit's float rounding depends on the rows stacked beside a
+material, so a fit split differently can end elsewhere within the fit's own spread, as the same
+materials fitted in another order can.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import time
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+import torch
+
+from ..data.samples import Samples
+from ..materials import MaterialTable
+from ..model import BRDFModel
+from .protocols import FitProtocol
+from .result import FitResult
+
+
+def shares(materials: int, jobs: int) -> list[list[int]]:
+    """The materials (indices) each of at most ``jobs`` processes fits: consecutive runs whose
+    sizes differ by at most one, none empty."""
+    if jobs < 1:
+        raise ValueError(f"jobs must be at least 1, got {jobs}")
+    return [part.tolist() for part in np.array_split(np.arange(materials), min(jobs, materials)) if len(part)]
+
+
+def fit_in_processes(model: BRDFModel, samples: Samples, protocol: FitProtocol, jobs: int, *,
+                     trained: MaterialTable | None = None, seed: int = 0) -> FitResult:
+    """``fit_materials(model, samples, protocol, trained=trained, seed=seed)`` with the materials
+    split over ``jobs`` processes of one torch thread each (module doc); a single share (``jobs`` 1,
+    or one material) is ``fit_materials`` here. ``wall_s`` is the whole fit's; ``protocol`` records
+    the processes."""
+    start = time.perf_counter()
+    groups = shares(len(samples.names), jobs)
+    if len(groups) == 1:
+        return protocol.fit(model, samples, trained=trained, seed=seed)
+    context = multiprocessing.get_context("spawn")  # no forked copy of this process's threads and locks
+    with ProcessPoolExecutor(len(groups), mp_context=context, initializer=torch.set_num_threads,
+                             initargs=(1,)) as pool:
+        futures = [pool.submit(protocol.fit, model, samples.select(group), trained=trained, seed=seed)
+                   for group in groups]
+        results = [future.result() for future in futures]
+    return FitResult(MaterialTable.concat([r.materials for r in results]), [x for r in results for x in r.losses],
+                     time.perf_counter() - start, {**results[0].protocol, "processes": len(groups)},
+                     [d for r in results for d in r.details])
