@@ -235,18 +235,19 @@ def machine() -> dict:
         "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "cpu": info["model"], "cores": info["cores"], "threads_per_core": info.get("threads_per_core", 1),
         "ram_gib": ram, "python": platform.python_version(), "torch": torch.__version__,
-        "threads": torch.get_num_threads(), "git": git, "isa": vector_isa(info["flags"]),
+        "threads": torch.get_num_threads(), "git": git, "isa": vector_isa(),
     }
 
 
-def vector_isa(flags: set[str]) -> str:
+def vector_isa() -> str:
     """The vector instructions torch's CPU kernels use here (its dispatch level), and bfloat16
-    arithmetic where the CPU has it: these machines differ in both (AVX2 alone, AVX-512 with BF16,
-    AMX), and speeds only compare between runs on the same."""
+    arithmetic where the CPU has it (``neuenh.train.native_bfloat16``): these machines differ in both
+    (AVX2 alone, AVX-512 with BF16, AMX), and speeds only compare between runs on the same."""
     import torch
 
-    level = torch.backends.cpu.get_cpu_capability()
-    return level + (" with bfloat16" if flags & {"avx512_bf16", "amx_bf16"} else "")
+    from neuenh.train import native_bfloat16
+
+    return torch.backends.cpu.get_cpu_capability() + (" with bfloat16" if native_bfloat16() else "")
 
 
 def machine_line(env: dict) -> str:

@@ -35,7 +35,7 @@ def shares(materials: int, jobs: int) -> list[list[int]]:
     sizes differ by at most one, none empty."""
     if jobs < 1:
         raise ValueError(f"jobs must be at least 1, got {jobs}")
-    return [part.tolist() for part in np.array_split(np.arange(materials), min(jobs, materials)) if len(part)]
+    return [part.tolist() for part in np.array_split(np.arange(materials), max(1, min(jobs, materials))) if len(part)]
 
 
 def fit_in_processes(model: BRDFModel, samples: Samples, protocol: FitProtocol, jobs: int, *,
@@ -46,7 +46,7 @@ def fit_in_processes(model: BRDFModel, samples: Samples, protocol: FitProtocol, 
     the processes."""
     start = time.perf_counter()
     groups = shares(len(samples.names), jobs)
-    if len(groups) == 1:
+    if len(groups) <= 1:  # nothing to split: this process fits it, as fit_materials does
         return protocol.fit(model, samples, trained=trained, seed=seed)
     context = multiprocessing.get_context("spawn")  # no forked copy of this process's threads and locks
     with ProcessPoolExecutor(len(groups), mp_context=context, initializer=torch.set_num_threads,
