@@ -33,17 +33,14 @@ import json
 import time
 from pathlib import Path
 
-import torch
-
-from neuenh.checkpoint import Bundle
-from neuenh.data.samples import Samples
-from neuenh.data.table import read_table
-from neuenh.study.heldout import heldout_log_l1, predict_f_r, write_predictions
-from neuenh.fit import CAPACITIES, FitOptions, fit_in_processes, model_for
 from neuenh.models import available_models
-from neuenh.pretrained import load_model, shipped_models
+from neuenh.pretrained import shipped_models
 
 from .tables import fit_report
+
+# The capacities --capacity takes (neuenh.fit.options.CAPACITY_CHOICES checks them, which imports
+# torch: the help names them without it; tests/cli/test_fit_cli.py keeps the two the same).
+CAPACITY_NAMES = ("auto", "analytical", "original", "latent", "last-layer", "low-rank", "full")
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -61,7 +58,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", choices=("fast", "paper"), default="fast",
                    help="fast (default): a plain model by L-BFGS, a model with modules at --capacity; paper: "
                         "RMSProp lr 1e-3, 1000 epochs, latent capacity")
-    p.add_argument("--capacity", choices=("auto", *CAPACITIES), default="latent",
+    p.add_argument("--capacity", default="latent", metavar="{" + ",".join(CAPACITY_NAMES) + "}",
                    help="a model with modules: latent (default); auto chooses per material on a validation split; "
                         "or fit exactly one capacity")
     p.add_argument("--epochs", type=int, default=None,
@@ -87,11 +84,22 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    import torch
+
+    from neuenh.checkpoint import Bundle
+    from neuenh.data.samples import Samples
+    from neuenh.data.table import read_table
+    from neuenh.fit import FitOptions, fit_in_processes, model_for
+    from neuenh.pretrained import load_model
+    from neuenh.study.heldout import heldout_log_l1, predict_f_r, write_predictions
+
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.jobs < 1:
         raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
     _check_heldout_args(args)
+    options = FitOptions(method=args.method, capacity=args.capacity, epochs=args.epochs,
+                         lbfgs_iterations=args.lbfgs_iterations, starts=args.starts)
     model, trained = load_model(args.model, "--model")
     samples = Samples.concat([read_table(t) for t in args.tables])
     if len(set(samples.names)) != len(samples.names):
@@ -99,8 +107,6 @@ def run(args) -> int:
     test = None
     if args.test:
         test = Samples.concat([read_table(t, name=samples.names[i]) for i, t in enumerate(args.test)])
-    options = FitOptions(method=args.method, capacity=args.capacity, epochs=args.epochs,
-                         lbfgs_iterations=args.lbfgs_iterations, starts=args.starts)
     result = fit_in_processes(model, samples, options.protocol_for(model), args.jobs, trained=trained)
     report = result.report(model, samples)
     metrics: dict = {"fit_loss": result.losses}

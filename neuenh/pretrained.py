@@ -5,17 +5,23 @@ enhanced GGX trained by ``examples/reference.yaml`` is ``models/enhanced-ggx``).
 folder as the package data ``neuenh/shipped_models/`` (pyproject.toml maps it there); a checkout or an
 editable install reads ``models/`` beside the package. A folder named by ``NEUENH_MODELS_DIR`` comes
 first: its bundles win over shipped ones of the same name.
+
+Naming the models (``shipped_models``, ``bundle_path``) reads folders only; loading one imports torch
+(``neuenh fit --help`` lists them without it).
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from .checkpoint import Bundle, Rung
-from .model import BRDFModel
-from .materials import MaterialTable
 from .models import available_models, get_model
+
+if TYPE_CHECKING:
+    from .checkpoint import Rung
+    from .materials import MaterialTable
+    from .model import BRDFModel
 
 __all__ = ["bundle_path", "load_model", "rungs", "shipped_models"]
 
@@ -59,6 +65,8 @@ def load_model(spec: str, what: str = "model") -> tuple[BRDFModel, MaterialTable
     a bundle folder if ``spec`` is one, else a shipped model, else an analytical model. The
     training materials give new fits a starting latent code (``neuenh.fit``). ``what`` names
     ``spec`` in the error (e.g. the command-line flag)."""
+    from .checkpoint import Bundle
+
     path = bundle_path(spec)
     if path is not None:
         bundle = Bundle.load(path)
@@ -73,6 +81,8 @@ def rungs(spec: str) -> list[Rung]:
     """The rungs of a shipped model or bundle folder: every committed round's winner of the search
     that made it (the latest round of each state), first committed first, the model itself last.
     A bundle saved without its search's rungs has one: itself (round -1, its recorded val loss)."""
+    from .checkpoint import Bundle, Rung
+
     path = bundle_path(spec)
     if path is None:
         raise ValueError(f"{spec!r} is neither a shipped model ({', '.join(shipped_models()) or 'none found'}) "

@@ -7,27 +7,24 @@
 
 from __future__ import annotations
 
-from typing import Callable
+import importlib
+from typing import TYPE_CHECKING
 
-from ..graph import Graph
-from ..model import BRDFModel
-from ..modules import ModuleConfig
-from ..params import ParamSpecs
-from . import blinn_phong, cook_torrance, ggx, ggx_residual, ward
+if TYPE_CHECKING:
+    from ..model import BRDFModel
+    from ..modules import ModuleConfig
 
-_BUILDERS: dict[str, Callable[[], tuple[Graph, ParamSpecs]]] = {
-    "ggx": ggx.build,
-    "cook_torrance": cook_torrance.build,
-    "ward": ward.build,
-    "blinn_phong": blinn_phong.build,
-    "ggx_residual": ggx_residual.build,  # baseline: GGX + R, R zero until neural
-}
+# The models, each a module of this package of the same name whose ``build()`` returns its (Graph,
+# ParamSpecs). A module is imported when its model is first built: naming the models (``neuenh fit
+# --help``) needs no torch.
+_MODELS = ("ggx", "cook_torrance", "ward", "blinn_phong",
+           "ggx_residual")  # baseline: GGX + R, R zero until neural
 # Models whose builder offers alternative analytical terms (``build(alternatives=True)``).
 _WITH_ALTERNATIVES = ("ggx", "cook_torrance")
 
 
 def available_models() -> tuple[str, ...]:
-    return tuple(_BUILDERS)
+    return _MODELS
 
 
 def models_with_alternatives() -> tuple[str, ...]:
@@ -38,24 +35,26 @@ def get_model(
     name: str,
     *,
     state: str | None = None,
-    module_config: ModuleConfig = ModuleConfig(),
+    module_config: ModuleConfig | None = None,
     latent_dim: int = 27,
     seed: int = 0,
     alternatives: bool = False,
 ) -> BRDFModel:
     """The analytical model ``name`` as a graph, in the all-zero state unless ``state`` is given
-    (its modules then freshly initialised from ``seed``). ``alternatives``: offer its terms'
-    alternative analytical formulas as digits (``neuenh.models.alternatives``)."""
-    try:
-        builder = _BUILDERS[name]
-    except KeyError:
-        raise ValueError(f"unknown model {name!r}; available: {', '.join(_BUILDERS)}") from None
+    (its modules then freshly initialised from ``seed``, sized by ``module_config``, default
+    ``ModuleConfig()``). ``alternatives``: offer its terms' alternative analytical formulas as digits
+    (``neuenh.models.alternatives``)."""
+    from ..model import BRDFModel
+    from ..modules import ModuleConfig
+
+    if name not in _MODELS:
+        raise ValueError(f"unknown model {name!r}; available: {', '.join(_MODELS)}")
     if alternatives and name not in _WITH_ALTERNATIVES:
         raise ValueError(f"model {name!r} offers no alternative terms; those that do: {', '.join(_WITH_ALTERNATIVES)}")
-    graph, specs = builder(alternatives=True) if alternatives else builder()
-    return BRDFModel(
-        name, graph, specs, state=state, module_config=module_config, latent_dim=latent_dim, seed=seed
-    )
+    build = importlib.import_module(f"{__name__}.{name}").build
+    graph, specs = build(alternatives=True) if alternatives else build()
+    return BRDFModel(name, graph, specs, state=state, module_config=module_config or ModuleConfig(),
+                     latent_dim=latent_dim, seed=seed)
 
 
-__all__ = ["available_models", "get_model", "models_with_alternatives", "BRDFModel"]
+__all__ = ["available_models", "get_model", "models_with_alternatives"]

@@ -92,8 +92,9 @@ def test_fit_with_the_shipped_enhanced_ggx_out_of_the_box(table):
         (["fit", "--model", "phong", "TABLE"], "--model 'phong' is neither an analytical model"),
         (["fit", "BAD"], "f_r has negative values"),
         (["fit", "--jobs", "0", "TABLE"], "--jobs must be at least 1, got 0"),
+        (["fit", "--capacity", "everything", "TABLE"], "capacity must be one of auto, analytical, original, latent"),
     ],
-    ids=["missing-file", "unknown-model", "bad-table", "no-jobs"],
+    ids=["missing-file", "unknown-model", "bad-table", "no-jobs", "unknown-capacity"],
 )
 def test_user_mistakes_exit_2_with_one_line(table, tmp_path, args, message):
     bad = tmp_path / "bad.npz"
@@ -215,3 +216,12 @@ def test_heldout_mistakes_exit_2_with_one_line(table, held_out, tmp_path, capsys
     assert message in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_the_help_names_the_capacities_the_fit_takes():
+    """``neuenh fit --help`` names the capacities without importing torch (tests/cli/test_main.py);
+    the fit's options check them: the two lists are one."""
+    from neuenh.fit.options import CAPACITY_CHOICES
+    from neuenh_service.cli.fit import CAPACITY_NAMES
+
+    assert CAPACITY_NAMES == CAPACITY_CHOICES
