@@ -41,13 +41,15 @@ import sys
 import time
 from pathlib import Path
 
-import torch
+from typing import TYPE_CHECKING
 
-from neuenh.checkpoint import Bundle
 from neuenh.files import atomic_write
-from neuenh.materials import LATENT_INIT, MaterialParams
+from neuenh.pretrained import bundle_path
 
-from neuenh.pretrained import bundle_path, load_model
+if TYPE_CHECKING:
+    from neuenh.materials import MaterialParams
+
+# torch and the models are imported where they are used: `neuenh render --help` needs neither.
 
 DEFAULT_SAMPLES = 16
 
@@ -141,6 +143,8 @@ def _regular_file(path: Path, what: str) -> None:
 
 def _read_params(path: Path, material: str | None) -> tuple[str, MaterialParams]:
     """One material's record from ``neuenh fit --json`` output."""
+    from neuenh.materials import MaterialParams
+
     _regular_file(path, str(path))
     try:
         doc = json.loads(path.read_text())
@@ -174,12 +178,20 @@ def _pick(names: list[str], material: str | None, where: str) -> int:
 
 
 def _initial_params(model) -> MaterialParams:
+    import torch
+
+    from neuenh.materials import LATENT_INIT, MaterialParams
+
     latent = torch.full((model.latent_dim,), LATENT_INIT, dtype=torch.float32) if model.uses_latent else None
     return MaterialParams(model.specs.init_values(), latent)
 
 
 def _model_source(spec: str, params_file: Path | None, material: str | None, flag: str):
     """(description, brdf) of a model with its parameters."""
+    import torch
+
+    from neuenh.checkpoint import Bundle
+    from neuenh.pretrained import load_model
     from neuenh.render import model_brdf
 
     path = bundle_path(spec)
@@ -229,6 +241,8 @@ def _truth_source(args):
 # -- the command ----------------------------------------------------------------------------------
 
 def run(args) -> int:
+    import torch
+
     if args.threads:
         torch.set_num_threads(args.threads)
     if not 16 <= args.size <= 8192:
