@@ -40,7 +40,6 @@ import math
 import sys
 import time
 from pathlib import Path
-
 from typing import TYPE_CHECKING
 
 from neuenh.files import atomic_write
