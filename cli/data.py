@@ -29,12 +29,15 @@ import json
 import math
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from neuenh.data.table import savez
 from neuenh.files import atomic_write
+
+if TYPE_CHECKING:  # torch is imported where a command runs: `neuenh data --help` answers without it
+    import torch
 
 
 class DataCommandError(ValueError):
@@ -85,8 +88,8 @@ def _ranges(f: torch.Tensor) -> dict:
 
 
 def _angles(wi: torch.Tensor, wo: torch.Tensor) -> dict:
-    ti = torch.rad2deg(torch.acos(wi[:, 2].double().clamp(-1, 1)))
-    to = torch.rad2deg(torch.acos(wo[:, 2].double().clamp(-1, 1)))
+    ti = wi[:, 2].double().clamp(-1, 1).acos().rad2deg()
+    to = wo[:, 2].double().clamp(-1, 1).acos().rad2deg()
     return {"theta_i_deg": [round(float(ti.min()), 2), round(float(ti.max()), 2)],
             "theta_o_deg": [round(float(to.min()), 2), round(float(to.max()), 2)]}
 
@@ -94,6 +97,8 @@ def _angles(wi: torch.Tensor, wo: torch.Tensor) -> dict:
 def _describe_material(material, probe: int, directions=None) -> dict:
     """Name, isotropy, sample count and ranges; ``directions`` (wi, wo, network input) are shared
     by all the networks of an NBRDF file (the same probe directions for each, computed once)."""
+    import torch
+
     from neuenh.data.measured import TableMaterial
 
     out = {"name": material.name, "isotropic": material.isotropic}
@@ -115,6 +120,8 @@ def _describe_material(material, probe: int, directions=None) -> dict:
 
 
 def inspect_file(path: Path, probe: int) -> dict:
+    import torch
+
     from neuenh.data.capture import read_capture
     from neuenh.data.directions import sample_directions
     from neuenh.data.exr import read_exr_channels
@@ -312,12 +319,14 @@ def _bytes(n: int) -> str:
 
 
 # -- slice -----------------------------------------------------------------------------------
-_LUMA = torch.tensor([0.2126, 0.7152, 0.0722], dtype=torch.float64)
+LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 luminance weights of linear RGB
 
 
 def slice_directions(view: str, resolution: int, phi_d_deg: float, theta_i_deg: float):
     """(wi, wo) (resolution², 3) float64 over the slice grid (row-major, row 0 at the bottom of
     the picture), and the axis extent and labels."""
+    import torch
+
     from neuenh.data.directions import from_rusinkiewicz
 
     n = resolution
@@ -340,12 +349,15 @@ def slice_directions(view: str, resolution: int, phi_d_deg: float, theta_i_deg: 
 
 
 def _luminance(f: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor, n: int) -> np.ndarray:
-    lum = (f.double() @ _LUMA).numpy().copy()
+    f = f.double()
+    lum = (f @ f.new_tensor(LUMA)).numpy().copy()
     lum[~((wi[:, 2] > 1e-6) & (wo[:, 2] > 1e-6)).numpy()] = np.nan
     return lum.reshape(n, n)
 
 
 def run_slice(args) -> int:
+    import torch
+
     from neuenh.data.formats import detect_format
     from neuenh.data.measured import TableMaterial, load_measured
 
@@ -454,4 +466,4 @@ def _draw(path: Path, panels, extent, labels, subtitle: str) -> list[float]:
     return [vmin, vmax]
 
 
-__all__ = ["add_parser", "inspect_file", "load_sample_spec", "slice_directions"]
+__all__ = ["configure", "inspect_file", "load_sample_spec", "slice_directions"]

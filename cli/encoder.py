@@ -18,16 +18,16 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import torch
-
-from neuenh.checkpoint import Bundle
-from neuenh.encoder import EncoderConfig
-from neuenh.encoder_training import EncoderTrainConfig, FixedSets, MeasurementPools, start_losses, train_encoder
-from neuenh.pretrained import bundle_path
+if TYPE_CHECKING:  # torch and the encoder are imported by run_train: `neuenh encoder --help` needs neither
+    from neuenh.checkpoint import Bundle
 
 # Measurement-set sizes of the held-out comparison recorded in model.json.
 HELDOUT_SIZES = (1, 30, 300, 3000)
+# ``EncoderTrainConfig().steps``, written out so that the help names it without importing torch
+# (tests/cli/test_encoder_cli.py keeps the two equal).
+DEFAULT_STEPS = 4000
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -39,8 +39,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     train.add_argument("bundle", metavar="BUNDLE", help="a bundle folder or a shipped model's name")
     train.add_argument("--spec", type=Path, help="the job spec whose data: sources to learn from "
                                                  "(default: the one the bundle's provenance names)")
-    defaults = EncoderTrainConfig()
-    train.add_argument("--steps", type=int, default=defaults.steps, help=f"Adam steps (default {defaults.steps})")
+    train.add_argument("--steps", type=int, default=DEFAULT_STEPS, help=f"Adam steps (default {DEFAULT_STEPS})")
     train.add_argument("--holdout", type=float, default=0.1,
                        help="share of the materials held out to measure the encoder (default 0.1)")
     train.add_argument("--pool", type=int, nargs=2, default=(4096, 2048), metavar=("UNIFORM", "MIRROR"),
@@ -52,6 +51,13 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run_train(args) -> int:
+    import torch
+
+    from neuenh.checkpoint import Bundle
+    from neuenh.encoder import EncoderConfig
+    from neuenh.encoder_training import EncoderTrainConfig, FixedSets, MeasurementPools, start_losses, train_encoder
+    from neuenh.pretrained import bundle_path
+
     from .data import load_sample_spec
 
     if args.threads:

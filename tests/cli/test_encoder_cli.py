@@ -56,3 +56,12 @@ def test_a_bundle_without_a_spec_in_its_provenance_needs_one(bundle):
 def test_not_a_bundle(tmp_path):
     out = neuenh_here("encoder", "train", tmp_path / "nothing", "--spec", tmp_path / "s.yaml")
     assert out.returncode == 2 and "neither a bundle folder nor a shipped model" in out.stderr
+
+
+def test_the_help_names_the_steps_the_training_takes_by_default():
+    """``neuenh encoder train --help`` names the default steps without importing torch
+    (tests/cli/test_main.py); the training config takes them: the two numbers are one."""
+    from neuenh.encoder_training import EncoderTrainConfig
+    from neuenh_service.cli.encoder import DEFAULT_STEPS
+
+    assert DEFAULT_STEPS == EncoderTrainConfig().steps
