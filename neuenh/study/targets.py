@@ -61,10 +61,14 @@ def _ahead(points: Sequence[CurvePoint], contender: str, label: str) -> Target:
 
 
 def _against_ggx(points: Sequence[CurvePoint], contender: str, label: str, n: int = 100) -> Target:
-    """``contender``'s median at ``n`` samples not above plain GGX's, both protocols."""
+    """``contender``'s median at ``n`` samples not above plain GGX's, both protocols. Beside the
+    medians, on how many materials ``contender`` is the lower: two medians over different materials
+    can order the models one way while most materials order them the other."""
     pairs = {protocol: (medians(points, protocol).get(contender, {}).get(n), medians(points, protocol).get(GGX, {}).get(n))
              for protocol in ("uniform", "mirror")}
-    cells = [f"{protocol} " + ("—" if None in v else f"{v[0]:.4f} vs {v[1]:.4f}") for protocol, v in pairs.items()]
+    lower = {protocol: wins(points, protocol, contender, GGX).get(n) for protocol in pairs}
+    cells = [f"{protocol} " + ("—" if None in v else f"{v[0]:.4f} vs {v[1]:.4f} (lower on {'/'.join(map(str, lower[protocol]))})")
+             for protocol, v in pairs.items()]
     met = None if any(None in v for v in pairs.values()) else all(a <= b for a, b in pairs.values())
     return Target(f"{n} samples: {label} against plain GGX (medians)", "; ".join(cells), "not worse", met)
 
