@@ -66,9 +66,14 @@ def _against_ggx(points: Sequence[CurvePoint], contender: str, label: str, n: in
     can order the models one way while most materials order them the other."""
     pairs = {protocol: (medians(points, protocol).get(contender, {}).get(n), medians(points, protocol).get(GGX, {}).get(n))
              for protocol in ("uniform", "mirror")}
-    lower = {protocol: wins(points, protocol, contender, GGX).get(n) for protocol in pairs}
-    cells = [f"{protocol} " + ("—" if None in v else f"{v[0]:.4f} vs {v[1]:.4f} (lower on {'/'.join(map(str, lower[protocol]))})")
-             for protocol, v in pairs.items()]
+
+    def cell(protocol: str, pair: tuple) -> str:
+        if None in pair:
+            return f"{protocol} —"
+        lower = wins(points, protocol, contender, GGX).get(n)  # None: no material measured by both
+        return f"{protocol} {pair[0]:.4f} vs {pair[1]:.4f}" + (f" (lower on {lower[0]}/{lower[1]})" if lower else "")
+
+    cells = [cell(protocol, pair) for protocol, pair in pairs.items()]
     met = None if any(None in v for v in pairs.values()) else all(a <= b for a, b in pairs.values())
     return Target(f"{n} samples: {label} against plain GGX (medians)", "; ".join(cells), "not worse", met)
 

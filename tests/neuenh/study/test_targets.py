@@ -60,3 +60,10 @@ def test_against_ggx_the_medians_judge_and_the_materials_where_each_is_lower_are
     ggx_a = issue23_targets(points)[4]
     assert ggx_a.measured == "uniform 0.0450 vs 0.0350 (lower on 6/8); mirror 0.0450 vs 0.0350 (lower on 6/8)"
     assert ggx_a.met is False
+
+
+def test_against_ggx_on_materials_no_model_shares_gives_the_medians_alone():
+    points = [p for protocol in ("uniform", "mirror")
+              for p in curve(protocol, 100, "enhanced-adaptive", [0.02] * 4) + curve(protocol, 100, "ggx", [0.03] * 8)[4:]]
+    ggx_a = issue23_targets(points)[4]
+    assert (ggx_a.measured, ggx_a.met) == ("uniform 0.0200 vs 0.0300; mirror 0.0200 vs 0.0300", True)
