@@ -319,7 +319,7 @@ def _bytes(n: int) -> str:
 
 
 # -- slice -----------------------------------------------------------------------------------
-LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 luminance weights of linear RGB
+_LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 luminance weights of linear RGB
 
 
 def slice_directions(view: str, resolution: int, phi_d_deg: float, theta_i_deg: float):
@@ -350,7 +350,7 @@ def slice_directions(view: str, resolution: int, phi_d_deg: float, theta_i_deg: 
 
 def _luminance(f: torch.Tensor, wi: torch.Tensor, wo: torch.Tensor, n: int) -> np.ndarray:
     f = f.double()
-    lum = (f @ f.new_tensor(LUMA)).numpy().copy()
+    lum = (f @ f.new_tensor(_LUMA)).numpy().copy()
     lum[~((wi[:, 2] > 1e-6) & (wo[:, 2] > 1e-6)).numpy()] = np.nan
     return lum.reshape(n, n)
 

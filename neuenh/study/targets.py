@@ -64,8 +64,8 @@ def _against_ggx(points: Sequence[CurvePoint], contender: str, label: str, n: in
     """``contender``'s median at ``n`` samples not above plain GGX's, both protocols. Beside the
     medians, on how many materials ``contender`` is the lower: two medians over different materials
     can order the models one way while most materials order them the other."""
-    pairs = {protocol: (medians(points, protocol).get(contender, {}).get(n), medians(points, protocol).get(GGX, {}).get(n))
-             for protocol in ("uniform", "mirror")}
+    tables = {protocol: medians(points, protocol) for protocol in ("uniform", "mirror")}
+    pairs = {protocol: (table.get(contender, {}).get(n), table.get(GGX, {}).get(n)) for protocol, table in tables.items()}
 
     def cell(protocol: str, pair: tuple) -> str:
         if None in pair:
