@@ -25,6 +25,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from neuenh.capacities import ANALYTICAL_CAPACITIES
 from neuenh.export import FORMATS, export
 
 if TYPE_CHECKING:  # the models' modules import torch (~1.5 s): `neuenh export --help` need not pay it
@@ -123,7 +124,6 @@ def fit_report_materials(path: Path, model) -> dict[str, MaterialParams]:
     if of != (model.name, model.state):
         raise ValueError(f"{path} is a fit of {of[0]} in state {of[1]}, but the model is {model.name} in state "
                          f"{model.state}; export the model it was fitted with")
-    from neuenh.fit.result import ANALYTICAL_CAPACITIES
     from neuenh.materials import MaterialParams
 
     fitted = {}

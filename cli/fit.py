@@ -33,14 +33,12 @@ import json
 import time
 from pathlib import Path
 
+from neuenh.capacities import CAPACITY_CHOICES
 from neuenh.models import available_models
 from neuenh.pretrained import shipped_models
 
 from .tables import fit_report
 
-# The capacities --capacity takes (neuenh.fit.options.CAPACITY_CHOICES checks them, which imports
-# torch: the help names them without it; tests/cli/test_fit_cli.py keeps the two the same).
-CAPACITY_NAMES = ("auto", "analytical", "original", "latent", "last-layer", "low-rank", "full")
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -58,7 +56,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", choices=("fast", "paper"), default="fast",
                    help="fast (default): a plain model by L-BFGS, a model with modules at --capacity; paper: "
                         "RMSProp lr 1e-3, 1000 epochs, latent capacity")
-    p.add_argument("--capacity", default="latent", metavar="{" + ",".join(CAPACITY_NAMES) + "}",
+    p.add_argument("--capacity", default="latent", metavar="{" + ",".join(CAPACITY_CHOICES) + "}",
                    help="a model with modules: latent (default); auto chooses per material on a validation split; "
                         "or fit exactly one capacity")
     p.add_argument("--epochs", type=int, default=None,

@@ -46,13 +46,14 @@ from typing import Callable, ClassVar
 
 import torch
 
+from ..capacities import ANALYTICAL_CAPACITIES
 from ..materials import MaterialTable
 from ..model import BRDFModel
 from .kernel import LayerCorrection, RowKernel, RowSpace, frozen
 from .layout import fold_masks
 from .optim import Adam, adam_rows, evaluate_rows
 from .protocols import FitProtocol, LatentAdam, PlainLBFGS, Rows, _check, paper_start
-from .result import ANALYTICAL_CAPACITIES, FitResult, analytical_model
+from .result import FitResult, analytical_model
 
 LOW_RANK = 2
 

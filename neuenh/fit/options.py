@@ -13,12 +13,12 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+from ..capacities import CAPACITY_CHOICES
 from ..model import BRDFModel
-from .capacity import CAPACITIES, Adaptive
+from .capacity import Adaptive
 from .protocols import FitProtocol, LatentAdam, PaperRMSProp, PlainLBFGS
 
 METHODS = ("fast", "paper")
-CAPACITY_CHOICES = ("auto", *CAPACITIES)
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ..capacities import ANALYTICAL_CAPACITIES
 from ..data.samples import Samples
 from ..materials import MaterialParams, MaterialTable
 from ..model import BRDFModel
@@ -59,12 +60,6 @@ class FitResult:
     def losses_on(self, model: BRDFModel, samples: Samples) -> list[float]:
         """``losses_at_own_capacity`` of this fit's table."""
         return losses_at_own_capacity(model, self.materials, samples)
-
-
-# Capacities that fit an analytical model of the same graph instead of the modules, and whether that
-# model keeps the search's alternative terms: ``analytical`` (modules back to their original terms) and
-# ``original`` (every position at its original term: the model the search started from, e.g. plain GGX).
-ANALYTICAL_CAPACITIES = {"analytical": True, "original": False}
 
 
 def analytical_model(model: BRDFModel, capacity: str, seed: int = 0) -> BRDFModel:

@@ -20,6 +20,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..capacities import ANALYTICAL_CAPACITIES
 from ..files import atomic_write
 from .planner import Plan
 
@@ -172,9 +173,7 @@ def markdown(plan: Plan, sheet: bool = True) -> str:
 
 def _analytical(rung: dict, params: dict) -> bool:
     """Whether a material's chosen rung evaluates it analytically: an analytical rung, or a rung with
-    modules that fitted it at an analytical capacity (``fit.result.ANALYTICAL_CAPACITIES``)."""
-    from ..fit.result import ANALYTICAL_CAPACITIES
-
+    modules that fitted it at an analytical capacity (``capacities.ANALYTICAL_CAPACITIES``)."""
     if rung["model"] == "nbrdf":
         return False
     return rung["shared_weights"] == 0 or params.get("capacity") in ANALYTICAL_CAPACITIES

@@ -41,6 +41,8 @@ from typing import Annotated, Literal, Union
 import yaml
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator, model_validator
 
+from ..capacities import CAPACITY_CHOICES
+
 __all__ = ["CaptureEntry", "FileEntry", "FitSpec", "ModelEntry", "RenderSpec", "RungsEntry", "SceneError",
            "SceneSpec", "Tolerance", "ladder_source", "load_scene", "parse_scene", "scene_data"]
 
@@ -94,8 +96,6 @@ class ModelEntry(_Strict):
     @field_validator("capacity")
     @classmethod
     def _known_capacity(cls, capacity: str) -> str:
-        from ..fit.options import CAPACITY_CHOICES
-
         if capacity not in CAPACITY_CHOICES:
             raise ValueError(f"unknown capacity {capacity!r}; choose one of {', '.join(CAPACITY_CHOICES)}")
         return capacity

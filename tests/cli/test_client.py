@@ -443,8 +443,10 @@ def test_plan_uploads_the_scenes_files_to_a_service_that_cannot_read_them(live_s
     (tables / "scene.yaml").write_text(yaml.safe_dump(scene(tables)))
     refused = client("plan", tables / "scene.yaml", url=server.url)
     one_line_error(refused, "materials.0:", "is outside the data roots")
-    out = client("plan", tables / "scene.yaml", "--upload", "--wait", "--json", url=server.url)
+    out, imported_torch = run_probing_torch("neuenh_service.cli.client", "plan", tables / "scene.yaml", "--upload",
+                                            "--wait", "--json", env=environ(server.url, TOKEN))
     assert out.returncode == 0, out.stderr
+    assert not imported_torch, "checking a scene file and sending it needs no torch (neuenh.scene.spec)"
     plan = json.loads(out.stdout)
     assert {m["name"]: m["chosen"] for m in plan["plan"]["materials"]} == {"gloss": "ggx", "retro": "nbrdf"}
     twice = dict(scene(tables), materials=[{"path": "gloss.npz"}, {"path": str(tmp_path / "other" / "gloss.npz")}])

@@ -218,10 +218,10 @@ def test_heldout_mistakes_exit_2_with_one_line(table, held_out, tmp_path, capsys
     assert list(tmp_path.iterdir()) == []  # nothing written
 
 
-def test_the_help_names_the_capacities_the_fit_takes():
-    """``neuenh fit --help`` names the capacities without importing torch (tests/cli/test_main.py);
-    the fit's options check them: the two lists are one."""
-    from neuenh.fit.options import CAPACITY_CHOICES
-    from neuenh_service.cli.fit import CAPACITY_NAMES
+def test_the_capacities_by_name_are_the_ones_the_fit_frees():
+    """``neuenh fit --help`` and scene files name the capacities without importing torch
+    (``neuenh.capacities``); the fit's table of what each one frees has exactly those names."""
+    from neuenh.capacities import CAPACITY_NAMES
+    from neuenh.fit.capacity import CAPACITIES
 
-    assert CAPACITY_NAMES == CAPACITY_CHOICES
+    assert tuple(CAPACITIES) == CAPACITY_NAMES

@@ -1,0 +1,19 @@
+"""The capacities a fit offers, by name: what ``neuenh fit --capacity``, a scene's ladder and
+``POST /v1/jobs/{id}/fit`` accept. Names only, no torch: the CLI's help and a scene file (``neuenh-client
+plan``) check them without loading the fit; ``neuenh.fit.capacity.CAPACITIES`` holds what each one
+frees, under these names.
+"""
+
+from __future__ import annotations
+
+# Capacities that fit an analytical model of the same graph instead of the modules, and whether that
+# model keeps the search's alternative terms: ``analytical`` (modules back to their original terms) and
+# ``original`` (every position at its original term: the model the search started from, e.g. plain GGX).
+ANALYTICAL_CAPACITIES = {"analytical": True, "original": False}
+# Capacities that keep the modules: the latent code alone, then per-material corrections of their weights.
+MODULE_CAPACITIES = ("latent", "last-layer", "low-rank", "full")
+CAPACITY_NAMES = (*ANALYTICAL_CAPACITIES, *MODULE_CAPACITIES)
+# What a user may ask for: one capacity, or ``auto`` (chosen per material by validation on its own samples).
+CAPACITY_CHOICES = ("auto", *CAPACITY_NAMES)
+
+__all__ = ["ANALYTICAL_CAPACITIES", "CAPACITY_CHOICES", "CAPACITY_NAMES", "MODULE_CAPACITIES"]
