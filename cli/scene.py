@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from neuenh.files import atomic_write
+from neuenh.files import atomic_write, is_temporary
 
 from .tables import plan_totals
 
@@ -78,11 +78,12 @@ def _file(name: str) -> str:
 
 
 def _read_done(folder: Path) -> dict[str, MaterialPlan]:
-    """Materials an interrupted run planned; an unreadable file is planned again."""
+    """Materials an interrupted run planned; an unreadable file is planned again, and the temporary
+    file of a write the interruption cut short is not read."""
     from neuenh.scene import MaterialPlan
 
     out = {}
-    for path in sorted(folder.glob("*.json")) if folder.is_dir() else []:
+    for path in sorted(p for p in folder.glob("*.json") if not is_temporary(p)) if folder.is_dir() else []:
         try:
             plan = MaterialPlan.from_json(json.loads(path.read_text()))
         except (ValueError, KeyError, TypeError):

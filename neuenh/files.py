@@ -9,7 +9,9 @@ temporary file is removed and ``path`` keeps its old content (or stays absent). 
 text (UTF-8), or a function that writes the temporary file itself (a library's ``save(path)``).
 The temporary file is ``.<name>.<random>.tmp<suffix>`` (``prefix`` replaces ``.<name>.``): it keeps
 the target's suffix, so writers that choose the format by it (``savefig``, ``np.savez``, which adds
-``.npz`` to any other name) write the right thing, and its leading dot hides it from listings.
+``.npz`` to any other name) write the right thing, and its leading dot hides it from listings —
+not from a glob such as ``*.json``: a writer killed mid-write leaves it behind, so a reader of a folder
+skips what ``is_temporary`` names.
 ``atomic_write_digest`` does the same and returns the SHA-256 of exactly what was written.
 """
 
@@ -23,7 +25,7 @@ from typing import Callable
 
 Data = bytes | bytearray | memoryview | str | Callable[[Path], object]
 
-__all__ = ["atomic_write", "atomic_write_digest"]
+__all__ = ["atomic_write", "atomic_write_digest", "is_temporary"]
 
 
 def atomic_write(path: str | os.PathLike, data: Data, *, mode: int | None = 0o644, prefix: str | None = None) -> Path:
@@ -38,6 +40,13 @@ def atomic_write_digest(path: str | os.PathLike, data: Data, *, mode: int | None
     """``atomic_write``, returning the SHA-256 (hex) of the bytes written, read back from the
     temporary file before the rename (so it is this writer's, whatever another writer does next)."""
     return _write(Path(path), data, mode, None, digest=True)
+
+
+def is_temporary(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is named as ``atomic_write``'s temporary files are (default prefix):
+    ``.<name>.<random>.tmp<suffix>``, possibly left half-written by a killed writer."""
+    name = Path(path).name
+    return name.startswith(".") and (name.endswith(".tmp") or name.removesuffix(Path(name).suffix).endswith(".tmp"))
 
 
 def _write(path: Path, data: Data, mode: int | None, prefix: str | None, digest: bool) -> str:

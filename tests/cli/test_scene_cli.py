@@ -13,6 +13,7 @@ import pytest
 import yaml
 
 from cli_runs import neuenh, neuenh_here
+from neuenh.files import is_temporary
 from scene_files import scene, write_tables
 
 REPO = Path(__file__).resolve().parents[2]
@@ -41,12 +42,15 @@ def test_the_command_writes_the_plan_and_resumes_after_a_kill(tables, tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "neuenh_service.cli.main", "scene", "plan", str(path), "-o", str(out),
                              "--chunk", "1"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120
-    while not list((out / "materials").glob("*.json")):
+    def planned() -> list[Path]:  # kept materials, not the temporary file of one being written
+        return [p for p in (out / "materials").glob("*.json") if not is_temporary(p)]
+
+    while not planned():
         assert proc.poll() is None and time.monotonic() < deadline
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    kept = len(list((out / "materials").glob("*.json")))
+    kept = len(planned())
     assert 1 <= kept < 3
     again = neuenh("scene", "plan", str(path), "-o", str(out), "--chunk", "1", cwd=REPO)
     assert again.returncode == 0 and f"resuming: {kept} material(s) already planned" in again.stderr

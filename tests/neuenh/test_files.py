@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from neuenh.files import atomic_write, atomic_write_digest
+from neuenh.files import atomic_write, atomic_write_digest, is_temporary
 
 
 def test_bytes_text_and_a_writer_function(tmp_path):
@@ -93,3 +93,12 @@ def test_the_data_is_fsynced_before_the_rename_and_the_folder_after(tmp_path, mo
     monkeypatch.setattr(os, "replace", lambda a, b: (calls.append(("replace", None)), real_replace(a, b)))
     atomic_write(tmp_path / "f", b"durable")
     assert calls == [("fsync", False), ("replace", None), ("fsync", True)]
+
+
+@pytest.mark.parametrize("name", ["gloss.json", "model", "bundle.tar.gz", ".hidden.json"])
+def test_a_temporary_file_is_told_from_the_file_it_becomes(tmp_path, name):
+    """What a writer killed mid-write leaves behind (``.<name>.<random>.tmp<suffix>``, matched by a
+    glob of the target's suffix) is named temporary; the file it becomes is not."""
+    seen = []
+    atomic_write(tmp_path / name, lambda tmp: (seen.append(tmp), tmp.write_text("x")))
+    assert is_temporary(seen[0]) and not is_temporary(tmp_path / name)
