@@ -10,7 +10,7 @@ An *enhancement state* is one digit per position (paper Sec. 4.1, with its m-ary
 digit picks one of the position's *choices*, in this order —
 
 * 0: the original term or operator;
-* 1..K: a neural module, ``modules.ModuleConfig.choices[k - 1]`` (K = 1 by default: the paper's);
+* 1..K: a neural module, ``ModuleConfig.choices[k - 1]`` (K = 1 by default: the paper's);
 * K+1..: the term's alternative analytical formulas (``Term.alternatives``, e.g. Beckmann or a
   Student-t distribution at GGX's D; ``models.alternatives``), each with its own extra
   per-material parameters. Operators have no alternatives.
@@ -19,19 +19,21 @@ So a model without alternatives and one module size has the paper's binary state
 ``StateEncoding`` names each digit's kind (``ChoiceKind``: original, neural, alternative) and a
 position's *arity*, its number of choices; nothing else does digit arithmetic. The torch model of
 a state (the graph with the chosen alternatives substituted, ``Graph.substitute``, plus the modules
-its neural digits call for) is ``neuenh.model.BRDFModel``. This module imports no torch ``nn``.
+its neural digits call for) is ``neuenh.model.BRDFModel``. This module imports no torch: a job spec
+is checked against its model's positions and arities without it (``neuenh-client submit``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
-from typing import Callable, Literal, Mapping, Sequence, TypeVar
-
-import torch
+from typing import TYPE_CHECKING, Callable, Literal, Mapping, Sequence, TypeVar
 
 from .params import ParamSpec
 from .shading import Shading
+
+if TYPE_CHECKING:
+    import torch
 
 V = TypeVar("V")  # a value on some backend (a torch tensor, a GLSL expression, an ONNX value, ...)
 
@@ -213,6 +215,41 @@ class ChoiceKind(str, Enum):
 
 
 @dataclass(frozen=True)
+class ModuleConfig:
+    """Which neural module each non-zero digit stands for."""
+
+    choices: tuple[tuple[int, ...], ...] = ((16, 32, 16),)
+    negative_slope: float = 0.01  # LeakyReLU slope (PyTorch default; the paper does not say)
+
+    def __post_init__(self) -> None:
+        if not self.choices:
+            raise ValueError("ModuleConfig needs at least one module choice")
+        for hidden in self.choices:
+            if not hidden or any(int(w) < 1 for w in hidden):
+                raise ValueError(f"module hidden widths must be positive, got {hidden}")
+
+    @property
+    def digits(self) -> int:
+        """m of the m-ary enhancement state: the original term plus one digit per choice."""
+        return 1 + len(self.choices)
+
+    def hidden(self, digit: int) -> tuple[int, ...]:
+        if not 1 <= digit < self.digits:
+            raise ValueError(f"digit {digit} selects no module; this config allows 1..{self.digits - 1}")
+        return tuple(self.choices[digit - 1])
+
+    def to_json(self) -> dict:
+        return {"choices": [list(c) for c in self.choices], "negative_slope": self.negative_slope}
+
+    @classmethod
+    def from_json(cls, data: dict) -> "ModuleConfig":
+        return cls(
+            choices=tuple(tuple(int(w) for w in c) for c in data["choices"]),
+            negative_slope=float(data.get("negative_slope", 0.01)),
+        )
+
+
+@dataclass(frozen=True)
 class StateEncoding:
     """The meaning of the digits of a state: 0 the original, ``1..modules`` a neural module
     (``ModuleConfig.choices[digit - 1]``), then the position's alternatives in ``Term.alternatives``
@@ -247,3 +284,7 @@ class StateEncoding:
     def arity(self, expr: Expr) -> int:
         """How many choices ``expr``'s position has: original, the modules, the alternatives."""
         return 1 + self.modules + len(getattr(expr, "alternatives", ()))
+
+    def arities(self, graph: Graph) -> tuple[int, ...]:
+        """Every position's arity, in ``graph``'s position order."""
+        return tuple(self.arity(p) for p in graph.positions)

@@ -92,7 +92,7 @@ class BRDFModel(nn.Module):
     @property
     def digit_counts(self) -> tuple[int, ...]:
         """How many choices each position has: original, the neural modules, the alternatives."""
-        return tuple(self.encoding.arity(p) for p in self.graph.positions)
+        return self.encoding.arities(self.graph)
 
     def is_neural(self, digit: int) -> bool:
         """Whether ``digit`` (at any position) selects a neural module."""
@@ -284,7 +284,7 @@ class BRDFModel(nn.Module):
         training loss handles it), exactly 0 below either horizon.
         """
         digits = self.digits if digits is None else digits
-        shading = make_shading(wi, wo, values)
+        shading = make_shading(wi, wo, values, TORCH)
         neural_terms = self._neural_term_outputs(digits, shading, values, latent)
 
         def term(expr: Term, digit: int) -> torch.Tensor:
@@ -343,7 +343,7 @@ class BRDFModel(nn.Module):
         # The shading frame depends on the material alone: built once per material, then gathered.
         frame = frame_of(TORCH, values)
         frame = None if frame is None else tuple(BatchVec3(gather(axis.array)) for axis in frame)
-        shading = make_shading(wi, wo, {k: gather(v) for k, v in values.items()}, frame=frame)
+        shading = make_shading(wi, wo, {k: gather(v) for k, v in values.items()}, TORCH, frame=frame)
         per_material = Shading.of_params(values, TORCH)
         modules_read = _reads_latent(self, digits)
         # Both bound either way: torch.compile breaks its graph on a closure over an unbound name.

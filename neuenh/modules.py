@@ -11,54 +11,20 @@ after every layer but the last, Xavier initialisation. Its input depends on what
 Its output has the width of what it replaces (1 or 3).
 
 Digits of an enhancement state select a *choice* per position: 0 is the original term, digit k >= 1
-is ``ModuleConfig.choices[k - 1]`` (the paper's m-ary extension). The default offers one choice,
+is ``ModuleConfig.choices[k - 1]`` (the paper's m-ary extension; ``ModuleConfig`` lives with the state
+encoding in ``neuenh.graph`` and is imported from here too). The default offers one choice,
 the paper's module, so states are binary; add choices (e.g. another width) for m-ary searches.
 """
 
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass
 
 import torch
 from torch import nn
 
+from .graph import ModuleConfig  # (the digits' meaning; re-exported: what a module of a digit is)
 from .rows import RowIndex, gather_rows
-
-
-@dataclass(frozen=True)
-class ModuleConfig:
-    """Which neural module each non-zero digit stands for."""
-
-    choices: tuple[tuple[int, ...], ...] = ((16, 32, 16),)
-    negative_slope: float = 0.01  # LeakyReLU slope (PyTorch default; the paper does not say)
-
-    def __post_init__(self) -> None:
-        if not self.choices:
-            raise ValueError("ModuleConfig needs at least one module choice")
-        for hidden in self.choices:
-            if not hidden or any(int(w) < 1 for w in hidden):
-                raise ValueError(f"module hidden widths must be positive, got {hidden}")
-
-    @property
-    def digits(self) -> int:
-        """m of the m-ary enhancement state: the original term plus one digit per choice."""
-        return 1 + len(self.choices)
-
-    def hidden(self, digit: int) -> tuple[int, ...]:
-        if not 1 <= digit < self.digits:
-            raise ValueError(f"digit {digit} selects no module; this config allows 1..{self.digits - 1}")
-        return tuple(self.choices[digit - 1])
-
-    def to_json(self) -> dict:
-        return {"choices": [list(c) for c in self.choices], "negative_slope": self.negative_slope}
-
-    @classmethod
-    def from_json(cls, data: dict) -> "ModuleConfig":
-        return cls(
-            choices=tuple(tuple(int(w) for w in c) for c in data["choices"]),
-            negative_slope=float(data.get("negative_slope", 0.01)),
-        )
 
 
 def module_seed(seed: int, position: str, digit: int) -> int:

@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Iterable, Literal, Mapping
+from typing import TYPE_CHECKING, Iterable, Literal, Mapping
 
-import torch
-
-from .ops import TORCH
+if TYPE_CHECKING:
+    import torch
 
 # Raw values are clipped here when inverting the mapping at a range boundary (sigmoid(17) = 1 - 4e-8).
 _RAW_LIMIT = 17.0
@@ -55,26 +54,29 @@ class ParamSpec:
             return math.log(self.low), math.log(self.high)
         return self.low, self.high
 
-    def to_unit(self, value, xp=TORCH):
-        """Physical value -> position in the range, 0 at ``low`` and 1 at ``high``, on any backend of
-        ``neuenh.ops`` (the exporters emit it for a model whose parameters arrive at run time)."""
+    def to_unit(self, value, xp=None):
+        """Physical value -> position in the range, 0 at ``low`` and 1 at ``high``: a torch tensor
+        by its own methods, or on the backend ``xp`` of ``neuenh.ops`` (the exporters emit it for a
+        model whose parameters arrive at run time)."""
         lo, hi = self._axis_bounds()
-        return ((xp.log(value) if self.scale == "log" else value) - lo) / (hi - lo)
+        if self.scale == "log":
+            value = value.log() if xp is None else xp.log(value)
+        return (value - lo) / (hi - lo)
 
     def from_unit(self, unit: torch.Tensor) -> torch.Tensor:
         lo, hi = self._axis_bounds()
         axis = lo + (hi - lo) * unit
-        return torch.exp(axis) if self.scale == "log" else axis
+        return axis.exp() if self.scale == "log" else axis
 
     def from_raw(self, raw: torch.Tensor) -> torch.Tensor:
         """Unconstrained optimisation variable -> physical value, always inside the range."""
-        value = self.from_unit(torch.sigmoid(raw))
+        value = self.from_unit(raw.sigmoid())
         # exp/log round-off may land one ulp outside; the contract is "never leaves the range".
         return value.clamp(self.low, self.high)
 
     def to_raw(self, value: torch.Tensor) -> torch.Tensor:
         unit = self.to_unit(value).clamp(0.0, 1.0)
-        return torch.logit(unit).clamp(-_RAW_LIMIT, _RAW_LIMIT)
+        return unit.logit().clamp(-_RAW_LIMIT, _RAW_LIMIT)
 
     def check(self, value: torch.Tensor) -> None:
         """Raise a ValueError naming this parameter if ``value`` is non-finite or out of range."""
@@ -83,7 +85,7 @@ class ParamSpec:
                 f"parameter {self.name!r} has width {self.width}, got a tensor of shape "
                 f"{tuple(value.shape)}"
             )
-        if not torch.isfinite(value).all():
+        if not value.isfinite().all():
             raise ValueError(f"parameter {self.name!r} has non-finite values")
         lo, hi = value.min().item(), value.max().item()
         # Allow float32 round-off at the boundaries.
@@ -134,6 +136,8 @@ class ParamSpecs:
         ``extra`` names keys that are allowed besides the specs (e.g. ``latent``); they are
         returned as given.
         """
+        import torch  # (here, not at the top: a job spec is checked against the model's specs without torch)
+
         allowed = set(self.names) | set(extra)
         unknown = sorted(set(params) - allowed)
         if unknown:
@@ -159,10 +163,14 @@ class ParamSpecs:
                 out[name] = torch.as_tensor(params[name])
         return out
 
-    def init_values(self, dtype: torch.dtype = torch.float32) -> dict[str, torch.Tensor]:
-        """The paper's initial value of every parameter, shape ``(width,)``."""
-        return {s.name: torch.full((s.width,), s.init, dtype=dtype) for s in self._specs}
+    def init_values(self, dtype: torch.dtype | None = None) -> dict[str, torch.Tensor]:
+        """The paper's initial value of every parameter, shape ``(width,)`` (float32 by default)."""
+        import torch
+
+        return {s.name: torch.full((s.width,), s.init, dtype=dtype or torch.float32) for s in self._specs}
 
     def unit_vector(self, values: Mapping[str, torch.Tensor]) -> torch.Tensor:
         """Concatenate all parameters as unit values, in spec order: the modules' input."""
+        import torch
+
         return torch.cat([s.to_unit(values[s.name]) for s in self._specs], dim=-1)

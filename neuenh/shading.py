@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from .ops import TORCH
 
 # Smallest cosine a term ever sees. 1/(4 cos_i cos_o) stays below 1e12 (finite in float32); grazing
 # directions up to 89.9 degrees (cos = 1.7e-3) are far above it and evaluated exactly.
@@ -115,8 +114,9 @@ def shade(xp, wi, wo, wi_s, wo_s, params: Mapping[str, Any]) -> Shading:
     )
 
 
-def make_shading(wi, wo, params: Mapping[str, Any], xp=TORCH, frame: tuple[Any, Any, Any] | None = None) -> Shading:
-    """Build the shading context. ``wi``, ``wo``: (n, 3) local-frame arrays (or Vec3s of ``xp``);
+def make_shading(wi, wo, params: Mapping[str, Any], xp, frame: tuple[Any, Any, Any] | None = None) -> Shading:
+    """Build the shading context on the backend ``xp`` (``neuenh.ops``: ``TORCH``, ``NUMPY``, an
+    exporter's). ``wi``, ``wo``: (n, 3) local-frame arrays (or Vec3s of ``xp``);
     ``params`` are physical values already broadcast to (n, width). ``frame``: the shading frame of
     each sample when the caller has it (``shading_frame`` of ``params``, e.g. built once per material
     and gathered); by default it is built here from ``params``."""

@@ -17,18 +17,24 @@ from __future__ import annotations
 import dataclasses
 import functools
 from pathlib import Path
-from typing import Any, Annotated, Literal
+from typing import TYPE_CHECKING, Any, Annotated, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from neuenh.checkpoint import Bundle
 from neuenh.data.sources import DataSource
-from neuenh.model import BRDFModel
-from neuenh.models import available_models, get_model, models_with_alternatives
-from neuenh.modules import ModuleConfig
+from neuenh.graph import Graph, ModuleConfig, StateEncoding
+from neuenh.models import available_models, get_graph, get_model, models_with_alternatives
 from neuenh.search import Constraints
-from neuenh.train import FitScoreConfig, Precision, TrainConfig
+
+if TYPE_CHECKING:
+    from neuenh.checkpoint import Bundle
+    from neuenh.model import BRDFModel
+    from neuenh.train import FitScoreConfig, TrainConfig
+
+# neuenh.train.Precision, written out so that a spec is checked without torch (``neuenh-client submit``;
+# tests/orchestrator/test_spec.py keeps the two equal).
+Precision = Literal["float32", "bfloat16"]
 
 
 def lone_surrogate_path(value: Any, path: str = "") -> str | None:
@@ -81,6 +87,8 @@ class FitScoreSpec(_Strict):
     epochs: int = Field(100, ge=1, description="the fit's epochs (fit.fit_materials): a short fit keeps the score cheap")
 
     def config(self, seed: int) -> FitScoreConfig:
+        from neuenh.train import FitScoreConfig
+
         return FitScoreConfig(self.fit_samples, self.test_samples, self.epochs, seed)
 
 
@@ -228,7 +236,7 @@ class JobSpec(_Strict):
         if self.search.score == "fit" and blind:
             raise ValueError(f"search.score: fit scores candidates on materials held out of every data source, "
                              f"but {', '.join(blind)} holds none out: give it 'holdout: N'")
-        counts = dict(zip(self.positions(), self.model_instance().digit_counts))
+        counts = dict(zip(self.positions(), self.digit_counts()))
         self.constraints()  # raises on unknown position names
         for name, digit in self.search.fixed.items():
             if not 0 <= digit < counts[name]:
@@ -247,20 +255,27 @@ class JobSpec(_Strict):
         """The spec's model (its module choices, latent size and alternatives) in ``state``."""
         return _model(self.model, state, self.module.config(), self.latent_dim, self.alternatives)
 
+    def graph(self) -> Graph:
+        """The spec's model as a graph (with its alternatives): positions and choices, no torch."""
+        return _graph(self.model, self.alternatives)
+
     def positions(self) -> tuple[str, ...]:
-        return self.model_instance().positions
+        return self.graph().names
+
+    def digit_counts(self) -> tuple[int, ...]:
+        """How many choices each position has (the model's ``digit_counts``, from its graph alone)."""
+        return StateEncoding(len(self.module.config().choices)).arities(self.graph())
 
     def constraints(self) -> Constraints:
-        model = self.model_instance()
         return Constraints.from_names(
             self.positions(), fixed=self.search.fixed, allowed=self.search.allowed,
-            max_neural=self.search.max_neural, digit_counts=model.digit_counts,
+            max_neural=self.search.max_neural, digit_counts=self.digit_counts(),
             neural=range(1, self.module.config().digits),
         )
 
     def digits(self) -> int:
         """m of the search's hypercube: the most choices any position has."""
-        return max(self.model_instance().digit_counts)
+        return max(self.digit_counts())
 
     def choice_names(self) -> dict[tuple[str, int], str]:
         """(position, digit) -> choice name, for trails (empty for binary states)."""
@@ -268,9 +283,13 @@ class JobSpec(_Strict):
 
     def initial_bundle(self, material_names) -> Bundle:
         """Round 0's parent: the analytical model, every material at the paper's initial values."""
+        from neuenh.checkpoint import Bundle
+
         return Bundle.initial(self.model, material_names, self.module.config(), self.latent_dim, self.alternatives)
 
     def train_config(self, epochs: int | None = None) -> TrainConfig:
+        from neuenh.train import TrainConfig
+
         return TrainConfig(epochs=self.search.epochs_per_round if epochs is None else epochs,
                            lr=self.train.lr, batch_size=self.train.batch_size, lr_final=self.train.lr_final,
                            compile=self.train.compile, precision=self.train.precision,
@@ -285,6 +304,12 @@ class JobSpec(_Strict):
 def neural_weights(spec: JobSpec, state: str) -> int:
     """Neural weights of ``state`` of the spec's model (its modules and latent size)."""
     return spec.model_instance(state).n_weights()
+
+
+@functools.lru_cache(maxsize=64)
+def _graph(model: str, alternatives: bool) -> Graph:
+    """Built once per model (specs are validated and asked for positions often); callers must not change it."""
+    return get_graph(model, alternatives=alternatives)[0]
 
 
 @functools.lru_cache(maxsize=512)

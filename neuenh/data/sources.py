@@ -30,7 +30,9 @@ an error. Paths are relative to the current directory. Material names are the fi
 network names for NBRDF, ``<capture>[row,col]`` for texels), with ``prefix`` prepended; they must
 be unique across all sources of a job.
 
-The bytes of materialised arrays: ``TrainingData.nbytes``.
+The bytes of materialised arrays: ``TrainingData.nbytes``. Checking a spec imports no torch
+(``neuenh-client submit`` does it before it sends the job): the readers, the sampling and the
+synthetic materials are imported where a source is built.
 """
 
 from __future__ import annotations
@@ -38,19 +40,21 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
-from typing import Callable, Annotated, Literal, Sequence, Union
+from typing import TYPE_CHECKING, Callable, Annotated, Literal, Sequence, Union
 
-import torch
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from .samples import TrainingData
 from .errors import DataError
-from .capture import read_capture
-from .measured import detect_format, load_measured
-from .nbrdf import load_nbrdf, nbrdf_material
-from .directions import MIRROR_DEG, Sampling
-from .samples import Samples, sample_materials
-from .synthetic import ZOO_FAMILIES, synthetic_ggx, synthetic_zoo
+
+if TYPE_CHECKING:
+    from .directions import Sampling
+    from .samples import Samples, TrainingData
+
+# "near the mirror direction" in degrees (``neuenh.data.directions.MIRROR_DEG``) and the zoo's families
+# by name (``neuenh.data.synthetic.ZOO_FAMILIES`` draws them), written here for a spec's check without
+# torch; tests/neuenh/data/test_sources.py keeps each equal to its source.
+MIRROR_DEG = 10.0
+ZOO_FAMILY_NAMES = ("conductor", "two_lobes", "clear_coat", "sheen", "retro", "oren_nayar")
 
 _KIND_LABEL = {"rgl": "an RGL .bsdf (tensor_file)", "merl": "a MERL .binary", "nbrdf": "NBRDF weights",
                "table": "a measurement table", "capture": "an image-based capture", "exr": "an OpenEXR image",
@@ -98,6 +102,8 @@ class _Continuous(_Source):
 
     @property
     def sampling(self) -> Sampling:
+        from .directions import Sampling
+
         return Sampling(self.near_mirror, self.every_azimuth)
 
     def load_materials(self) -> list:
@@ -105,6 +111,8 @@ class _Continuous(_Source):
         raise NotImplementedError
 
     def build(self, check: Callable[[], None] | None = None) -> Samples:
+        from .samples import sample_materials
+
         return sample_materials(self.load_materials(), self.samples, self.seed, check=check, sampling=self.sampling)
 
 
@@ -116,17 +124,19 @@ class SyntheticZoo(_Continuous):
     families: list[str] | None = None
 
     def model_post_init(self, _context) -> None:
-        unknown = [f for f in self.families or () if f not in ZOO_FAMILIES]
+        unknown = [f for f in self.families or () if f not in ZOO_FAMILY_NAMES]
         if unknown:
-            raise ValueError(f"unknown zoo families {unknown}; available: {list(ZOO_FAMILIES)}")
+            raise ValueError(f"unknown zoo families {unknown}; available: {list(ZOO_FAMILY_NAMES)}")
 
     def load_materials(self) -> list:
+        from .synthetic import synthetic_zoo
+
         families = tuple(self.families) if self.families else None
         return self._named(synthetic_zoo(self.materials, self.seed, families))
 
     def strata(self, n_materials: int) -> list[int]:
         # synthetic_zoo cycles through the families: material i is of family i mod their count
-        return [i % len(self.families or ZOO_FAMILIES) for i in range(n_materials)]
+        return [i % len(self.families or ZOO_FAMILY_NAMES) for i in range(n_materials)]
 
 
 class SyntheticGGX(_Continuous):
@@ -137,6 +147,8 @@ class SyntheticGGX(_Continuous):
     noise: float = Field(0.1, ge=0.0)
 
     def load_materials(self) -> list:
+        from .synthetic import synthetic_ggx
+
         return self._named(synthetic_ggx(self.materials, self.seed, self.noise))
 
 
@@ -163,6 +175,8 @@ def _unique(values: list[str] | None, what: str) -> list[str] | None:
 
 def _load(path: str, kind: str):
     """``load_measured(path)``, checking that the content is of ``kind``."""
+    from .measured import detect_format, load_measured
+
     found = detect_format(path)
     if found != kind:
         raise DataError(f"{path}: expected {_KIND_LABEL[kind]} for a '{kind}' source, but the file holds "
@@ -183,6 +197,9 @@ class NBRDFSource(_Files, _Continuous):
         return _unique(v, "NBRDF materials")
 
     def load_materials(self) -> list:
+        from .measured import detect_format
+        from .nbrdf import load_nbrdf, nbrdf_material
+
         found = detect_format(self.path)
         if found != "nbrdf":
             raise DataError(f"{self.path}: expected NBRDF weights for an 'nbrdf' source, but the file holds "
@@ -229,6 +246,8 @@ class TableSource(_PathsSource):
     _kind = "table"
 
     def build(self, check: Callable[[], None] | None = None) -> Samples:
+        from .samples import sample_materials
+
         materials = self._named([_load(p, self._kind) for p in self.paths])
         return sample_materials(materials, self.samples or max(len(m) for m in materials), self.seed, check=check)
 
@@ -251,6 +270,9 @@ class EXRCaptureSource(_Files):
         return v
 
     def build(self, check: Callable[[], None] | None = None) -> Samples:
+        from .capture import read_capture
+        from .samples import sample_materials
+
         capture = read_capture(self.path, self.region, self.stride)
         materials = self._named(capture.materials())
         return sample_materials(materials, self.samples or capture.images, self.seed, check=check)
@@ -268,6 +290,8 @@ def materialise(sources: Sequence[Source], val_fraction: float, seed: int,
     """All sources' samples, concatenated, split per material into training and validation.
     ``check`` is called before each material is sampled (it may raise to abandon the work, e.g.
     when the job is cancelled while preparing)."""
+    from .samples import Samples, TrainingData
+
     if not sources:
         raise ValueError("a job needs at least one data source")
     parts = [s.build(check) for s in sources]
@@ -298,6 +322,8 @@ def held_out(source: Source, n_materials: int) -> list[int]:
     if source.holdout >= n_materials:
         raise ValueError(f"a {source.source} source holds out {source.holdout} of its {n_materials} materials; "
                          "at least one must remain to train on")
+    import torch
+
     order = torch.randperm(n_materials, generator=torch.Generator().manual_seed(source.seed)).tolist()
     kinds = source.strata(n_materials) or [0] * n_materials
     earlier: Counter[int] = Counter()  # kind -> how many of it come earlier in the permutation

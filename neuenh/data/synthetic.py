@@ -18,6 +18,7 @@ from typing import Callable
 import torch
 
 from ..models.microfacet import ggx_distribution, smith_shadowing
+from ..ops import TORCH
 from ..shading import COS_EPS, Shading, make_shading
 from .directions import Sampling
 
@@ -57,7 +58,7 @@ class AnalyticMaterial:
 def _shading(wi, wo, **params) -> Shading:
     n = wi.shape[0]
     values = {k: torch.as_tensor(v, dtype=wi.dtype).reshape(1, -1).expand(n, -1) for k, v in params.items()}
-    return make_shading(wi, wo, values)
+    return make_shading(wi, wo, values, TORCH)
 
 
 def _ggx_lobe(wi, wo, alpha_x, alpha_y, t_theta=0.0):

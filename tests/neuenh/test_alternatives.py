@@ -22,7 +22,7 @@ from neuenh.data.synthetic import dielectric_fresnel
 from neuenh.graph import Term
 from neuenh.materials import MaterialParams, MaterialTable
 from neuenh.models import get_model
-from neuenh.ops import NUMPY
+from neuenh.ops import NUMPY, TORCH
 from neuenh.search import Constraints, hamming_ball
 from neuenh.shading import make_shading
 
@@ -116,7 +116,7 @@ def d_term(choice: str, h: np.ndarray, **values) -> np.ndarray:
               for s in model.specs}
     expr = model.chosen_terms().get("D") or model.graph.positions[model.graph.index["D"]]
     hh = torch.as_tensor(h)
-    return expr.formula(make_shading(hh, hh, params)).numpy()[:, 0]
+    return expr.formula(make_shading(hh, hh, params, TORCH)).numpy()[:, 0]
 
 
 def projected_area(choice: str, ax: float, ay: float, **values) -> float:
@@ -302,7 +302,7 @@ def test_specialize_the_numpy_backend_and_a_module_beside_alternatives_equal_eva
             np.testing.assert_allclose(
                 np.asarray(term.formula(make_shading(wi, wo, values, NUMPY))),
                 term.formula(make_shading(torch.as_tensor(wi), torch.as_tensor(wo),
-                                          {k: torch.as_tensor(v) for k, v in values.items()})).numpy(),
+                                          {k: torch.as_tensor(v) for k, v in values.items()}, TORCH)).numpy(),
                 rtol=1e-10, err_msg=expr.name)
 
 

@@ -101,3 +101,22 @@ def test_alternatives_give_each_position_its_own_digits_and_names():
     assert constraints.neural == frozenset({1}) and constraints.max_neural == 2
     assert spec.choice_names()[("F", 2)] == "conductor"
     assert parse_spec(BASE).choice_names() == {}  # binary states keep '+G'
+
+
+@pytest.mark.parametrize("alternatives, hidden", [(False, None), (True, None), (True, [[8], [16, 16]])])
+def test_a_spec_reads_its_models_positions_and_choices_from_the_graph_as_the_model_has_them(alternatives, hidden):
+    """The spec is checked against its model's graph, without building the torch model: the same
+    positions and the same number of choices at each as the model the search trains."""
+    module = {"hidden": hidden[0], "alternatives": hidden[1:]} if hidden else {}
+    spec = parse_spec({**BASE, "alternatives": alternatives, "module": module})
+    model = spec.model_instance()
+    assert spec.positions() == model.positions and spec.digit_counts() == model.digit_counts
+
+
+def test_the_precisions_a_spec_offers_are_those_training_runs_at():
+    from typing import get_args
+
+    from neuenh.train import PRECISIONS
+    from neuenh_service.orchestrator.spec import Precision
+
+    assert get_args(Precision) == tuple(PRECISIONS)

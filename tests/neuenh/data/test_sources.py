@@ -121,6 +121,15 @@ def test_held_out_materials_are_a_fixed_set_kept_out_of_training(files):
     assert materialise([source(**zoo)], 0.2, seed=5).holdout is None
 
 
+def test_a_specs_names_for_the_data_are_the_ones_the_data_uses():
+    """``sources.py`` writes the mirror cone and the zoo's families out so that a spec is checked
+    without torch: they are those the sampling and the zoo use."""
+    from neuenh.data import directions, sources
+
+    assert sources.MIRROR_DEG == directions.MIRROR_DEG
+    assert sources.ZOO_FAMILY_NAMES == tuple(ZOO_FAMILIES)
+
+
 @pytest.mark.parametrize("families", [None, ["conductor", "sheen", "retro"]])
 def test_a_zoo_holds_out_every_family_before_a_second_of_any(families):
     """The zoo's held-out materials cover its families round-robin (``held_out``): as many as there are
