@@ -83,7 +83,7 @@ def _read_done(folder: Path) -> dict[str, MaterialPlan]:
     from neuenh.scene import MaterialPlan
 
     out = {}
-    for path in sorted(p for p in folder.glob("*.json") if not is_temporary(p)) if folder.is_dir() else []:
+    for path in sorted(p for p in folder.glob("*.json") if not is_temporary(p)):  # none when the folder is absent
         try:
             plan = MaterialPlan.from_json(json.loads(path.read_text()))
         except (ValueError, KeyError, TypeError):

@@ -27,6 +27,8 @@ Data = bytes | bytearray | memoryview | str | Callable[[Path], object]
 
 __all__ = ["atomic_write", "atomic_write_digest", "is_temporary"]
 
+_TEMPORARY = ".tmp"  # the suffix a temporary file's name carries before the target's own
+
 
 def atomic_write(path: str | os.PathLike, data: Data, *, mode: int | None = 0o644, prefix: str | None = None) -> Path:
     """Write ``data`` to ``path`` atomically (module doc); returns ``path``. ``mode``: the file's
@@ -45,12 +47,12 @@ def atomic_write_digest(path: str | os.PathLike, data: Data, *, mode: int | None
 def is_temporary(path: str | os.PathLike) -> bool:
     """Whether ``path`` is named as ``atomic_write``'s temporary files are (default prefix):
     ``.<name>.<random>.tmp<suffix>``, possibly left half-written by a killed writer."""
-    name = Path(path).name
-    return name.startswith(".") and (name.endswith(".tmp") or name.removesuffix(Path(name).suffix).endswith(".tmp"))
+    path = Path(path)  # the random part has no dot: ``_TEMPORARY`` is the last suffix or the one before it
+    return path.name.startswith(".") and _TEMPORARY in path.suffixes[-2:]
 
 
 def _write(path: Path, data: Data, mode: int | None, prefix: str | None, digest: bool) -> str:
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=prefix or f".{path.name}.", suffix=f".tmp{path.suffix}")
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=prefix or f".{path.name}.", suffix=_TEMPORARY + path.suffix)
     tmp = Path(name)
     try:
         if callable(data):
