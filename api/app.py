@@ -40,7 +40,7 @@ from .middleware import AuthFirst, BodyLimit, HostCheck
 from .metrics import ServiceMetrics
 from .routes import cluster, dashboard, docs, fit, health, jobs, metrics, plans
 from .settings import Settings
-from .stores import artifact_store
+from .stores import artifact_store, owner_lock
 from .job_queue import JobQueue
 from .limits import plan_problems
 from .plan_queue import PlanQueue
@@ -55,10 +55,6 @@ def ray_executor(settings: Settings) -> Executor:
     from neuenh_service.workers.ray_executor import RayExecutor  # Ray only when the service really starts
 
     return RayExecutor(address=settings.ray_address, num_cpus=settings.ray_num_cpus)
-
-
-def owner_lock(settings: Settings) -> OwnerLock:
-    return OwnerLock(settings.data_dir / "owner.lock", owner="neuenh serve")
 
 
 def create_app(settings: Settings | None = None, *, executor_factory: ExecutorFactory | None = None,

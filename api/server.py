@@ -22,9 +22,11 @@ def _print_now(line: str) -> None:
 def serve(settings: Settings, announce: Callable[[str], None] = _print_now) -> None:
     import uvicorn
 
-    from .app import artifact_store, create_app, owner_lock
     from .auth import TokenTable
+    from .stores import artifact_store, owner_lock
 
+    # every check before the app is imported: a mistake is one line in a fraction of a second, not
+    # after importing torch (~2-3 s of CPU)
     check_listen_address(settings)
     TokenTable(settings)  # a bad tokens file is one line now, not a startup traceback
     artifact_store(settings).close()  # a wrong bucket or endpoint is one line now, not a startup traceback
@@ -39,6 +41,8 @@ def serve(settings: Settings, announce: Callable[[str], None] = _print_now) -> N
         host, port = sock.getsockname()[:2]
         url = f"http://{'[' + host + ']' if ':' in host else host}:{port}"
         announce(f"neuenh serve: dashboard {url}/  API {url}/v1  docs {url}/docs  data {settings.data_dir}")
+        from .app import create_app
+
         uvicorn.Server(uvicorn_config(create_app(settings, lock=lock), settings)).run(sockets=[sock])
     finally:
         lock.release()

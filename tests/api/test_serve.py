@@ -11,6 +11,7 @@ import subprocess
 import time
 
 
+from cli_runs import run_probing_torch
 from jobspecs import tiny_spec
 from live_api import wait_for
 from serve_process import NEUENH, REPO, ServeProcess, clean_env
@@ -45,9 +46,13 @@ def test_serve_runs_jobs_on_ray_owns_its_store_and_shuts_down_cleanly(tmp_path):
         assert job["status"] in ("STOPPED", "CONVERGED"), job["error"]
         assert {cand["node"] for r in rounds for cand in r["candidates"]} == {node["id"]}  # trained by Ray
 
-        for second in ([NEUENH, "serve", "--port", "0", "--data-dir", str(tmp_path / "data")],
-                       [NEUENH, "search", str(REPO / "examples" / "quickstart.yaml"), "--data-dir", str(tmp_path / "data")]):
-            refused = subprocess.run(second, capture_output=True, text=True, cwd=REPO, env=clean_env(), timeout=60)
+        refused_serve, imported_torch = run_probing_torch("neuenh_service.cli.main", "serve", "--port", "0",
+                                                          "--data-dir", tmp_path / "data", cwd=REPO, env=clean_env())
+        assert not imported_torch, "serve refuses an owned store before importing the app"
+        refused_search = subprocess.run([NEUENH, "search", str(REPO / "examples" / "quickstart.yaml"), "--data-dir",
+                                         str(tmp_path / "data")], capture_output=True, text=True, cwd=REPO,
+                                        env=clean_env(), timeout=60)
+        for refused in (refused_serve, refused_search):
             assert refused.returncode == 2, refused.stderr
             [line] = refused.stderr.strip().splitlines()
             assert f"in use by neuenh serve (pid {server.proc.pid}" in line and "Traceback" not in refused.stderr

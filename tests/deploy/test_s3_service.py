@@ -1,17 +1,18 @@
 """The service with its artifacts in a bucket (``NEUENH_S3_*``): checkpoints and the cached dataset
 land in the bucket, not in the data directory, and the model downloads from there. A missing
-bucket or an unreachable endpoint stops ``neuenh serve`` before it starts, in one line."""
+bucket or an unreachable endpoint stops ``neuenh serve`` before it starts (before it imports torch),
+in one line."""
 
 from __future__ import annotations
 
 import socket
-import subprocess
 
+from cli_runs import run_probing_torch
 from jobspecs import tiny_spec
 from live_api import running_server, wait_for
 from neuenh_service.orchestrator.dataset import dataset_key
 from s3_server import CREDENTIALS
-from serve_process import NEUENH, REPO, clean_env
+from serve_process import REPO, clean_env
 from neuenh_service.storage import SQLiteJobStore
 
 S3_SETTINGS = {"s3_access_key_id": CREDENTIALS["aws_access_key_id"],
@@ -38,11 +39,12 @@ def test_artifacts_live_in_the_bucket(tmp_path, s3_server):
 
 
 def refused_serve(tmp_path, **env: str) -> str:
-    run = subprocess.run([NEUENH, "serve", "--port", "0", "--data-dir", str(tmp_path / "data")],
-                         capture_output=True, text=True, cwd=REPO, timeout=60,
-                         env=clean_env(**{f"NEUENH_{k.upper()}": v for k, v in env.items()}))
+    """``neuenh serve``'s one line; it refuses before importing the app (torch, Ray)."""
+    run, imported_torch = run_probing_torch("neuenh_service.cli.main", "serve", "--port", "0", "--data-dir",
+                                            tmp_path / "data", cwd=REPO,
+                                            env=clean_env(**{f"NEUENH_{k.upper()}": v for k, v in env.items()}))
     assert run.returncode == 2, run.stdout + run.stderr
-    assert "Traceback" not in run.stderr
+    assert "Traceback" not in run.stderr and not imported_torch
     [line] = run.stderr.strip().splitlines()
     return line
 
