@@ -24,7 +24,7 @@ from neuenh.files import atomic_write
 from neuenh_service.storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore, trained_epochs
 
 from .progress import ProgressDisplay
-from .tables import against_plain
+from .tables import against_plain, still_learning
 
 SUCCESS = {JobStatus.CONVERGED, JobStatus.STOPPED}
 
@@ -143,6 +143,7 @@ def summarise(job, jobs, artifacts, spec, args, baseline: bool) -> dict:
         plain = train_plain_baseline(spec, prepare_dataset(spec, artifacts)[0], epochs)
         summary["plain_val_loss_same_epochs"] = plain.val_loss
         summary["plain_epochs"] = epochs
+        summary["plain_epoch_losses"] = plain.epoch_losses
         summary["improvement"] = 1.0 - final.val_loss / plain.val_loss
     return summary
 
@@ -164,5 +165,8 @@ def format_summary(s: dict) -> str:
             plain = s["plain_val_loss_same_epochs"]
             words = against_plain(s["val_loss"], plain, s["state"], f"plain {s['model']}")
             lines.append(f"  plain {s['model']} trained the same {s['plain_epochs']} epochs: {plain:.5f}  -> {words}")
+            caveat = still_learning(f"plain {s['model']}", s["plain_epoch_losses"])
+            if caveat:
+                lines.append(f"  {'':14s}{caveat}")
         lines += [f"  bundle        {s['bundle']}", f"  history       {s['history']}"]
     return "\n".join(lines)

@@ -28,6 +28,31 @@ def against_plain(enhanced: float, plain: float, state: str, plain_name: str = "
     return f"the enhancement does not lower the validation loss: {100 * (enhanced / plain - 1):.1f}% above {plain_name}'s"
 
 
+# A training loss that still fell by more than this over the last quarter of its epochs had not
+# levelled off (the quickstart's plain GGX: 22 % at 30 epochs, 12 % at 60, 2 % at 200;
+# docs/BENCHMARKS.md, "Search rounds and scaling", stop 48).
+STILL_LEARNING_DROP = 0.05
+
+
+def last_quarter_drop(epoch_losses: Sequence[float]) -> float | None:
+    """How much a training loss fell over the last quarter of its epochs, relative to where that
+    quarter started (1 - last / earlier); None for fewer than 4 epochs or a loss that was not positive."""
+    quarter = len(epoch_losses) // 4
+    if quarter == 0 or not epoch_losses[-1 - quarter] > 0:
+        return None
+    return 1.0 - epoch_losses[-1] / epoch_losses[-1 - quarter]
+
+
+def still_learning(name: str, epoch_losses: Sequence[float]) -> str:
+    """The caveat a comparison at equal epochs needs when ``name``'s training loss had not levelled
+    off (it may order the other way trained longer), else ""."""
+    drop = last_quarter_drop(epoch_losses)
+    if drop is None or drop <= STILL_LEARNING_DROP:
+        return ""
+    return (f"at equal epochs only: {name}'s training loss still fell {100 * drop:.1f}% over its last "
+            f"{len(epoch_losses) // 4} epochs")
+
+
 def fit_report(report: dict) -> str:
     """A fit's report (``neuenh fit --json``'s, or ``POST /v1/jobs/{id}/fit``'s answer): a line for
     the fit, then one per material with its loss, its parameter count and capacity, and its analytical

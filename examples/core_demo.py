@@ -25,7 +25,7 @@ from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
 from neuenh.fit import fit_materials
 from neuenh.train import TrainConfig, train_candidate
 from neuenh.data.samples import TrainingData
-from neuenh_service.cli.tables import against_plain
+from neuenh_service.cli.tables import against_plain, still_learning
 
 PLAIN, PAPER = "00000000000", "00011100100"
 
@@ -52,6 +52,9 @@ def main() -> None:
         print(f"  {label:13s} {r.bundle.model.describe():42s} val log-L1 {r.val_loss:.4f}  "
               f"({r.bundle.model.n_weights()} weights, {r.wall_s:.0f} s)")
     print(f"{against_plain(results['enhanced GGX'].val_loss, results['plain GGX'].val_loss, PAPER)} at the same training budget")
+    caveat = still_learning("plain GGX", results["plain GGX"].epoch_losses)
+    if caveat:
+        print(caveat)
 
     bundle_dir = results["enhanced GGX"].bundle.save(args.out / "enhanced-ggx")
     print(f"enhanced model saved to {bundle_dir}/ (model.json, weights.safetensors, materials.safetensors)")

@@ -95,7 +95,7 @@ def summarise(history: dict, results: Path, spec_path: Path, data_dir: Path) -> 
     """The final state, and its gain over plain GGX trained for the same number of epochs on the
     same data (trained here, after the service stopped, so the comparison is fair)."""
     from neuenh.checkpoint import Bundle
-    from neuenh_service.cli.tables import against_plain
+    from neuenh_service.cli.tables import against_plain, still_learning
     from neuenh_service.orchestrator.dataset import prepare_dataset
     from neuenh_service.orchestrator.runner import train_plain_baseline
     from neuenh_service.orchestrator.spec import load_spec
@@ -113,8 +113,11 @@ def summarise(history: dict, results: Path, spec_path: Path, data_dir: Path) -> 
     print(f"val log-L1   {final:.5f} after {epochs} epochs; training plain GGX the same {epochs} epochs ...",
           end=" ", flush=True)
     data, _ = prepare_dataset(spec, LocalArtifactStore(data_dir / "artifacts"))
-    plain = train_plain_baseline(spec, data, epochs).val_loss
-    print(f"{plain:.5f}\n             -> {against_plain(final, plain, history['current_state'])}")
+    baseline = train_plain_baseline(spec, data, epochs)
+    print(f"{baseline.val_loss:.5f}\n             -> {against_plain(final, baseline.val_loss, history['current_state'])}")
+    caveat = still_learning("plain GGX", baseline.epoch_losses)
+    if caveat:
+        print(f"                {caveat}")
     print(f"model        {shown(results / 'model')}  (load with neuenh.checkpoint.Bundle.load, "
           f"or: neuenh fit --model {shown(results / 'model')} measurements.npz)")
     print(f"history      {shown(results / 'history.json')}")

@@ -118,6 +118,23 @@ def test_the_summary_credits_an_enhancement_only_when_there_is_one(state, val_lo
 
     summary = {"job": "j", "status": "CONVERGED", "rounds": 1, "state": state, "formula": "M + S", "weights": 0,
                "path": [state], "val_loss": val_loss, "round0_plain_val_loss": 0.1, "model": "ggx",
-               "plain_val_loss_same_epochs": 0.03405, "plain_epochs": 60, "bundle": "b", "history": "h"}
+               "plain_val_loss_same_epochs": 0.03405, "plain_epochs": 60, "plain_epoch_losses": [0.05] * 60,
+               "bundle": "b", "history": "h"}
     (line,) = [ln for ln in format_summary(summary).splitlines() if "trained the same 60 epochs" in ln]
     assert words in line
+    assert "at equal epochs only" not in format_summary(summary)  # a baseline that had levelled off
+
+
+def test_the_summary_says_when_the_baseline_was_still_learning():
+    """Plain GGX's training loss 1/(e + 1) over 32 epochs fell 1 - 24/32 = 25 % over the last 8: the
+    comparison at equal epochs is said to hold at that budget only, on the line after it."""
+    from neuenh_service.cli.search import format_summary
+
+    summary = {"job": "j", "status": "STOPPED", "rounds": 3, "state": "00000010001", "formula": "M + S", "weights": 0,
+               "path": ["00000010001"], "val_loss": 0.04816, "round0_plain_val_loss": 0.1, "model": "ggx",
+               "plain_val_loss_same_epochs": 0.06082, "plain_epochs": 32,
+               "plain_epoch_losses": [1 / (e + 1) for e in range(32)], "bundle": "b", "history": "h"}
+    lines = format_summary(summary).splitlines()
+    at = next(i for i, ln in enumerate(lines) if "trained the same 32 epochs" in ln)
+    assert "the enhancement lowers the validation loss by 20.8%" in lines[at]
+    assert lines[at + 1].strip() == "at equal epochs only: plain ggx's training loss still fell 25.0% over its last 8 epochs"
