@@ -2,6 +2,7 @@
 
     neuenh fit --model ggx measurements.npz [more.csv ...] [--capacity auto|latent|...] [--method fast|paper]
                [--jobs N] [--json] [-o DIR] [--test held_out.npz [more_held_out.csv ...]] [--predictions out.npz]
+    neuenh fit --model enhanced-ggx material.bsdf [more.binary ...] [--samples 3000] [--test-samples 1000]
 
 Each table is one material (``.npz`` with ``wi``, ``wo``, ``f_r``, or CSV; see neuenh.data.table). The
 module weights of a bundle stay frozen; only per-material parameters are optimised (neuenh.fit). A
@@ -14,6 +15,12 @@ weights (last layer, low rank), then fits the chosen one to
 all of them (about twice the time of ``latent``). The capacity and the material's parameter count are
 reported. ``-o DIR`` writes a bundle of the
 model with the fitted materials.
+
+A measurement may also be a measured file (an RGL ``.bsdf``, a MERL ``.binary``, told by content):
+``--samples`` pairs are drawn from it (default 3,000), ``--near-mirror`` of them with the half vector
+near the normal (default 0.5, where a glossy material's highlight is), seeded by ``--seed``; and
+``--test-samples N`` draws N more, independently, to measure each such material held out (the
+protocol of ``neuenh.study.heldout.draw_fit_test``).
 
 ``--test`` takes one held-out table per fitted table, in the same order: the i-th held-out table is
 measured with the parameters fitted to the i-th table, whatever its file name (the material keeps
@@ -31,6 +38,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from neuenh.capacities import CAPACITY_CHOICES
@@ -45,7 +53,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     """``neuenh fit``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
     p.description = __doc__
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.add_argument("tables", nargs="+", metavar="MEASUREMENTS", help="one table (.npz or CSV) per material")
+    p.add_argument("tables", nargs="+", metavar="MEASUREMENTS",
+                   help="one table (.npz or CSV) or measured file (RGL .bsdf, MERL .binary) per material")
     p.add_argument("--model", default="ggx",
                    help=f"an analytical model ({', '.join(available_models())}), a shipped model "
                         f"({', '.join(shipped_models()) or 'none'}) or a bundle directory")
@@ -77,7 +86,14 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="held-out tables, one per fitted table in the same order: adds each material's "
                         "held-out log-L1")
     p.add_argument("--predictions", type=Path, metavar="OUT.npz",
-                   help="write the fitted model's f_r at the held-out directions (needs --test)")
+                   help="write the fitted model's f_r at the held-out directions (needs --test or --test-samples)")
+    p.add_argument("--samples", type=int, default=DRAW.samples, metavar="N",
+                   help=f"pairs drawn from each measured file (default {DRAW.samples:,}; tables have their rows)")
+    p.add_argument("--near-mirror", type=float, default=DRAW.near_mirror, metavar="F",
+                   help=f"the share of those pairs with the half vector near the normal (default {DRAW.near_mirror})")
+    p.add_argument("--seed", type=int, default=DRAW.seed, help=f"the draws' seed (default {DRAW.seed})")
+    p.add_argument("--test-samples", type=int, default=None, metavar="N",
+                   help="held-out pairs drawn independently from each measured file: adds its held-out log-L1")
     p.set_defaults(run=run)
 
 
@@ -95,23 +111,21 @@ def run(args) -> int:
         torch.set_num_threads(args.threads)
     if args.jobs < 1:
         raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
+    _check_measurement_args(args)
     _check_heldout_args(args)
     options = FitOptions(method=args.method, capacity=args.capacity, epochs=args.epochs,
                          lbfgs_iterations=args.lbfgs_iterations, starts=args.starts)
     model, trained = load_model(args.model, "--model")
-    samples = Samples.concat([read_table(t) for t in args.tables])
+    samples, test = _measurements(args)
     if len(set(samples.names)) != len(samples.names):
-        raise ValueError(f"two tables share a material name: {samples.names}")
-    test = None
-    if args.test:
-        test = Samples.concat([read_table(t, name=samples.names[i]) for i, t in enumerate(args.test)])
+        raise ValueError(f"two measurements share a material name: {samples.names}")
     result = fit_in_processes(model, samples, options.protocol_for(model), args.jobs, trained=trained)
     report = result.report(model, samples)
     metrics: dict = {"fit_loss": result.losses}
     if test is not None:
         heldout = heldout_log_l1(model, result, test)
         counts = test.counts().tolist()
-        for entry, loss, count, path in zip(report["materials"], heldout, counts, args.test):
+        for entry, loss, count, path in zip(report["materials"], heldout, counts, args.test or args.tables):
             entry.update(heldout_log_l1=loss, heldout_samples=count, heldout_table=str(path))
         metrics["heldout_log_l1"] = heldout
     if args.predictions:
@@ -125,6 +139,9 @@ def run(args) -> int:
                              f"this model cannot hold; fit with --capacity latent, or --model with the analytical model")
         provenance = {"fitted_from": [str(t) for t in args.tables], "fit_protocol": result.protocol,
                       "fitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+        if args.drawn:
+            provenance["drawn"] = {"samples": args.samples, "near_mirror": args.near_mirror, "seed": args.seed,
+                                   "test_samples": args.test_samples}
         if args.test:
             provenance["heldout_tables"] = [str(t) for t in args.test]
         Bundle(model, result.materials, provenance=provenance, metrics=metrics).save(args.output)
@@ -133,10 +150,72 @@ def run(args) -> int:
     return 0
 
 
+@dataclass(frozen=True)
+class Draw:
+    """How pairs are drawn from a measured file (the README's protocol: 3,000 pairs, half of them near
+    the mirror direction)."""
+
+    samples: int = 3000
+    near_mirror: float = 0.5
+    seed: int = 0
+
+
+DRAW = Draw()
+
+
+def _measurements(args):
+    """The fit's samples, a material per MEASUREMENT (a table's rows, or a measured file's draw), and
+    the held-out samples (``--test`` tables, or ``--test-samples`` independent draws), or None."""
+    from neuenh.data.measured import load_measured
+    from neuenh.data.samples import Samples
+    from neuenh.data.table import read_table
+    from neuenh.study.heldout import draw_fit_test
+
+    if not args.drawn:
+        samples = Samples.concat([read_table(t) for t in args.tables])
+        test = None if not args.test else Samples.concat([read_table(t, name=samples.names[i])
+                                                          for i, t in enumerate(args.test)])
+        return samples, test
+    # without --test-samples one held-out pair is drawn and dropped: the fit's draw stays the same either way
+    draws = [draw_fit_test(load_measured(t), args.samples, args.test_samples or 1, args.seed, args.near_mirror)
+             for t in args.tables]
+    return (Samples.concat([fit for fit, _, _ in draws]),
+            Samples.concat([test for _, test, _ in draws]) if args.test_samples else None)
+
+
+def _check_measurement_args(args) -> None:
+    """Usage errors of the measurements and their draws, found before any fitting: tables and measured
+    files are not mixed (a table has its own rows, a measured file is drawn), and each kind's held-out
+    option is its own. Sets ``args.drawn``: the measurements are measured files."""
+    from neuenh.data.formats import MEASURED_NOT, detect_format
+
+    kinds = {t: detect_format(t) for t in args.tables}
+    for t, kind in kinds.items():
+        if kind not in ("table", "rgl", "merl"):
+            what = MEASURED_NOT.get(kind, "NBRDF network weights (a model, not measurements)")
+            raise ValueError(f"{t}: {what}; neuenh fit reads measurement tables (.npz, CSV), RGL .bsdf and "
+                             "MERL .binary files")
+    args.drawn = any(kind != "table" for kind in kinds.values())
+    if args.drawn and "table" in kinds.values():
+        raise ValueError("measurement tables and measured files (RGL, MERL) in one fit: fit them separately "
+                         "(a table has its rows, a measured file is drawn)")
+    if args.drawn and args.test:
+        raise ValueError("--test takes held-out tables of tables; measured files are measured held out with "
+                         "--test-samples N (an independent draw)")
+    if not args.drawn and args.test_samples is not None:
+        raise ValueError("--test-samples draws from measured files (RGL, MERL); a table's held-out rows are a "
+                         "--test table")
+    if args.samples < 1 or (args.test_samples is not None and args.test_samples < 1):
+        raise ValueError(f"--samples and --test-samples must be at least 1, got {args.samples} and {args.test_samples}")
+    if not 0.0 <= args.near_mirror <= 1.0:
+        raise ValueError(f"--near-mirror is a share of the pairs, in [0, 1]; got {args.near_mirror}")
+
+
 def _check_heldout_args(args) -> None:
     """Usage errors of ``--test``/``--predictions``, found before any fitting."""
-    if args.predictions and not args.test:
-        raise ValueError("--predictions needs --test: predictions are written at the held-out directions")
+    if args.predictions and not (args.test or args.test_samples):
+        raise ValueError("--predictions needs --test or --test-samples: predictions are written at the held-out "
+                         "directions")
     if not args.test:
         return
     if len(args.test) != len(args.tables):

@@ -225,3 +225,74 @@ def test_the_capacities_by_name_are_the_ones_the_fit_frees():
     from neuenh.fit.capacity import CAPACITIES
 
     assert tuple(CAPACITIES) == CAPACITY_NAMES
+
+
+# -- measured files (RGL, MERL): drawn, fitted, measured on an independent draw -----------------
+@pytest.fixture(scope="module")
+def merl_ggx(tmp_path_factory):
+    """A MERL ``.binary`` of an isotropic GGX material (alpha 0.3, no noise) and the material."""
+    from neuenh.data.merl import write_merl
+
+    (material,) = synthetic_ggx(1, seed=8, noise_sigma=0.0)
+    path = write_merl(tmp_path_factory.mktemp("merl") / "gold.binary",
+                      lambda wi, wo: material.evaluate(wi, wo).numpy())
+    return path, material
+
+
+@pytest.fixture(scope="module")
+def drawn_run(merl_ggx, tmp_path_factory):
+    """``neuenh fit --model ggx gold.binary --samples 1500 --test-samples 400 --predictions``, as a user runs it."""
+    out_dir = tmp_path_factory.mktemp("drawn")
+    out = neuenh("fit", "--model", "ggx", merl_ggx[0], "--samples", "1500", "--test-samples", "400", "--epochs", "40",
+                 "--json", "--predictions", out_dir / "pred.npz", "-o", out_dir / "bundle")
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout), out_dir
+
+
+def test_a_measured_file_is_drawn_fitted_and_measured_on_an_independent_draw(merl_ggx, drawn_run):
+    """The fit draws ``--samples`` pairs of the MERL file, half near the mirror; the held-out pairs are
+    the independent draw of ``draw_fit_test`` (the README's protocol) and the model fits its own
+    material to within the table's binning."""
+    from neuenh.data.directions import near_mirror_mask
+    from neuenh.data.measured import load_measured
+    from neuenh.study.heldout import draw_fit_test
+
+    report, out_dir = drawn_run
+    (material,) = report["materials"]
+    assert material["name"] == "gold" and material["heldout_samples"] == 400
+    assert material["heldout_table"] == str(merl_ggx[0])
+    assert material["heldout_log_l1"] < 0.05  # GGX on its own material, read through MERL's bins
+    fit, test, split = draw_fit_test(load_measured(merl_ggx[0]), 1500, 400, 0, 0.5)
+    assert split == "independent draws"
+    with np.load(out_dir / "pred.npz", allow_pickle=False) as npz:
+        np.testing.assert_array_equal(npz["wi"], test.wi.numpy())
+        np.testing.assert_array_equal(npz["wo"], test.wo.numpy())
+    assert near_mirror_mask(test.wi.double(), test.wo.double()).double().mean() >= 0.5  # half drawn there, and chance
+    assert Bundle.load(out_dir / "bundle").provenance["drawn"] == {"samples": 1500, "near_mirror": 0.5, "seed": 0,
+                                                                    "test_samples": 400}
+
+
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["MERL", "TABLE"], "measurement tables and measured files (RGL, MERL) in one fit"),
+        (["MERL", "--test", "TABLE"], "measured files are measured held out with --test-samples N"),
+        (["TABLE", "--test-samples", "10"], "--test-samples draws from measured files"),
+        (["MERL", "--near-mirror", "1.5"], "--near-mirror is a share of the pairs, in [0, 1]; got 1.5"),
+        (["MERL", "--samples", "0"], "--samples and --test-samples must be at least 1"),
+        (["NBRDF"], "NBRDF network weights (a model, not measurements); neuenh fit reads measurement tables"),
+        (["MERL", "--predictions", "OUT"], "--predictions needs --test or --test-samples"),
+    ],
+    ids=["mixed", "test-tables", "test-samples-of-tables", "near-mirror", "no-samples", "nbrdf", "predictions"],
+)
+def test_measured_file_mistakes_exit_2_with_one_line(merl_ggx, table, tmp_path, args, message):
+    """Refused before anything is drawn or fitted (in-process: the exit code and line the command gives)."""
+    from data_files import nbrdf_weights
+
+    np.savez(tmp_path / "weights.npz", **nbrdf_weights(["only"], seed=2))
+    subs = {"MERL": merl_ggx[0], "TABLE": table, "NBRDF": tmp_path / "weights.npz", "OUT": tmp_path / "p.npz"}
+    out = neuenh_here("fit", "--model", "ggx", *[str(subs.get(a, a)) for a in args])
+    assert out.returncode == 2
+    assert message in out.stderr and "Traceback" not in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["weights.npz"]  # nothing written
