@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 from neuenh.capacities import CAPACITY_CHOICES
@@ -46,6 +45,9 @@ from neuenh.models import available_models
 from neuenh.pretrained import shipped_models
 
 from .tables import fit_report
+
+# How pairs are drawn from a measured file: the README's protocol, half of 3,000 near the mirror direction
+DRAW_SAMPLES, DRAW_NEAR_MIRROR = 3000, 0.5
 
 
 
@@ -87,11 +89,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "held-out log-L1")
     p.add_argument("--predictions", type=Path, metavar="OUT.npz",
                    help="write the fitted model's f_r at the held-out directions (needs --test or --test-samples)")
-    p.add_argument("--samples", type=int, default=DRAW.samples, metavar="N",
-                   help=f"pairs drawn from each measured file (default {DRAW.samples:,}; tables have their rows)")
-    p.add_argument("--near-mirror", type=float, default=DRAW.near_mirror, metavar="F",
-                   help=f"the share of those pairs with the half vector near the normal (default {DRAW.near_mirror})")
-    p.add_argument("--seed", type=int, default=DRAW.seed, help=f"the draws' seed (default {DRAW.seed})")
+    p.add_argument("--samples", type=int, default=DRAW_SAMPLES, metavar="N",
+                   help=f"pairs drawn from each measured file (default {DRAW_SAMPLES:,}; tables have their rows)")
+    p.add_argument("--near-mirror", type=float, default=DRAW_NEAR_MIRROR, metavar="F",
+                   help=f"the share of those pairs with the half vector near the normal (default {DRAW_NEAR_MIRROR})")
+    p.add_argument("--seed", type=int, default=0, help="the draws' seed (default 0)")
     p.add_argument("--test-samples", type=int, default=None, metavar="N",
                    help="held-out pairs drawn independently from each measured file: adds its held-out log-L1")
     p.set_defaults(run=run)
@@ -111,12 +113,12 @@ def run(args) -> int:
         torch.set_num_threads(args.threads)
     if args.jobs < 1:
         raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
-    _check_measurement_args(args)
+    drawn = _check_measurement_args(args)
     _check_heldout_args(args)
     options = FitOptions(method=args.method, capacity=args.capacity, epochs=args.epochs,
                          lbfgs_iterations=args.lbfgs_iterations, starts=args.starts)
     model, trained = load_model(args.model, "--model")
-    samples, test = _measurements(args)
+    samples, test = _measurements(args, drawn)
     if len(set(samples.names)) != len(samples.names):
         raise ValueError(f"two measurements share a material name: {samples.names}")
     result = fit_in_processes(model, samples, options.protocol_for(model), args.jobs, trained=trained)
@@ -139,7 +141,7 @@ def run(args) -> int:
                              f"this model cannot hold; fit with --capacity latent, or --model with the analytical model")
         provenance = {"fitted_from": [str(t) for t in args.tables], "fit_protocol": result.protocol,
                       "fitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-        if args.drawn:
+        if drawn:
             provenance["drawn"] = {"samples": args.samples, "near_mirror": args.near_mirror, "seed": args.seed,
                                    "test_samples": args.test_samples}
         if args.test:
@@ -150,20 +152,7 @@ def run(args) -> int:
     return 0
 
 
-@dataclass(frozen=True)
-class Draw:
-    """How pairs are drawn from a measured file (the README's protocol: 3,000 pairs, half of them near
-    the mirror direction)."""
-
-    samples: int = 3000
-    near_mirror: float = 0.5
-    seed: int = 0
-
-
-DRAW = Draw()
-
-
-def _measurements(args):
+def _measurements(args, drawn: bool):
     """The fit's samples, a material per MEASUREMENT (a table's rows, or a measured file's draw), and
     the held-out samples (``--test`` tables, or ``--test-samples`` independent draws), or None."""
     from neuenh.data.measured import load_measured
@@ -171,7 +160,7 @@ def _measurements(args):
     from neuenh.data.table import read_table
     from neuenh.study.heldout import draw_fit_test
 
-    if not args.drawn:
+    if not drawn:
         samples = Samples.concat([read_table(t) for t in args.tables])
         test = None if not args.test else Samples.concat([read_table(t, name=samples.names[i])
                                                           for i, t in enumerate(args.test)])
@@ -183,10 +172,10 @@ def _measurements(args):
             Samples.concat([test for _, test, _ in draws]) if args.test_samples else None)
 
 
-def _check_measurement_args(args) -> None:
+def _check_measurement_args(args) -> bool:
     """Usage errors of the measurements and their draws, found before any fitting: tables and measured
     files are not mixed (a table has its own rows, a measured file is drawn), and each kind's held-out
-    option is its own. Sets ``args.drawn``: the measurements are measured files."""
+    option is its own. True when the measurements are measured files (drawn), False for tables."""
     from neuenh.data.formats import MEASURED_NOT, detect_format
 
     kinds = {t: detect_format(t) for t in args.tables}
@@ -195,20 +184,21 @@ def _check_measurement_args(args) -> None:
             what = MEASURED_NOT.get(kind, "NBRDF network weights (a model, not measurements)")
             raise ValueError(f"{t}: {what}; neuenh fit reads measurement tables (.npz, CSV), RGL .bsdf and "
                              "MERL .binary files")
-    args.drawn = any(kind != "table" for kind in kinds.values())
-    if args.drawn and "table" in kinds.values():
+    drawn = any(kind != "table" for kind in kinds.values())
+    if drawn and "table" in kinds.values():
         raise ValueError("measurement tables and measured files (RGL, MERL) in one fit: fit them separately "
                          "(a table has its rows, a measured file is drawn)")
-    if args.drawn and args.test:
+    if drawn and args.test:
         raise ValueError("--test takes held-out tables of tables; measured files are measured held out with "
                          "--test-samples N (an independent draw)")
-    if not args.drawn and args.test_samples is not None:
+    if not drawn and args.test_samples is not None:
         raise ValueError("--test-samples draws from measured files (RGL, MERL); a table's held-out rows are a "
                          "--test table")
     if args.samples < 1 or (args.test_samples is not None and args.test_samples < 1):
         raise ValueError(f"--samples and --test-samples must be at least 1, got {args.samples} and {args.test_samples}")
     if not 0.0 <= args.near_mirror <= 1.0:
         raise ValueError(f"--near-mirror is a share of the pairs, in [0, 1]; got {args.near_mirror}")
+    return drawn
 
 
 def _check_heldout_args(args) -> None:
