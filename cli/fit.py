@@ -20,7 +20,8 @@ A measurement may also be a measured file (an RGL ``.bsdf``, a MERL ``.binary``,
 ``--samples`` pairs are drawn from it (default 3,000), ``--near-mirror`` of them with the half vector
 near the normal (default 0.5, where a glossy material's highlight is), seeded by ``--seed``; and
 ``--test-samples N`` draws N more, independently, to measure each such material held out (the
-protocol of ``neuenh.study.heldout.draw_fit_test``).
+protocol of ``neuenh.study.heldout.draw_fit_test``). Tables and measured files fit side by side;
+held out, tables take ``--test`` and measured files ``--test-samples``, one kind per fit.
 
 ``--test`` takes one held-out table per fitted table, in the same order: the i-th held-out table is
 measured with the parameters fitted to the i-th table, whatever its file name (the material keeps
@@ -141,7 +142,7 @@ def run(args) -> int:
                              f"this model cannot hold; fit with --capacity latent, or --model with the analytical model")
         provenance = {"fitted_from": [str(t) for t in args.tables], "fit_protocol": result.protocol,
                       "fitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
-        if drawn:
+        if any(drawn):
             provenance["drawn"] = {"samples": args.samples, "near_mirror": args.near_mirror, "seed": args.seed,
                                    "test_samples": args.test_samples}
         if args.test:
@@ -152,46 +153,42 @@ def run(args) -> int:
     return 0
 
 
-def _measurements(args, drawn: bool):
-    """The fit's samples, a material per MEASUREMENT (a table's rows, or a measured file's draw), and
-    the held-out samples (``--test`` tables, or ``--test-samples`` independent draws), or None."""
+def _measurements(args, drawn: list[bool]):
+    """The fit's samples, a material per MEASUREMENT (a table's rows, or a measured file's draw: ``drawn``
+    says which), and the held-out samples (``--test`` tables, or ``--test-samples`` independent draws), or
+    None."""
     from neuenh.data.measured import load_measured
     from neuenh.data.samples import Samples
     from neuenh.data.table import read_table
     from neuenh.study.heldout import draw_fit_test
 
-    if not drawn:
-        samples = Samples.concat([read_table(t) for t in args.tables])
-        test = None if not args.test else Samples.concat([read_table(t, name=samples.names[i])
-                                                          for i, t in enumerate(args.test)])
-        return samples, test
-    # without --test-samples one held-out pair is drawn and dropped: the fit's draw stays the same either way
-    draws = [draw_fit_test(load_measured(t), args.samples, args.test_samples or 1, args.seed, args.near_mirror)
-             for t in args.tables]
-    return (Samples.concat([fit for fit, _, _ in draws]),
-            Samples.concat([test for _, test, _ in draws]) if args.test_samples else None)
+    def draw(path):  # without --test-samples one held-out pair is drawn and dropped: the fit's draw is the same
+        return draw_fit_test(load_measured(path), args.samples, args.test_samples or 1, args.seed, args.near_mirror)
+
+    parts = [draw(t) if d else (read_table(t), None, None) for t, d in zip(args.tables, drawn)]
+    samples = Samples.concat([fit for fit, _, _ in parts])
+    if args.test:
+        return samples, Samples.concat([read_table(t, name=samples.names[i]) for i, t in enumerate(args.test)])
+    return samples, Samples.concat([test for _, test, _ in parts]) if args.test_samples else None
 
 
-def _check_measurement_args(args) -> bool:
-    """Usage errors of the measurements and their draws, found before any fitting: tables and measured
-    files are not mixed (a table has its own rows, a measured file is drawn), and each kind's held-out
-    option is its own. True when the measurements are measured files (drawn), False for tables."""
+def _check_measurement_args(args) -> list[bool]:
+    """Usage errors of the measurements and their draws, found before any fitting; per measurement
+    whether it is a measured file, drawn (else a table, with its rows). Held out, tables take ``--test``
+    tables and measured files ``--test-samples`` draws: one kind of measurement per fit then."""
     from neuenh.data.formats import MEASURED_NOT, detect_format
 
-    kinds = {t: detect_format(t) for t in args.tables}
-    for t, kind in kinds.items():
+    kinds = [detect_format(t) for t in args.tables]
+    for t, kind in zip(args.tables, kinds):
         if kind not in ("table", "rgl", "merl"):
             what = MEASURED_NOT.get(kind, "NBRDF network weights (a model, not measurements)")
             raise ValueError(f"{t}: {what}; neuenh fit reads measurement tables (.npz, CSV), RGL .bsdf and "
                              "MERL .binary files")
-    drawn = any(kind != "table" for kind in kinds.values())
-    if drawn and "table" in kinds.values():
-        raise ValueError("measurement tables and measured files (RGL, MERL) in one fit: fit them separately "
-                         "(a table has its rows, a measured file is drawn)")
-    if drawn and args.test:
-        raise ValueError("--test takes held-out tables of tables; measured files are measured held out with "
-                         "--test-samples N (an independent draw)")
-    if not drawn and args.test_samples is not None:
+    drawn = [kind != "table" for kind in kinds]
+    if args.test and any(drawn):
+        raise ValueError("--test takes a held-out table per fitted table; measured files (RGL, MERL) are measured "
+                         "held out with --test-samples N (an independent draw)")
+    if args.test_samples is not None and not all(drawn):
         raise ValueError("--test-samples draws from measured files (RGL, MERL); a table's held-out rows are a "
                          "--test table")
     if args.samples < 1 or (args.test_samples is not None and args.test_samples < 1):

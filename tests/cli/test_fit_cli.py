@@ -272,18 +272,26 @@ def test_a_measured_file_is_drawn_fitted_and_measured_on_an_independent_draw(mer
                                                                     "test_samples": 400}
 
 
+def test_tables_and_measured_files_fit_together_each_as_it_is(merl_ggx, table):
+    """A table keeps its rows, a measured file is drawn (docs/EXPORT.md fits a .bsdf beside a .npz)."""
+    out = neuenh("fit", "--model", "ggx", table, merl_ggx[0], "--samples", "700", "--epochs", "20", "--json")
+    assert out.returncode == 0, out.stderr
+    steel, gold = json.loads(out.stdout)["materials"]
+    assert (steel["name"], gold["name"]) == ("steel", "gold")
+    assert (steel["samples"], gold["samples"]) == (3000, 700)
+
+
 @pytest.mark.parametrize(
     "args,message",
     [
-        (["MERL", "TABLE"], "measurement tables and measured files (RGL, MERL) in one fit"),
-        (["MERL", "--test", "TABLE"], "measured files are measured held out with --test-samples N"),
-        (["TABLE", "--test-samples", "10"], "--test-samples draws from measured files"),
+        (["MERL", "--test", "TABLE"], "measured files (RGL, MERL) are measured held out with --test-samples N"),
+        (["TABLE", "MERL", "--test-samples", "10"], "--test-samples draws from measured files"),
         (["MERL", "--near-mirror", "1.5"], "--near-mirror is a share of the pairs, in [0, 1]; got 1.5"),
         (["MERL", "--samples", "0"], "--samples and --test-samples must be at least 1"),
         (["NBRDF"], "NBRDF network weights (a model, not measurements); neuenh fit reads measurement tables"),
         (["MERL", "--predictions", "OUT"], "--predictions needs --test or --test-samples"),
     ],
-    ids=["mixed", "test-tables", "test-samples-of-tables", "near-mirror", "no-samples", "nbrdf", "predictions"],
+    ids=["test-tables", "test-samples-of-tables", "near-mirror", "no-samples", "nbrdf", "predictions"],
 )
 def test_measured_file_mistakes_exit_2_with_one_line(merl_ggx, table, tmp_path, args, message):
     """Refused before anything is drawn or fitted (in-process: the exit code and line the command gives)."""
