@@ -45,10 +45,8 @@ from neuenh.capacities import CAPACITY_CHOICES
 from neuenh.models import available_models
 from neuenh.pretrained import shipped_models
 
+from .draws import add_draw_arguments, check_draw_arguments, draw, is_measured
 from .tables import fit_report
-
-# How pairs are drawn from a measured file: the README's protocol, half of 3,000 near the mirror direction
-DRAW_SAMPLES, DRAW_NEAR_MIRROR = 3000, 0.5
 
 
 
@@ -90,11 +88,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "held-out log-L1")
     p.add_argument("--predictions", type=Path, metavar="OUT.npz",
                    help="write the fitted model's f_r at the held-out directions (needs --test or --test-samples)")
-    p.add_argument("--samples", type=int, default=DRAW_SAMPLES, metavar="N",
-                   help=f"pairs drawn from each measured file (default {DRAW_SAMPLES:,}; tables have their rows)")
-    p.add_argument("--near-mirror", type=float, default=DRAW_NEAR_MIRROR, metavar="F",
-                   help=f"the share of those pairs with the half vector near the normal (default {DRAW_NEAR_MIRROR})")
-    p.add_argument("--seed", type=int, default=0, help="the draws' seed (default 0)")
+    add_draw_arguments(p)
     p.add_argument("--test-samples", type=int, default=None, metavar="N",
                    help="held-out pairs drawn independently from each measured file: adds its held-out log-L1")
     p.set_defaults(run=run)
@@ -157,44 +151,28 @@ def _measurements(args, drawn: list[bool]):
     """The fit's samples, a material per MEASUREMENT (a table's rows, or a measured file's draw: ``drawn``
     says which), and the held-out samples (``--test`` tables, or ``--test-samples`` independent draws), or
     None."""
-    from neuenh.data.measured import load_measured
     from neuenh.data.samples import Samples
     from neuenh.data.table import read_table
-    from neuenh.study.heldout import draw_fit_test
 
-    def draw(path):  # without --test-samples one held-out pair is drawn and dropped: the fit's draw is the same
-        return draw_fit_test(load_measured(path), args.samples, args.test_samples or 1, args.seed, args.near_mirror)
-
-    parts = [draw(t) if d else (read_table(t), None, None) for t, d in zip(args.tables, drawn)]
-    samples = Samples.concat([fit for fit, _, _ in parts])
+    parts = [draw(t, args, args.test_samples) if d else (read_table(t), None) for t, d in zip(args.tables, drawn)]
+    samples = Samples.concat([fit for fit, _ in parts])
     if args.test:
         return samples, Samples.concat([read_table(t, name=samples.names[i]) for i, t in enumerate(args.test)])
-    return samples, Samples.concat([test for _, test, _ in parts]) if args.test_samples else None
+    return samples, Samples.concat([test for _, test in parts]) if args.test_samples else None
 
 
 def _check_measurement_args(args) -> list[bool]:
     """Usage errors of the measurements and their draws, found before any fitting; per measurement
     whether it is a measured file, drawn (else a table, with its rows). Held out, tables take ``--test``
     tables and measured files ``--test-samples`` draws: one kind of measurement per fit then."""
-    from neuenh.data.formats import MEASURED_NOT, detect_format
-
-    kinds = [detect_format(t) for t in args.tables]
-    for t, kind in zip(args.tables, kinds):
-        if kind not in ("table", "rgl", "merl"):
-            what = MEASURED_NOT.get(kind, "NBRDF network weights (a model, not measurements)")
-            raise ValueError(f"{t}: {what}; neuenh fit reads measurement tables (.npz, CSV), RGL .bsdf and "
-                             "MERL .binary files")
-    drawn = [kind != "table" for kind in kinds]
+    drawn = [is_measured(t) for t in args.tables]
     if args.test and any(drawn):
         raise ValueError("--test takes a held-out table per fitted table; measured files (RGL, MERL) are measured "
                          "held out with --test-samples N (an independent draw)")
     if args.test_samples is not None and not all(drawn):
         raise ValueError("--test-samples draws from measured files (RGL, MERL); a table's held-out rows are a "
                          "--test table")
-    if args.samples < 1 or (args.test_samples is not None and args.test_samples < 1):
-        raise ValueError(f"--samples and --test-samples must be at least 1, got {args.samples} and {args.test_samples}")
-    if not 0.0 <= args.near_mirror <= 1.0:
-        raise ValueError(f"--near-mirror is a share of the pairs, in [0, 1]; got {args.near_mirror}")
+    check_draw_arguments(args, args.test_samples)
     return drawn
 
 

@@ -113,6 +113,18 @@ def looks_like_csv_table(head: bytes) -> bool:
     return "wi_x" in [c.strip().strip('"').lower() for c in line.split(",")]
 
 
+def looks_like_table(path: str | os.PathLike) -> bool:
+    """Whether the file at ``path`` may be a table by its first bytes — a zip archive (every ``.npz``,
+    a table's or another's, such as NBRDF weights) or a CSV table — read without numpy's arrays or
+    torch; False for anything else (an RGL or MERL file) or a file that cannot be read."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return False
+    return head[:4] in _ZIP_MAGIC or looks_like_csv_table(head)
+
+
 # -- reading ---------------------------------------------------------------------------------
 def load_table(path: str | os.PathLike, name: str | None = None, max_rows: int | None = None) -> Table:
     """The table at ``path`` (npz or CSV, told apart by content); ``name`` defaults to the stem.

@@ -414,6 +414,21 @@ def test_fit_measurements_with_a_jobs_model(server, submitted, ggx_table, as_jso
         assert re.match(r"\s+steel: log-L1 \d+\.\d{5}\s", material)
 
 
+def test_fit_a_measured_file_drawn_here_as_neuenh_fit_draws_it(server, submitted, tmp_path):
+    """A MERL file is drawn by the client (``cli.draws``: ``--samples`` pairs, half near the mirror) and
+    fitted on the service as the table of those pairs, under the file's name."""
+    from neuenh.data.merl import write_merl
+    from neuenh.data.synthetic import synthetic_ggx
+
+    (material,) = synthetic_ggx(1, seed=8, noise_sigma=0.0)
+    merl = write_merl(tmp_path / "gold.binary", lambda wi, wo: material.evaluate(wi, wo).numpy())
+    job = submitted[1]
+    out = client("fit", job["id"], merl, "--samples", "800", "--epochs", "20", "--json", url=server.url)
+    assert out.returncode == 0, out.stderr
+    (m,) = json.loads(out.stdout)["materials"]
+    assert m["name"] == "gold" and m["samples"] == 800 and np.isfinite(m["loss"])
+
+
 def test_plan_a_scene_on_the_service_wait_and_save_its_files(live_server, tmp_path):
     from scene_files import scene, write_module_bundle, write_tables
 

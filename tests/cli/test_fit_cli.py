@@ -288,7 +288,7 @@ def test_tables_and_measured_files_fit_together_each_as_it_is(merl_ggx, table):
         (["TABLE", "MERL", "--test-samples", "10"], "--test-samples draws from measured files"),
         (["MERL", "--near-mirror", "1.5"], "--near-mirror is a share of the pairs, in [0, 1]; got 1.5"),
         (["MERL", "--samples", "0"], "--samples and --test-samples must be at least 1"),
-        (["NBRDF"], "NBRDF network weights (a model, not measurements); neuenh fit reads measurement tables"),
+        (["NBRDF"], "NBRDF network weights (a model, not measurements); a fit reads measurement tables"),
         (["MERL", "--predictions", "OUT"], "--predictions needs --test or --test-samples"),
     ],
     ids=["test-tables", "test-samples-of-tables", "near-mirror", "no-samples", "nbrdf", "predictions"],

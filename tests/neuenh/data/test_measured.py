@@ -44,6 +44,17 @@ def test_format_is_recognised_by_content(folder, kind):
     assert material.metadata["source"] == kind
 
 
+@pytest.mark.parametrize("kind, table", [("rgl", False), ("merl", False), ("nbrdf", True), ("table", True)])
+def test_a_table_by_its_first_bytes_with_numpy_alone(folder, tmp_path, kind, table):
+    """``looks_like_table``: a zip archive (every ``.npz``: a table's, NBRDF weights) or a CSV table, told
+    without the readers (and torch); the measured formats are not."""
+    from neuenh.data.table import looks_like_table
+
+    assert looks_like_table(folder / SOURCES[kind]) is table
+    (tmp_path / "rows.txt").write_text("# measured\nwi_x,wi_y,wi_z,wo_x,wo_y,wo_z,r,g,b\n0,0,1,0,0,1,0.1,0.1,0.1\n")
+    assert looks_like_table(tmp_path / "rows.txt") and not looks_like_table(tmp_path / "missing.npz")
+
+
 @pytest.fixture(params=list(SOURCES))
 def material(request, folder):
     return load_measured(folder / SOURCES[request.param])

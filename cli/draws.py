@@ -1,0 +1,55 @@
+"""How both command lines (``neuenh fit``, ``neuenh-client fit``) turn a measured file into
+measurements: an RGL ``.bsdf`` or a MERL ``.binary`` is a continuous material, so pairs are drawn from
+it — ``--samples`` of them (default 3,000), ``--near-mirror`` of those with the half vector near the
+normal (default 0.5, where a glossy material's highlight is), seeded by ``--seed`` — by
+``neuenh.study.heldout.draw_fit_test``, which also draws the held-out pairs. Tables have their rows.
+
+Nothing here imports torch until a file is found to be measured (a table's path stays numpy-only).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+# the README's protocol: 3,000 pairs, half of them near the mirror direction
+DRAW_SAMPLES, DRAW_NEAR_MIRROR = 3000, 0.5
+MEASURED_KINDS = ("rgl", "merl")
+READABLE = "measurement tables (.npz, CSV), RGL .bsdf and MERL .binary files"
+
+
+def add_draw_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--samples", type=int, default=DRAW_SAMPLES, metavar="N",
+                   help=f"pairs drawn from each measured file (default {DRAW_SAMPLES:,}; tables have their rows)")
+    p.add_argument("--near-mirror", type=float, default=DRAW_NEAR_MIRROR, metavar="F",
+                   help=f"the share of those pairs with the half vector near the normal (default {DRAW_NEAR_MIRROR})")
+    p.add_argument("--seed", type=int, default=0, help="the draws' seed (default 0)")
+
+
+def check_draw_arguments(args: argparse.Namespace, test_samples: int | None = None) -> None:
+    """Usage errors of the draw's arguments (``ValueError``)."""
+    if args.samples < 1 or (test_samples is not None and test_samples < 1):
+        raise ValueError(f"--samples and --test-samples must be at least 1, got {args.samples} and {test_samples}")
+    if not 0.0 <= args.near_mirror <= 1.0:
+        raise ValueError(f"--near-mirror is a share of the pairs, in [0, 1]; got {args.near_mirror}")
+
+
+def is_measured(path: str | os.PathLike) -> bool:
+    """True for an RGL or MERL file, False for a table; a ``ValueError`` naming anything else."""
+    from neuenh.data.formats import MEASURED_NOT, detect_format
+
+    kind = detect_format(path)
+    if kind not in ("table", *MEASURED_KINDS):
+        what = MEASURED_NOT.get(kind, "NBRDF network weights (a model, not measurements)")
+        raise ValueError(f"{path}: {what}; a fit reads {READABLE}")
+    return kind != "table"
+
+
+def draw(path: str | os.PathLike, args: argparse.Namespace, test_samples: int | None = None):
+    """(fit, held-out or None) ``Samples`` drawn from the measured file at ``path``. Without
+    ``test_samples`` one held-out pair is drawn and dropped: the fit's draw is the same either way."""
+    from neuenh.data.measured import load_measured
+    from neuenh.study.heldout import draw_fit_test
+
+    fit, test, _ = draw_fit_test(load_measured(path), args.samples, test_samples or 1, args.seed, args.near_mirror)
+    return fit, (test if test_samples else None)
