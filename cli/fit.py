@@ -29,9 +29,9 @@ the fitted table's name). The counts must match and no held-out table may be a f
 material then gets its held-out log-L1 (``heldout_log_l1``, the training loss on samples not
 fitted; see neuenh.study.heldout). Put ``--test`` after the measurements (it takes every table that
 follows it). ``--predictions OUT.npz`` (needs ``--test`` or ``--test-samples``) writes, atomically,
-the fitted model's f_r at the held-out directions: arrays ``wi``, ``wo``, ``f_r`` (n, 3), ``material`` (n,) indices
-into ``material_names``; with a single material ``neuenh.data.table.read_table`` reads it as a
-table.
+the fitted model's f_r at the held-out directions: arrays ``wi``, ``wo``, ``f_r`` (n, 3), ``material``
+(n,) indices into ``material_names``; with a single material ``neuenh.data.table.read_table`` reads
+it as a table.
 """
 
 from __future__ import annotations
