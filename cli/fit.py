@@ -98,8 +98,6 @@ def run(args) -> int:
     import torch
 
     from neuenh.checkpoint import Bundle
-    from neuenh.data.samples import Samples
-    from neuenh.data.table import read_table
     from neuenh.fit import FitOptions, fit_in_processes, model_for
     from neuenh.pretrained import load_model
     from neuenh.study.heldout import heldout_log_l1, predict_f_r, write_predictions

@@ -262,7 +262,7 @@ def test_a_measured_file_is_drawn_fitted_and_measured_on_an_independent_draw(mer
     assert material["name"] == "gold" and material["heldout_samples"] == 400
     assert material["heldout_table"] == str(merl_ggx[0])
     assert material["heldout_log_l1"] < 0.05  # GGX on its own material, read through MERL's bins
-    fit, test, split = draw_fit_test(load_measured(merl_ggx[0]), 1500, 400, 0, 0.5)
+    _, test, split = draw_fit_test(load_measured(merl_ggx[0]), 1500, 400, 0, 0.5)
     assert split == "independent draws"
     with np.load(out_dir / "pred.npz", allow_pickle=False) as npz:
         np.testing.assert_array_equal(npz["wi"], test.wi.numpy())
