@@ -20,13 +20,13 @@ Each format's files are described in docs/EXPORT.md and ``neuenh.export``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from neuenh.capacities import ANALYTICAL_CAPACITIES
 from neuenh.export import FORMATS, export
+
+from .fit_reports import read_fit_report
 
 if TYPE_CHECKING:  # the models' modules import torch (~1.5 s): `neuenh export --help` need not pay it
     from neuenh.materials import MaterialParams
@@ -73,7 +73,7 @@ def run(args) -> int:
         from neuenh.pretrained import load_model
 
         model, trained = load_model(args.model, "MODEL")
-        materials = fit_report_materials(args.params, model) if args.params else bundle_materials(trained, args.model)
+        materials = read_fit_report(args.params, model) if args.params else bundle_materials(trained, args.model)
         groups = by_own_model(args.output, model, materials)
     every = {m for _, _, materials in groups for m in materials}
     missing = sorted(wanted - every)
@@ -109,29 +109,3 @@ def bundle_materials(table, model_arg: str) -> dict[str, MaterialParams]:
         raise ValueError(f"{model_arg} holds no materials; fit some first (neuenh fit --model {model_arg} ... -o DIR) "
                          "and export that folder, or pass --params FIT.json")
     return {name: table.as_params(i) for i, name in enumerate(table.names)}
-
-
-def fit_report_materials(path: Path, model) -> dict[str, MaterialParams]:
-    """The materials of a fit report, checked to be a fit of ``model`` (its name and state)."""
-    try:
-        report = json.loads(path.read_text())
-        entries = {m["name"]: m for m in report["materials"]}
-        of = (report["model"], report["state"])
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such file") from None
-    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: not a fit report (neuenh fit --json): {type(exc).__name__}: {exc}") from None
-    if of != (model.name, model.state):
-        raise ValueError(f"{path} is a fit of {of[0]} in state {of[1]}, but the model is {model.name} in state "
-                         f"{model.state}; export the model it was fitted with")
-    from neuenh.materials import MaterialParams
-
-    fitted = {}
-    for name, entry in entries.items():
-        try:
-            fitted[name] = MaterialParams.from_json(entry)
-        except ValueError as exc:
-            raise ValueError(f"{path}: material {name!r}: {exc}") from None
-    if model.uses_latent and any(p.latent is None and p.capacity not in ANALYTICAL_CAPACITIES for p in fitted.values()):
-        raise ValueError(f"{path}: a material has no latent code, which this model needs")
-    return fitted

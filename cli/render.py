@@ -45,6 +45,8 @@ from typing import TYPE_CHECKING
 from neuenh.files import atomic_write
 from neuenh.pretrained import bundle_path
 
+from .fit_reports import read_fit_report
+
 if TYPE_CHECKING:
     from neuenh.materials import MaterialParams
 
@@ -140,29 +142,6 @@ def _regular_file(path: Path, what: str) -> None:
         raise ValueError(f"{what}: not a regular file")
 
 
-def _read_params(path: Path, material: str | None) -> tuple[str, MaterialParams]:
-    """One material's record from ``neuenh fit --json`` output."""
-    from neuenh.materials import MaterialParams
-
-    _regular_file(path, str(path))
-    try:
-        doc = json.loads(path.read_text())
-        entries = [(str(m["name"]), m) for m in doc["materials"]]
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
-    except (KeyError, TypeError, AttributeError):
-        raise ValueError(f"{path}: expected {{\"materials\": [{{\"name\": ..., \"params\": {{...}}}}]}} "
-                         "(the output of `neuenh fit --json`)") from None
-    if not entries:
-        raise ValueError(f"{path}: holds no materials")
-    index = _pick([name for name, _ in entries], material, str(path))
-    name, entry = entries[index]
-    try:
-        return name, MaterialParams.from_json(entry)
-    except ValueError as exc:
-        raise ValueError(f"{path}: material {name!r}: {exc}") from None
-
-
 def _pick(names: list[str], material: str | None, where: str) -> int:
     if material is None:
         return 0
@@ -186,20 +165,24 @@ def _initial_params(model) -> MaterialParams:
 
 
 def _model_source(spec: str, params_file: Path | None, material: str | None, flag: str):
-    """(description, brdf) of a model with its parameters."""
+    """(description, brdf) of a model with its parameters; ``flag`` names the material flag
+    (``--material`` or ``--truth-material``), the model's and the parameters' flags follow from it."""
     import torch
 
     from neuenh.checkpoint import Bundle
+    from neuenh.fit import model_for
     from neuenh.pretrained import load_model
     from neuenh.render import model_brdf
 
+    truth = flag.startswith("--truth")
     path = bundle_path(spec)
     bundle = Bundle.load(path) if path is not None else None
-    model = bundle.model if bundle is not None else load_model(spec, "--truth-model" if flag.startswith("--truth")
-                                                               else "--model")[0]
+    model = bundle.model if bundle is not None else load_model(spec, "--truth-model" if truth else "--model")[0]
     if params_file is not None:
-        name, params = _read_params(params_file, material)
-        origin = str(params_file)
+        fitted = read_fit_report(params_file, model, "--truth-params" if truth else "--params")
+        names = list(fitted)
+        name = names[_pick(names, material, str(params_file))]
+        params, origin = fitted[name], str(params_file)
     elif bundle is not None and bundle.materials is not None:
         names = list(bundle.materials.names)
         index = _pick(names, material, f"the bundle {spec}")
@@ -209,14 +192,15 @@ def _model_source(spec: str, params_file: Path | None, material: str | None, fla
             raise ValueError(f"{flag} {material!r} needs parameters to choose from: a --params file "
                              "or a bundle with fitted materials")
         name, params, origin = "initial", _initial_params(model), "initial values (mean of the ranges)"
-    if model.latent_dim and params.latent is None and model.uses_latent:
+    own = model_for(model, params)  # a material fitted at an analytical capacity: that capacity's model
+    if own.uses_latent and params.latent is None:
         raise ValueError(f"{origin}: material {name!r} has no latent code, which model {model.name} needs")
     brdf = model_brdf(model, params)
     # evaluate once so that wrong names, widths or ranges fail before any rendering
     probe = torch.tensor([[0.0, 0.0, 1.0]])
     brdf(probe, probe)
     return {"model": model.name, "state": model.state, "spec": spec, "material": name,
-            "params_from": origin, **model.used_params(params).to_json(digits=6)}, brdf
+            "params_from": origin, **own.used_params(params).to_json(digits=6)}, brdf
 
 
 def _truth_source(args):
@@ -265,9 +249,8 @@ def run(args) -> int:
     if existing and not args.force:
         raise ValueError(f"{out}: {', '.join(existing)} already exist(s); use --force to overwrite")
     light_info = _lighting(args)
-    for flag, path in (("--truth", args.truth), ("--params", args.params), ("--truth-params", args.truth_params)):
-        if path is not None:
-            _regular_file(path, f"{flag} {path}")
+    if args.truth is not None:  # the fit reports are checked as they are read (cli.fit_reports), before rendering too
+        _regular_file(args.truth, f"--truth {args.truth}")
 
     from neuenh.render import ball_scene, render, sphere_scene, write_error_map, write_exr, write_png
     from neuenh.render.metrics import delta_e_itp, ssim

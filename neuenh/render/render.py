@@ -24,11 +24,12 @@ material of a bundle (``bundle_brdf(bundle, i)``).
 from __future__ import annotations
 
 import math
-
 from typing import Callable, Literal, Mapping, Sequence
 
 import torch
 
+from ..fit.result import model_for
+from ..materials import MaterialParams
 from .lights import DirectionalLight, EnvironmentMap, Light, gather
 from .mis import DEFAULT_ALPHAS, mixture_density, mixture_directions, mixture_samples
 from .scene import SphereScene
@@ -36,11 +37,16 @@ from .scene import SphereScene
 BRDF = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
 
-def model_brdf(model, params: Mapping[str, torch.Tensor], state: str | None = None) -> BRDF:
+def model_brdf(model, params: MaterialParams | Mapping[str, torch.Tensor], state: str | None = None) -> BRDF:
     """A ``BRDFModel`` with fixed parameters as a BRDF callable: its specialized evaluator
     (``BRDFModel.specialize``, equal to ``evaluate`` and several times faster), or ``evaluate``
-    in another ``state`` of the model."""
+    in another ``state`` of the model. A material fitted at an analytical capacity (``neuenh fit
+    --capacity auto`` may choose one) is evaluated by that capacity's model (``neuenh.fit.model_for``),
+    as its fit measured it."""
     if state is None or state == model.state:
+        if isinstance(params, MaterialParams):
+            model = model_for(model, params)
+            params = model.used_params(params)
         return model.specialize(params)
 
     def f(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:

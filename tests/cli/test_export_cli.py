@@ -77,7 +77,7 @@ def test_bad_inputs_are_one_line_errors(fitted, tmp_path):
     plain = tmp_path / "plain.json"
     plain.write_text(report.read_text().replace('"state": "', '"state": "x'))
     one_line_error(neuenh_here("export", "enhanced-ggx", "--params", plain, "--format", "glsl", "-o", tmp_path),
-                   "is a fit of ggx in state x", "export the model it was fitted with")
+                   "is a fit of ggx in state x", "give the model it was fitted with")
     one_line_error(neuenh_here("export", bundle, "--format", "glsl", "--material", "gold", "-o", tmp_path),
                    "no material 'gold'; there are: brushed steel")
     one_line_error(neuenh_here("export", "ggx", "--format", "glsl", "-o", tmp_path), "ggx holds no materials")

@@ -156,15 +156,22 @@ def test_refuses_to_overwrite_without_force(tmp_path, capsys):
     (["--truth-model", "ggx", "--truth-params", "PARAMS", "--truth-material", "steel"], ["no material 'steel'"]),
     (["--truth", "FOLDER", "--model", "ggx"], ["--truth", "not a regular file"]),  # issue 17, case 15
     (["--truth", "FIFO", "--model", "ggx"], ["--truth", "not a regular file"]),
+    (["--model", "ggx", "--params", "FOLDER"], ["--params", "a folder, not a fit report", "neuenh fit -o"]),
+    (["--model", "ggx", "--params", "MISSING"], ["--params", "missing.bsdf: no such file"]),
+    (["--model", "ggx", "--params", "ENHANCED"], ["is a fit of ggx in state 00011100100", "the model is ggx in state "
+                                                  "00000000000", "give the model it was fitted with"]),
 ], ids=["missing-truth", "missing-env", "zero-light", "unknown-model", "material-without-params", "unknown-material",
-        "truth-folder", "truth-fifo"])
+        "truth-folder", "truth-fifo", "params-folder", "params-missing", "params-of-another-model"])
 def test_user_mistakes_are_one_line_errors(tmp_path, capsys, args, fragments):
     params = tmp_path / "fit.json"
     params.write_text(json.dumps({"materials": [{"name": "glossy", "params": GGX}]}))
+    enhanced = tmp_path / "enhanced.json"  # `neuenh fit --json` of another state of the graph
+    enhanced.write_text(json.dumps({"model": "ggx", "state": "00011100100",
+                                    "materials": [{"name": "glossy", "params": GGX, "latent": [0.5] * 27}]}))
     (tmp_path / "folder").mkdir()
     os.mkfifo(tmp_path / "fifo")
     subs = {"MISSING": tmp_path / "missing.bsdf", "PARAMS": params, "FOLDER": tmp_path / "folder",
-            "FIFO": tmp_path / "fifo"}
+            "FIFO": tmp_path / "fifo", "ENHANCED": enhanced}
     args = [subs.get(a, a) for a in args]
     _one_line_error(*in_process(capsys, *args, *SMALL, "-o", tmp_path / "out"), *fragments)
     assert not (tmp_path / "out").exists()
@@ -192,20 +199,45 @@ def test_an_exr_environment_and_a_bundle_material(tmp_path, capsys):
 
 
 def test_params_files_pick_a_material_by_name_or_index(tmp_path):
-    from neuenh_service.cli.render import _read_params
+    from neuenh.models import get_model
+    from neuenh_service.cli.fit_reports import read_fit_report
+    from neuenh_service.cli.render import _pick
 
     params = tmp_path / "fit.json"
     params.write_text(json.dumps({"materials": [{"name": "matte", "params": MATTE},
                                                 {"name": "glossy", "params": GGX}]}))
-    assert _read_params(params, None)[0] == "matte"
+    fitted = read_fit_report(params, get_model("ggx"))
+    names = list(fitted)
+    assert names[_pick(names, None, "")] == "matte"
     for choice in ("glossy", "1"):
-        name, material = _read_params(params, choice)
-        assert name == "glossy" and material.values["alpha_y"].tolist() == [pytest.approx(0.3)]
+        name = names[_pick(names, choice, "")]
+        assert name == "glossy" and fitted[name].values["alpha_y"].tolist() == [pytest.approx(0.3)]
     with pytest.raises(ValueError, match="index 2 out of range"):
-        _read_params(params, "2")
+        _pick(names, "2", str(params))
     params.write_text('{"params": {}}')
     with pytest.raises(ValueError, match="neuenh fit --json"):
-        _read_params(params, None)
+        read_fit_report(params, get_model("ggx"))
+
+
+def test_a_material_fitted_at_an_analytical_capacity_renders_with_that_model(tmp_path, capsys):
+    """`neuenh fit --capacity auto` may give a material of an enhanced model the model the search
+    started from (capacity ``original``): rendered with the enhanced model, it is plain GGX with
+    its parameters, image for image."""
+    from neuenh.pretrained import load_model
+
+    enhanced = load_model("enhanced-ggx", "--model")[0]
+    reports = {"plain": {"model": "ggx", "state": "00000000000", "materials": [{"name": "gloss", "params": GGX}]},
+               "enhanced": {"model": "ggx", "state": enhanced.state,
+                            "materials": [{"name": "gloss", "params": GGX, "capacity": "original"}]}}
+    images = {}
+    for key, model in (("plain", "ggx"), ("enhanced", "enhanced-ggx")):
+        (tmp_path / f"{key}.json").write_text(json.dumps(reports[key]))
+        code, _, err = in_process(capsys, "--model", model, "--params", tmp_path / f"{key}.json", *SMALL,
+                                  "-o", tmp_path / key)
+        assert code == 0, err
+        images[key] = read_rgb_exr(tmp_path / key / "model.exr")
+    assert images["plain"].max() > 0
+    np.testing.assert_array_equal(images["enhanced"], images["plain"])
 
 
 def test_the_studio_environment():
