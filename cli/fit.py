@@ -13,8 +13,10 @@ e.g. plain GGX), the analytical model of the same graph (``analytical``: modules
 terms, the search's alternative terms kept), the latent code, and per-material corrections of module
 weights (last layer, low rank), then fits the chosen one to
 all of them (about twice the time of ``latent``). The capacity and the material's parameter count are
-reported. ``-o DIR`` writes a bundle of the
-model with the fitted materials.
+reported. ``-o DIR`` writes a bundle of the model with the fitted materials; a bundle holds materials
+of the model's modules only, so with ``-o`` a model with modules takes a capacity of its modules
+(``--capacity auto`` is refused before fitting: the fit report, ``--json``, holds any capacity, and
+``neuenh export`` and ``neuenh render`` take it with ``--params``).
 
 A measurement may also be a measured file (an RGL ``.bsdf``, a MERL ``.binary``, told by content):
 ``--samples`` pairs are drawn from it (default 3,000), ``--near-mirror`` of them with the half vector
@@ -41,7 +43,7 @@ import json
 import time
 from pathlib import Path
 
-from neuenh.capacities import CAPACITY_CHOICES
+from neuenh.capacities import ANALYTICAL_CAPACITIES, CAPACITY_CHOICES
 from neuenh.models import available_models
 from neuenh.pretrained import shipped_models
 
@@ -98,7 +100,7 @@ def run(args) -> int:
     import torch
 
     from neuenh.checkpoint import Bundle
-    from neuenh.fit import FitOptions, fit_in_processes, model_for
+    from neuenh.fit import FitOptions, fit_in_processes
     from neuenh.pretrained import load_model
     from neuenh.study.heldout import heldout_log_l1, predict_f_r, write_predictions
 
@@ -111,6 +113,12 @@ def run(args) -> int:
     options = FitOptions(method=args.method, capacity=args.capacity, epochs=args.epochs,
                          lbfgs_iterations=args.lbfgs_iterations, starts=args.starts)
     model, trained = load_model(args.model, "--model")
+    if args.output and model.has_modules and args.capacity in ("auto", *ANALYTICAL_CAPACITIES):
+        # refused before the fit, not after it: the fit's choice is known only at its end
+        raise ValueError(f"-o: --capacity {args.capacity} may fit a material with an analytical model of the graph "
+                         "(capacity original or analytical), which a bundle of this model cannot hold; write the fit "
+                         "report instead (--json > fit.json: neuenh export and neuenh render take it with --params), or "
+                         "fit a capacity of the modules (--capacity latent, the default)")
     samples, test = _measurements(args, drawn)
     if len(set(samples.names)) != len(samples.names):
         raise ValueError(f"two measurements share a material name: {samples.names}")
@@ -127,11 +135,6 @@ def run(args) -> int:
         write_predictions(args.predictions, test, predict_f_r(model, result, test))
         report["predictions"] = str(args.predictions)
     if args.output:
-        analytical = [f"{n} ({result.capacity(i)})" for i, n in enumerate(samples.names)
-                      if model_for(model, result.materials.as_params(i)) is not model]
-        if analytical:  # the bundle's model would evaluate them with its modules
-            raise ValueError(f"-o: {', '.join(analytical)} fitted best at an analytical capacity, which a bundle of "
-                             f"this model cannot hold; fit with --capacity latent, or --model with the analytical model")
         provenance = {"fitted_from": [str(t) for t in args.tables], "fit_protocol": result.protocol,
                       "fitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
         if any(drawn):
