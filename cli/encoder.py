@@ -86,8 +86,7 @@ def run_train(args) -> int:
     encoder, history = train_encoder(bundle.model, pools.subset(train), config, encoder_config=EncoderConfig(),
                                      fitted=bundle.materials, validation=validation,
                                      log=lambda line: print("  " + line, file=sys.stderr, flush=True))
-    latent_mean = bundle.materials.latent.detach().mean(0) if bundle.materials is not None and len(bundle.materials) \
-        else None
+    latent_mean = bundle.materials.mean_latent() if bundle.materials is not None else None
     heldout = {}
     if validation is not None:
         for k, size in enumerate(HELDOUT_SIZES):

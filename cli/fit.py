@@ -13,10 +13,9 @@ e.g. plain GGX), the analytical model of the same graph (``analytical``: modules
 terms, the search's alternative terms kept), the latent code, and per-material corrections of module
 weights (last layer, low rank), then fits the chosen one to
 all of them (about twice the time of ``latent``). The capacity and the material's parameter count are
-reported. ``-o DIR`` writes a bundle of the model with the fitted materials; a bundle holds materials
-of the model's modules only, so with ``-o`` a model with modules takes a capacity of its modules
-(``--capacity auto`` is refused before fitting: the fit report, ``--json``, holds any capacity, and
-``neuenh export`` and ``neuenh render`` take it with ``--params``).
+reported. ``-o DIR`` writes a bundle of the model with the fitted materials, each with its capacity:
+``neuenh export`` and ``neuenh render`` evaluate a material fitted at the ``original`` or ``analytical``
+capacity with that analytical model, and its row holds no latent code for later fits and encoders.
 
 A measurement may also be a measured file (an RGL ``.bsdf``, a MERL ``.binary``, told by content):
 ``--samples`` pairs are drawn from it (default 3,000), ``--near-mirror`` of them with the half vector
@@ -43,7 +42,7 @@ import json
 import time
 from pathlib import Path
 
-from neuenh.capacities import ANALYTICAL_CAPACITIES, CAPACITY_CHOICES
+from neuenh.capacities import CAPACITY_CHOICES
 from neuenh.models import available_models
 from neuenh.pretrained import shipped_models
 
@@ -113,12 +112,6 @@ def run(args) -> int:
     options = FitOptions(method=args.method, capacity=args.capacity, epochs=args.epochs,
                          lbfgs_iterations=args.lbfgs_iterations, starts=args.starts)
     model, trained = load_model(args.model, "--model")
-    if args.output and model.has_modules and args.capacity in ("auto", *ANALYTICAL_CAPACITIES):
-        # refused before the fit, not after it: the fit's choice is known only at its end
-        raise ValueError(f"-o: --capacity {args.capacity} may fit a material with an analytical model of the graph "
-                         "(capacity original or analytical), which a bundle of this model cannot hold; write the fit "
-                         "report instead (--json > fit.json: neuenh export and neuenh render take it with --params), or "
-                         "fit a capacity of the modules (--capacity latent, the default)")
     samples, test = _measurements(args, drawn)
     if len(set(samples.names)) != len(samples.names):
         raise ValueError(f"two measurements share a material name: {samples.names}")

@@ -78,9 +78,7 @@ class Rung:
     @classmethod
     def of(cls, round_index: int, val_loss: float, bundle: "Bundle") -> "Rung":
         """The rung of a round's committed bundle."""
-        latent = None
-        if bundle.model.uses_latent and bundle.materials is not None and len(bundle.materials):
-            latent = bundle.materials.latent.detach().mean(0).clone()
+        latent = bundle.materials.mean_latent() if bundle.model.uses_latent and bundle.materials is not None else None
         return cls(round_index, float(val_loss), copy.deepcopy(bundle.model), latent)
 
 

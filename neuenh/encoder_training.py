@@ -219,14 +219,14 @@ def train_encoder(model: BRDFModel, pools: MeasurementPools, config: EncoderTrai
                               seed=config.seed)
     rows = torch.full((len(pools),), -1, dtype=torch.long)
     if fitted is not None and len(fitted):
-        where = {name: i for i, name in enumerate(fitted.names)}
+        where = {fitted.names[i]: i for i in fitted.coded()}  # a material fitted analytically has no code to learn
         rows = torch.tensor([where.get(name, -1) for name in pools.names])
         known = rows[rows >= 0]
         if len(known):  # start the head at the fitted materials' mean
             with torch.no_grad():
                 mean = [fitted.raw[name].detach()[known].mean(0) for name in encoder.outputs]
                 encoder.offset.copy_(torch.cat(mean + [fitted.latent.detach()[known].mean(0)]))
-    latent_mean = fitted.latent.detach().mean(0) if fitted is not None and len(fitted) else None
+    latent_mean = fitted.mean_latent() if fitted is not None else None
     optimizer = Adam(encoder.parameters(), lr=config.lr)
     schedule = CosineSchedule(optimizer, config.steps, config.lr * 0.01)
     g = torch.Generator().manual_seed(config.seed)

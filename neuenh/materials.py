@@ -22,6 +22,7 @@ from typing import Any, Collection, Mapping, Sequence
 import torch
 from torch import nn
 
+from .capacities import ANALYTICAL_CAPACITIES
 from .params import ParamSpecs
 
 LATENT_INIT = 0.5
@@ -236,6 +237,21 @@ class MaterialTable(nn.Module):
         record = MaterialParams({}, None, corrections, capacity, correction_params)
         self.fits[index] = ({k: v.detach().float().clone() for k, v in record.corrections.items()},
                             capacity, correction_params)
+
+    def coded(self) -> list[int]:
+        """Indices of the materials whose record holds a latent code: every one but those fitted at
+        an analytical capacity (``capacities.ANALYTICAL_CAPACITIES``), whose row of ``latent`` is only
+        where their fit started. A model's mean code and a fit's training codes are taken from these."""
+        return [i for i, (_, capacity, _) in enumerate(self.fits) if capacity not in ANALYTICAL_CAPACITIES]
+
+    def latent_codes(self) -> torch.Tensor:
+        """(k, latent_dim) the latent codes of the ``coded`` materials, detached."""
+        return self.latent.detach()[self.coded()]
+
+    def mean_latent(self) -> torch.Tensor | None:
+        """(latent_dim,) the mean of ``latent_codes``, or None when no material holds a code."""
+        codes = self.latent_codes()
+        return codes.mean(0) if len(codes) else None
 
     @property
     def has_corrections(self) -> bool:

@@ -90,5 +90,5 @@ def rungs(spec: str) -> list[Rung]:
     bundle = Bundle.load(path)
     if bundle.rungs:
         return bundle.rungs
-    latent = bundle.materials.latent.detach().mean(0) if bundle.model.uses_latent and bundle.materials else None
+    latent = bundle.materials.mean_latent() if bundle.model.uses_latent and bundle.materials else None
     return [Rung(-1, float(bundle.metrics.get("val_loss", float("nan"))), bundle.model, latent)]

@@ -325,8 +325,9 @@ class LatentAdam(FitProtocol):
             values, _ = a_space.values(base)
             imitated_f = analytical.forward_indexed(layout.wi, layout.wo, values, None, layout.grid).clamp_min(0.0)
         latents = [torch.full((m, model.latent_dim), LATENT_INIT)]
-        if trained is not None and model.uses_latent and len(trained):
-            latents.append(trained.latent.detach().mean(0, keepdim=True).expand(m, -1))
+        mean = trained.mean_latent() if trained is not None and model.uses_latent else None
+        if mean is not None:
+            latents.append(mean.reshape(1, -1).expand(m, -1))
         k = len(latents)
         like = torch.cat([torch.cat([base, latent], 1) if space.latent else base for latent in latents])
         imitate = rows.layout(torch.arange(m).repeat(k), None if train is None else train.repeat(k, 1)).with_targets(
@@ -340,7 +341,7 @@ class LatentAdam(FitProtocol):
         ``screened_codes`` raced by Adam on the samples they were scored on; each material's end
         point of lowest loss."""
         space = RowSpace(model)
-        if not self.screened or trained is None or not len(trained) or not space.latent:
+        if not self.screened or trained is None or not trained.coded() or not space.latent:
             return []
         usable = rows.valid if train is None else rows.valid & train
         subset = rows.as_problems(torch.arange(rows.materials), usable & (usable.cumsum(1) <= self.screen_samples))
@@ -356,7 +357,7 @@ class LatentAdam(FitProtocol):
         dim) beside each of the ``screened`` training codes of lowest loss on all its samples as they
         are (no step taken), lowest first (k = at most ``screened``)."""
         space = RowSpace(model)
-        kernel, codes = RowKernel(model, space), trained.latent.detach().float()
+        kernel, codes = RowKernel(model, space), trained.latent_codes().float()
         best = []
         for i in range(rows.materials):  # one material at a time: a row per code, on its slots
             candidates = torch.cat([base[i].expand(len(codes), -1), codes], 1)

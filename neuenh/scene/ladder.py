@@ -155,7 +155,7 @@ def build_ladder(entries: Sequence[Any], where: str = "ladder") -> list[Rung]:
             elif isinstance(entry, (str, ModelEntry)):
                 capacity = getattr(entry, "capacity", None)
                 model, trained = load_model(name, f"{where}.{i}")
-                latent = trained.latent.detach().mean(0) if trained is not None and len(trained) else None
+                latent = trained.mean_latent() if trained is not None else None
                 label, key = (name, name) if capacity is None else \
                     (f"{name} ({capacity} capacity)", f"{name}:{capacity}")
                 out.append(GraphRung(label, key, model, latent, source=name, capacity=capacity))

@@ -142,3 +142,18 @@ def test_tables_join_in_order_with_every_record():
     assert torch.equal(joined.as_params(2).corrections["F.layers.3.bias"], torch.ones(1))
     with pytest.raises(ValueError, match="different models"):
         MaterialTable.concat([first, MaterialTable(get_model("ward").specs, ["w"], 27)])
+
+
+def test_a_material_fitted_at_an_analytical_capacity_holds_no_latent_code(corrected, tmp_path):
+    """A bundle's material fitted at the ``original`` capacity keeps its record through a save, and
+    the model's mean code and training codes leave its row out: it is only where its fit started."""
+    with torch.no_grad():
+        corrected.materials.latent.copy_(torch.tensor([[0.2], [0.4], [100.0]]).expand(-1, 27))
+    corrected.materials.set_corrections(2, {}, "original")
+    back = Bundle.load(corrected.save(tmp_path / "b")).materials
+    assert back.as_params(2).capacity == "original" and back.coded() == [0, 1]
+    assert torch.equal(back.latent_codes(), back.latent.detach()[:2])
+    assert torch.allclose(back.mean_latent(), torch.full((27,), 0.3))
+    back.set_corrections(0, {}, "analytical")
+    back.set_corrections(1, {}, "original")
+    assert back.coded() == [] and back.latent_codes().shape == (0, 27) and back.mean_latent() is None
