@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from .tables import help_description
+
 if TYPE_CHECKING:  # torch and the encoder are imported by run_train: `neuenh encoder --help` needs neither
     from neuenh.checkpoint import Bundle
 
@@ -32,10 +34,10 @@ DEFAULT_STEPS = 4000
 
 def configure(p: argparse.ArgumentParser) -> None:
     """``neuenh encoder``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
-    p.description = __doc__.split("\n\n", 1)[1]
+    p.description = help_description(__doc__)
     actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     train = actions.add_parser("train", help="train the encoder and write it into the bundle",
-                               description=__doc__.split("\n\n", 1)[1])
+                               description=p.description)
     train.add_argument("bundle", metavar="BUNDLE", help="a bundle folder or a shipped model's name")
     train.add_argument("--spec", type=Path, help="the job spec whose data: sources to learn from "
                                                  "(default: the one the bundle's provenance names)")

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 from neuenh.export import FORMATS, export
 
 from .fit_reports import read_fit_report
+from .tables import help_description
 
 if TYPE_CHECKING:  # the models' modules import torch (~1.5 s): `neuenh export --help` need not pay it
     from neuenh.materials import MaterialParams
@@ -34,7 +35,7 @@ if TYPE_CHECKING:  # the models' modules import torch (~1.5 s): `neuenh export -
 
 def configure(p: argparse.ArgumentParser) -> None:
     """``neuenh export``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
-    p.description = __doc__.split("\n\n", 1)[1].split("\n\n", 1)[1]
+    p.description = help_description(__doc__)
     p.add_argument("model", metavar="MODEL", nargs="?",
                    help="a bundle folder, a shipped model or an analytical model (not with --plan)")
     p.add_argument("--format", required=True, choices=FORMATS, help="what to write")

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 from neuenh.files import atomic_write, is_temporary
 
-from .tables import plan_totals
+from .tables import help_description, plan_totals
 
 if TYPE_CHECKING:  # neuenh.scene imports torch (~1.5 s): `neuenh scene --help` need not pay it
     from neuenh.scene import MaterialPlan
@@ -29,12 +29,13 @@ if TYPE_CHECKING:  # neuenh.scene imports torch (~1.5 s): `neuenh scene --help` 
 
 def configure(p: argparse.ArgumentParser) -> None:
     """``neuenh scene``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
-    p.description = __doc__.split("\n\n", 1)[1]
+    description = help_description(__doc__)
+    p.description = description
     actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
-    plan = actions.add_parser("plan", help="choose each material's rung and write the plan",
-                              description=__doc__.split("\n\n", 1)[1])
-    plan.add_argument("scene", type=Path, metavar="SCENE.yaml")
-    plan.add_argument("-o", "--output", required=True, type=Path, metavar="DIR")
+    plan = actions.add_parser("plan", help="choose each material's rung and write the plan", description=description)
+    plan.add_argument("scene", type=Path, metavar="SCENE.yaml", help="the scene (e.g. examples/scene.yaml)")
+    plan.add_argument("-o", "--output", required=True, type=Path, metavar="DIR",
+                      help="folder of the plan's files (kept between runs: an interrupted plan resumes)")
     plan.add_argument("--json", action="store_true", help="print the plan's totals as JSON")
     plan.add_argument("--no-sheet", action="store_true", help="skip the contact sheet (its renders)")
     plan.add_argument("--chunk", type=int, default=8, metavar="N",

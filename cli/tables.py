@@ -1,11 +1,17 @@
 """Plain text both command lines print (``neuenh`` and ``neuenh-client``): aligned tables, a fit
-report, a scene plan's frame totals. Pure formatting of the JSON the commands already hold, so the
+report, a scene plan's frame totals, a command's help. Pure formatting of the JSON the commands already hold, so the
 local command and the service's client print the same thing for the same result.
 """
 
 from __future__ import annotations
 
 from collections.abc import Collection, Sequence
+
+
+def help_description(doc: str) -> str:
+    """A command's ``--help`` text from its module doc (a title line, an indented synopsis, then
+    the text): the text alone, as argparse's own usage line already gives the synopsis."""
+    return doc.split("\n\n", 2)[2]
 
 
 def table(rows: Sequence[Sequence[str]], right: Collection[int] = ()) -> str:
