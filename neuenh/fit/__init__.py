@@ -27,7 +27,8 @@ __all__ = ["Adaptive", "CAPACITIES", "FitOptions", "FitProtocol", "FitResult", "
 
 
 def default_protocol(model: BRDFModel) -> FitProtocol:
-    """``PlainLBFGS`` for a model without modules, the adaptive-capacity fit for one with."""
+    """``PlainLBFGS`` for a model without modules, ``LatentAdam`` (the latent capacity) for one with:
+    ``FitOptions()``'s protocol."""
     return FitOptions().protocol_for(model)
 
 

@@ -29,8 +29,8 @@ class FitOptions:
     ``epochs``/``lbfgs_iterations``: budgets (module doc), None for each protocol's own."""
 
     method: str = "fast"
-    # not "auto" yet: it costs about twice the latent fit (three times at a few hundred samples), and
-    # a bundle cannot hold a material it fits at the analytical capacity (docs/BENCHMARKS.md, issue 23)
+    # not "auto": it costs about twice the latent fit (three times at a few hundred samples), and scene
+    # plans, the report and the service's fits would all pay that (docs/BENCHMARKS.md, issue 23)
     capacity: str = "latent"
     epochs: int | None = None
     lbfgs_iterations: int | None = None

@@ -29,7 +29,8 @@ The protocols:
   module weights under a prior, capacity and prior strength chosen per material by
   cross-validation on the fit data.
 
-``default_protocol(model)``: ``PlainLBFGS`` for a model without modules, ``Adaptive`` for one with.
+``default_protocol(model)``: ``PlainLBFGS`` for a model without modules, ``LatentAdam`` for one with
+(``Adaptive`` when asked for: ``FitOptions(capacity="auto")``, ``neuenh fit --capacity auto``).
 """
 
 from __future__ import annotations
