@@ -306,6 +306,16 @@ class FittedMaterial(BaseModel):
     params_per_material: int = Field(description="free parameters of this material at its capacity")
 
 
+class DrawPublic(BaseModel):
+    """How pairs were drawn from the measured files among a fit's uploads (``neuenh.study.heldout.draw_fit_test``,
+    as ``neuenh fit`` draws them)."""
+
+    samples: int = Field(description="pairs drawn from each of them")
+    near_mirror: float = Field(description="the share of those pairs with the half vector near the normal")
+    seed: int
+    materials: list[str] = Field(description="the materials drawn (RGL or MERL uploads); the others were tables")
+
+
 class FitPublic(BaseModel):
     """Materials fitted with a job's model, its module weights frozen (``POST /v1/jobs/{id}/fit``)."""
 
@@ -316,6 +326,8 @@ class FitPublic(BaseModel):
     protocol: dict = Field(description="the fit protocol and its budget (neuenh.fit)")
     wall_s: float
     materials: list[FittedMaterial]
+    drawn: DrawPublic | None = Field(None, description="how pairs were drawn from the uploaded RGL or MERL files; "
+                                                       "null when every upload was a table")
 
 
 class PlanProgressPublic(BaseModel):

@@ -20,12 +20,25 @@ from typing import Any, Callable
 
 from fastapi import HTTPException, UploadFile, status
 
+from neuenh.data.draws import DRAWN_KINDS
 from neuenh.data.errors import DataError
+from neuenh.data.formats import detect_format
 from neuenh.data.table import TableTooLarge
 from neuenh_service.storage import PlanRecord, PlanStore
 
 CHUNK = 1 << 20
 PLAN_UPLOADS = "uploads"  # under the data directory: the measured files sent with scenes, by digest
+UPLOADABLE = "measurement tables (.npz, CSV), RGL .bsdf or MERL .binary files"
+
+
+def uploaded_kind(path: Path) -> str:
+    """What an uploaded file is, told by its content (``neuenh.data.formats.detect_format``):
+    ``"table"`` or one of ``DRAWN_KINDS`` (a measured file pairs are drawn from); anything else (NBRDF
+    weights, an EXR capture, junk) is a ``DataError`` naming it."""
+    kind = detect_format(path)
+    if kind != "table" and kind not in DRAWN_KINDS:
+        raise DataError(f"{path}: a {kind} file; uploads are {UPLOADABLE}")
+    return kind
 
 
 @dataclass(frozen=True)

@@ -12,9 +12,8 @@ from __future__ import annotations
 import argparse
 import os
 
-# the README's protocol: 3,000 pairs, half of them near the mirror direction
-DRAW_SAMPLES, DRAW_NEAR_MIRROR = 3000, 0.5
-MEASURED_KINDS = ("rgl", "merl")
+from neuenh.data.draws import DRAW_NEAR_MIRROR, DRAW_SAMPLES, DRAWN_KINDS
+
 READABLE = "measurement tables (.npz, CSV), RGL .bsdf and MERL .binary files"
 
 
@@ -39,7 +38,7 @@ def is_measured(path: str | os.PathLike) -> bool:
     from neuenh.data.formats import MEASURED_NOT, detect_format
 
     kind = detect_format(path)
-    if kind not in ("table", *MEASURED_KINDS):
+    if kind not in ("table", *DRAWN_KINDS):
         what = MEASURED_NOT.get(kind, "NBRDF network weights (a model, not measurements)")
         raise ValueError(f"{path}: {what}; a fit reads {READABLE}")
     return kind != "table"

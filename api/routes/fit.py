@@ -1,8 +1,11 @@
 """``POST /v1/jobs/{id}/fit``: fit uploaded measurements with a job's model (its module weights
 frozen) and return the fitted per-material parameters and losses.
 
-Each uploaded file is one material: a table (``.npz`` with ``wi``, ``wo``, ``f_r`` or CSV
-``wi_x..wo_z,r,g,b[,weight]``; ``neuenh.data.table``), named by its file name. The model is the
+Each uploaded file is one material, named by its file name: a table (``.npz`` with ``wi``, ``wo``,
+``f_r`` or CSV ``wi_x..wo_z,r,g,b[,weight]``; ``neuenh.data.table``), or an RGL ``.bsdf`` or MERL
+``.binary`` file (told by content), from which ``samples`` pairs are drawn, ``near_mirror`` of them
+near the mirror direction, seeded by ``seed`` — the draw ``neuenh fit`` and ``neuenh-client fit`` make
+(``neuenh.study.heldout.draw_fit_test``), so the three fit the same pairs. The model is the
 job's last committed bundle, so a running job can be tried before it ends. Fits run one at a time
 (they share the service's CPUs with the candidates being trained): a request that finds another one
 running gets 429 with ``Retry-After`` instead of holding a worker thread while it waits. One fit's
@@ -18,14 +21,17 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, File, Form, HTTPException, Request, UploadFile, status
 
 from neuenh.checkpoint import Bundle
+from neuenh.data.draws import DRAW_NEAR_MIRROR, DRAW_SAMPLES
+from neuenh.data.measured import load_measured
 from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
 from neuenh.fit import CAPACITIES, FitOptions, fit_materials
+from neuenh.study.heldout import draw_fit_test
 
 from ..deps import ArtifactStoreDep, Authorized, ChangeableJob, FitLockDep, JobStoreDep, SettingsDep, fit_slot
 from ..errors import COMMON, DAMAGED, documented
-from ..schemas import FitPublic
-from ..uploads import receive
+from ..schemas import DrawPublic, FitPublic
+from ..uploads import UPLOADABLE, receive, uploaded_kind
 
 router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized], responses=COMMON)
 
@@ -33,11 +39,11 @@ router = APIRouter(prefix="/jobs", tags=["jobs"], dependencies=[Authorized], res
     400: "a body that is not multipart/form-data",
     404: "no such job, or no committed round yet",
     413: "upload over NEUENH_MAX_UPLOAD_BYTES",
-    422: "a table that cannot be read, or a request over the service's limits",
+    422: "an upload that cannot be read, or a request over the service's limits",
     429: "another fit or upload is running: retry after Retry-After seconds"}) | DAMAGED)
 def fit_job(
     request: Request, job: ChangeableJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep, fit_lock: FitLockDep,
-    files: Annotated[list[UploadFile], File(description="one measurement table per material (.npz or CSV)")],
+    files: Annotated[list[UploadFile], File(description=f"one file per material: {UPLOADABLE}")],
     method: Annotated[Literal["fast", "paper"], Form()] = "fast",
     capacity: Annotated[str, Form(description="a model with modules: latent (default), auto (chosen per material "
                                               "by cross-validation) or one of " + ", ".join(CAPACITIES))] = "latent",
@@ -46,6 +52,11 @@ def fit_job(
                                                   "paper 1000, plain 300)")] = 0,
     lbfgs_iterations: Annotated[int, Form(ge=0, description="a plain model's L-BFGS iterations per phase; 0: its "
                                                             "own (300)")] = 0,
+    samples: Annotated[int, Form(ge=1, description=f"pairs drawn from each RGL or MERL upload (default {DRAW_SAMPLES}); "
+                                                   "a table has its rows")] = DRAW_SAMPLES,
+    near_mirror: Annotated[float, Form(ge=0.0, le=1.0, description="the share of those pairs with the half vector "
+                                                                   f"near the normal (default {DRAW_NEAR_MIRROR})")] = DRAW_NEAR_MIRROR,
+    seed: Annotated[int, Form(ge=0, lt=2**32, description="the draws' seed")] = 0,
 ) -> FitPublic:
     job_id = job.id
     last = jobs.last_round(job_id)
@@ -56,6 +67,9 @@ def fit_job(
         if value > settings.max_epochs:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{name}: {value} exceeds this service's "
                                                                        f"limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)")
+    if samples > settings.max_samples:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"samples: {samples} pairs per material exceed this "
+                                                                   f"service's limit of {settings.max_samples} (NEUENH_MAX_SAMPLES)")
     if len(files) > settings.max_materials:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"files: {len(files)} materials exceed this service's limit of {settings.max_materials} "
@@ -68,22 +82,32 @@ def fit_job(
     bundle = Bundle.from_bytes(artifacts.get(last.artifact_key))
     model = bundle.model
     with fit_slot(fit_lock):  # reading uploads costs memory like a fit: one at a time too (else 429)
-        samples = _read_uploads(files, settings.max_samples)
+        draw = DrawPublic(samples=samples, near_mirror=near_mirror, seed=seed, materials=[])
+        measurements, draw.materials = _read_uploads(files, settings.max_samples, draw)
         protocol = options.protocol_for(model)
-        fitted = protocol.fitted_samples(samples)
+        fitted = protocol.fitted_samples(measurements)
         work = fitted * protocol.budget_epochs
         if work > settings.max_fit_work:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                                 f"files: {fitted} measurements fitted x {protocol.budget_epochs} epochs of the "
                                 f"{protocol.name} fit = {work} exceed this service's limit of {settings.max_fit_work} per fit "
                                 "(NEUENH_MAX_FIT_WORK); send fewer rows or ask fewer epochs")
-        result = fit_materials(model, samples, protocol, trained=bundle.materials)
+        result = fit_materials(model, measurements, protocol, trained=bundle.materials)
     request.app.state.metrics.fits.inc()
-    return FitPublic(job_id=job_id, round=last.index, **result.report(model, samples))
+    return FitPublic(job_id=job_id, round=last.index, drawn=draw if draw.materials else None,
+                     **result.report(model, measurements))
 
 
-def _read_uploads(files: list[UploadFile], max_samples: int) -> Samples:
+def _read_uploads(files: list[UploadFile], max_samples: int, draw: DrawPublic) -> tuple[Samples, list[str]]:
+    """Every upload's measurements — a table's rows, or ``draw``'s pairs from an RGL or MERL file
+    (one held-out pair drawn and dropped, as ``neuenh fit`` does) — and the names of those drawn."""
+
+    def read(path: Path, name: str) -> tuple[Samples, bool]:
+        if uploaded_kind(path) == "table":
+            return read_table(path, name=name, max_rows=max_samples), False
+        fit, _, _ = draw_fit_test(load_measured(path, name), draw.samples, 1, draw.seed, draw.near_mirror)
+        return fit, True
+
     with tempfile.TemporaryDirectory(prefix="neuenh-fit-") as tmp:
-        tables = receive(files, Path(tmp), lambda path, name: read_table(path, name=name, max_rows=max_samples),
-                         max_samples)
-    return Samples.concat([t.value for t in tables])
+        received = receive(files, Path(tmp), read, max_samples)
+    return Samples.concat([r.value[0] for r in received]), [r.name for r in received if r.value[1]]

@@ -19,8 +19,6 @@ from typing import Annotated
 
 from fastapi import APIRouter, Body, File, Form, Header, HTTPException, Response, UploadFile, status
 
-from neuenh.data.errors import DataError
-from neuenh.data.formats import detect_format
 from neuenh.data.measured import load_measured
 from neuenh.data.table import load_table
 from neuenh.scene import SceneError, SceneSpec, parse_scene
@@ -37,7 +35,7 @@ from ..errors import COMMON, DAMAGED, documented
 from ..limits import plan_problems
 from ..schemas import PlanList, PlanPublic
 from ..settings import Settings
-from ..uploads import PLAN_UPLOADS, Received, discard, receive
+from ..uploads import PLAN_UPLOADS, Received, discard, receive, uploaded_kind
 
 router = APIRouter(prefix="/plans", tags=["plans"], dependencies=[Authorized], responses=COMMON)
 # A scene with its files: a path of its own (under /plans it would also read as GET /plans/{plan_id}).
@@ -109,14 +107,11 @@ def submit_plan_with_files(
 def _check_measured(path: Path, name: str, max_rows: int) -> str:
     """The kind of an uploaded measured file, after reading it whole (a table: refused from its row
     count before any value is read)."""
-    kind = detect_format(path)
+    kind = uploaded_kind(path)
     if kind == "table":
         load_table(path, name, max_rows)
-    elif kind in ("rgl", "merl"):
-        load_measured(path, name)
     else:
-        raise DataError(f"{path}: a {kind} file; uploads are measurement tables (.npz, CSV), RGL .bsdf or "
-                        "MERL .binary files")
+        load_measured(path, name)
     return kind
 
 

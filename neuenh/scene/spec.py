@@ -42,6 +42,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError, field_validator, model_validator
 
 from ..capacities import CAPACITY_CHOICES
+from ..data.draws import DRAW_NEAR_MIRROR, DRAW_SAMPLES
 
 __all__ = ["CaptureEntry", "FileEntry", "FitSpec", "ModelEntry", "RenderSpec", "RungsEntry", "SceneError",
            "SceneSpec", "Tolerance", "ladder_source", "load_scene", "parse_scene", "scene_data"]
@@ -145,9 +146,9 @@ class Tolerance(_Strict):
 
 
 class FitSpec(_Strict):
-    samples: int = Field(3000, ge=1, description="measurements to fit each material on")
+    samples: int = Field(DRAW_SAMPLES, ge=1, description="measurements to fit each material on")
     test_samples: int = Field(3000, ge=1, description="others to measure it on (a table: at most the rest)")
-    near_mirror: float = Field(0.5, ge=0.0, le=1.0, description=(
+    near_mirror: float = Field(DRAW_NEAR_MIRROR, ge=0.0, le=1.0, description=(
         "share of a continuous material's pairs drawn near the mirror direction, where highlights are"))
     epochs: int | None = Field(None, ge=1, description=(
         "epochs of every rung's first-order fit: Adam (an enhanced model, 300 by default), NBRDF's (300); "

@@ -12,11 +12,14 @@ import numpy as np
 import pytest
 import torch
 
+from data_files import nbrdf_weights, tiny_rgl_fields, write_tensor_file
 from jobspecs import tiny_spec
 from live_api import running_server, wait_for
 from neuenh.data.directions import sample_directions
+from neuenh.data.measured import load_measured
 from neuenh.data.table import write_table
 from neuenh.models import get_model
+from neuenh.study.heldout import draw_fit_test
 
 TRUTH = {"normal": [0.0, 0.0], "t_theta": [0.0], "rho_d": [0.30, 0.20, 0.10], "rho_s": [0.8, 0.8, 0.8],
          "alpha_x": [0.15], "alpha_y": [0.15], "f0": [0.5]}
@@ -82,8 +85,28 @@ def test_fit_takes_several_materials_and_csv(client, plain_job, tmp_path):
     assert glossy < 0.3 < rough_fit
 
 
+def test_fit_draws_pairs_from_an_rgl_file_as_neuenh_fit_does(client, plain_job, tmp_path):
+    """An RGL upload is drawn on the service as ``neuenh fit`` and ``neuenh-client fit`` draw it
+    (``draw_fit_test``): the answer is the very fit of the table of those pairs, drawn here."""
+    rgl = write_tensor_file(tmp_path / "tiny.bsdf", tiny_rgl_fields())
+    r = client.post(f"/jobs/{plain_job['id']}/fit", **upload(rgl, samples="400", near_mirror="0.25", seed="3",
+                                                              epochs="60"))
+    assert r.status_code == 200, r.text
+    drawn = r.json()
+    assert drawn["drawn"] == {"samples": 400, "near_mirror": 0.25, "seed": 3, "materials": ["tiny"]}
+    assert [(m["name"], m["samples"]) for m in drawn["materials"]] == [("tiny", 400)]
+    pairs, _, _ = draw_fit_test(load_measured(rgl, "tiny"), 400, 1, 3, 0.25)
+    table = write_table(tmp_path / "tiny.npz", pairs.wi, pairs.wo, pairs.f_r)
+    as_table = client.post(f"/jobs/{plain_job['id']}/fit", **upload(table, epochs="60")).json()
+    assert as_table["drawn"] is None and as_table["materials"] == drawn["materials"]
+
+
 @pytest.mark.parametrize("case, status, words", [
     ("not a table", 422, ["junk.npz"]),
+    ("nbrdf weights", 422, ["weights.npz", "a nbrdf file", "uploads are measurement tables"]),
+    ("truncated rgl", 422, ["broken.bsdf"]),
+    ("too many drawn", 422, ["samples: 5001", "NEUENH_MAX_SAMPLES"]),
+    ("near_mirror out of range", 422, ["near_mirror"]),
     ("same names", 422, ["share a material name"]),
     ("too many samples", 422, ["5000", "NEUENH_MAX_SAMPLES"]),
     ("too many epochs", 422, ["400", "NEUENH_MAX_EPOCHS"]),
@@ -95,8 +118,15 @@ def test_fit_refuses_bad_uploads_naming_the_problem(client, plain_job, tmp_path,
     good = ggx_table(tmp_path / "good.npz", n=200)
     junk = tmp_path / "junk.npz"
     junk.write_bytes(b"PK\x03\x04 this is not an npz")
+    weights = tmp_path / "weights.npz"
+    np.savez(weights, **nbrdf_weights(["only"]))
+    rgl = write_tensor_file(tmp_path / "tiny.bsdf", tiny_rgl_fields())
     request = {
         "not a table": upload(junk),
+        "nbrdf weights": upload(weights),
+        "truncated rgl": {"files": [("files", ("broken.bsdf", rgl.read_bytes()[: len(rgl.read_bytes()) // 2]))]},
+        "too many drawn": upload(rgl, samples="5001"),
+        "near_mirror out of range": upload(rgl, near_mirror="1.5"),
         "same names": upload(good, ggx_table(tmp_path / "good.csv", n=200)),
         "too many samples": upload(ggx_table(tmp_path / "big.npz", n=5001)),
         "too many epochs": upload(good, epochs="401"),
