@@ -82,8 +82,7 @@ def fit_job(
     bundle = Bundle.from_bytes(artifacts.get(last.artifact_key))
     model = bundle.model
     with fit_slot(fit_lock):  # reading uploads costs memory like a fit: one at a time too (else 429)
-        draw = DrawPublic(samples=samples, near_mirror=near_mirror, seed=seed, materials=[])
-        measurements, draw.materials = _read_uploads(files, settings.max_samples, draw)
+        measurements, drawn = _read_uploads(files, settings.max_samples, samples, near_mirror, seed)
         protocol = options.protocol_for(model)
         fitted = protocol.fitted_samples(measurements)
         work = fitted * protocol.budget_epochs
@@ -94,18 +93,19 @@ def fit_job(
                                 "(NEUENH_MAX_FIT_WORK); send fewer rows or ask fewer epochs")
         result = fit_materials(model, measurements, protocol, trained=bundle.materials)
     request.app.state.metrics.fits.inc()
-    return FitPublic(job_id=job_id, round=last.index, drawn=draw if draw.materials else None,
-                     **result.report(model, measurements))
+    draw = DrawPublic(samples=samples, near_mirror=near_mirror, seed=seed, materials=drawn) if drawn else None
+    return FitPublic(job_id=job_id, round=last.index, drawn=draw, **result.report(model, measurements))
 
 
-def _read_uploads(files: list[UploadFile], max_samples: int, draw: DrawPublic) -> tuple[Samples, list[str]]:
-    """Every upload's measurements — a table's rows, or ``draw``'s pairs from an RGL or MERL file
-    (one held-out pair drawn and dropped, as ``neuenh fit`` does) — and the names of those drawn."""
+def _read_uploads(files: list[UploadFile], max_samples: int, samples: int, near_mirror: float, seed: int
+                  ) -> tuple[Samples, list[str]]:
+    """Every upload's measurements — a table's rows, or ``samples`` pairs drawn from an RGL or MERL
+    file (one held-out pair drawn and dropped, as ``neuenh fit`` does) — and the names of those drawn."""
 
     def read(path: Path, name: str) -> tuple[Samples, bool]:
         if uploaded_kind(path) == "table":
             return read_table(path, name=name, max_rows=max_samples), False
-        fit, _, _ = draw_fit_test(load_measured(path, name), draw.samples, 1, draw.seed, draw.near_mirror)
+        fit, _, _ = draw_fit_test(load_measured(path, name), samples, 1, seed, near_mirror)
         return fit, True
 
     with tempfile.TemporaryDirectory(prefix="neuenh-fit-") as tmp:
