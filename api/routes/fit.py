@@ -67,9 +67,6 @@ def fit_job(
         if value > settings.max_epochs:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{name}: {value} exceeds this service's "
                                                                        f"limit of {settings.max_epochs} (NEUENH_MAX_EPOCHS)")
-    if samples > settings.max_samples:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"samples: {samples} pairs per material exceed this "
-                                                                   f"service's limit of {settings.max_samples} (NEUENH_MAX_SAMPLES)")
     if len(files) > settings.max_materials:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"files: {len(files)} materials exceed this service's limit of {settings.max_materials} "
@@ -105,6 +102,9 @@ def _read_uploads(files: list[UploadFile], max_samples: int, samples: int, near_
     def read(path: Path, name: str) -> tuple[Samples, bool]:
         if uploaded_kind(path) == "table":
             return read_table(path, name=name, max_rows=max_samples), False
+        if samples > max_samples:  # checked before the file is read (a table's rows are its own)
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"samples: {samples} pairs per material exceed "
+                                                                       f"this service's limit of {max_samples} (NEUENH_MAX_SAMPLES)")
         fit, _, _ = draw_fit_test(load_measured(path, name), samples, 1, seed, near_mirror)
         return fit, True
 
