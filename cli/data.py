@@ -36,6 +36,8 @@ import numpy as np
 from neuenh.data.table import savez
 from neuenh.files import atomic_write
 
+from .tables import help_description
+
 if TYPE_CHECKING:  # torch is imported where a command runs: `neuenh data --help` answers without it
     import torch
 
@@ -49,24 +51,29 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.description = __doc__
     p.formatter_class = argparse.RawDescriptionHelpFormatter
     sub = p.add_subparsers(dest="data_command", required=True, metavar="ACTION")
+    # each action's own --help: its paragraph of the module doc (the one that opens with its name)
+    about = {par.split("``")[1]: par for par in help_description(__doc__).split("\n\n")}
 
-    i = sub.add_parser("inspect", help="what a data file is, its materials and value ranges")
-    i.add_argument("file", type=Path, metavar="FILE")
+    i = sub.add_parser("inspect", help="what a data file is, its materials and value ranges",
+                       description=about["inspect"])
+    i.add_argument("file", type=Path, metavar="FILE", help="the file (or capture folder) to look at")
     i.add_argument("--probe", type=int, default=None,
                    help="samples per continuous material for the value ranges (default 20000, or 2000 each "
                         "for a file of many networks)")
     i.add_argument("--json", action="store_true", help="print the result as JSON")
     i.set_defaults(run=run_inspect)
 
-    s = sub.add_parser("sample", help="materialise a dataset spec into train/val arrays (.npz)")
-    s.add_argument("spec", type=Path, metavar="SPEC.yaml")
-    s.add_argument("-o", "--output", type=Path, required=True, metavar="OUT.npz")
+    s = sub.add_parser("sample", help="materialise a dataset spec into train/val arrays (.npz)",
+                       description=about["sample"])
+    s.add_argument("spec", type=Path, metavar="SPEC.yaml", help="a data: list of sources, or a whole job spec")
+    s.add_argument("-o", "--output", type=Path, required=True, metavar="OUT.npz", help="the arrays' file")
     s.add_argument("--json", action="store_true", help="print the result as JSON")
     s.set_defaults(run=run_sample)
 
-    c = sub.add_parser("slice", help="picture a BRDF slice (PNG), optionally next to a fitted model")
-    c.add_argument("file", type=Path, metavar="FILE")
-    c.add_argument("-o", "--output", type=Path, required=True, metavar="SLICE.png")
+    c = sub.add_parser("slice", help="picture a BRDF slice (PNG), optionally next to a fitted model",
+                       description=about["slice"])
+    c.add_argument("file", type=Path, metavar="FILE", help="a measured file: RGL, MERL, NBRDF weights or a table")
+    c.add_argument("-o", "--output", type=Path, required=True, metavar="SLICE.png", help="the picture")
     c.add_argument("--material", help="which network of an NBRDF file (required when it holds several)")
     c.add_argument("--model", help="fit this model (a name such as ggx, or a bundle directory) and show it too")
     c.add_argument("--view", choices=("rusinkiewicz", "hemisphere"), default="rusinkiewicz")
