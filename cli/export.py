@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 from neuenh.export import FORMATS, export
 
 from .fit_reports import read_fit_report
+from .outputs import output_folder
 from .tables import help_description
 
 if TYPE_CHECKING:  # the models' modules import torch (~1.5 s): `neuenh export --help` need not pay it
@@ -53,6 +54,7 @@ def run(args) -> int:
         raise ValueError("give a MODEL or --plan PLAN.json (one of them)")
     if args.plan and args.params:
         raise ValueError("--params goes with a MODEL; a plan holds its materials' parameters")
+    output_folder(args.output)
     wanted = set(args.material or ())
     if args.plan:
         from neuenh.scene.outputs import plan_models, safe_name

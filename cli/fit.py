@@ -47,6 +47,7 @@ from neuenh.models import available_models
 from neuenh.pretrained import shipped_models
 
 from .draws import add_draw_arguments, check_draw_arguments, draw, is_measured
+from .outputs import output_folder
 from .tables import fit_report
 
 
@@ -109,6 +110,11 @@ def run(args) -> int:
         raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
     drawn = _check_measurement_args(args)
     _check_heldout_args(args)
+    if args.output:
+        if args.output.suffix == ".json" and not args.output.exists():  # the fit report is JSON, the bundle a folder
+            raise ValueError(f"-o {args.output}: -o writes a bundle, a folder (model.json, weights, materials); the fit "
+                             f"report as JSON is --json > {args.output}")
+        output_folder(args.output)
     options = FitOptions(method=args.method, capacity=args.capacity, epochs=args.epochs,
                          lbfgs_iterations=args.lbfgs_iterations, starts=args.starts)
     model, trained = load_model(args.model, "--model")

@@ -46,6 +46,7 @@ from neuenh.files import atomic_write
 from neuenh.pretrained import bundle_path
 
 from .fit_reports import read_fit_report
+from .outputs import output_folder
 
 if TYPE_CHECKING:
     from neuenh.materials import MaterialParams
@@ -238,9 +239,7 @@ def run(args) -> int:
         raise ValueError("--params and --material need --model")
 
     # everything that can be wrong is checked before the first (slow) render
-    out = args.output
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"-o {out}: exists and is not a directory")
+    out = output_folder(args.output)
     names = (["model.exr", "model.png"] if model_spec else []) + (["truth.exr", "truth.png"] if has_truth else [])
     if model_spec and has_truth:
         names.append("error.png")

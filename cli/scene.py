@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 from neuenh.files import atomic_write, is_temporary
 
+from .outputs import output_folder
 from .tables import help_description, plan_totals
 
 if TYPE_CHECKING:  # neuenh.scene imports torch (~1.5 s): `neuenh scene --help` need not pay it
@@ -47,6 +48,7 @@ def run(args) -> int:
     from neuenh.scene import load_scene, plan_scene
     from neuenh.scene.outputs import write_plan
 
+    output_folder(args.output)
     spec, base = load_scene(args.scene)
     progress = Progress(sys.stderr)
     kept = args.output / "materials"

@@ -4,7 +4,10 @@ them import torch, ~1.5 s a process."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
+import torch
 
 from cli_runs import neuenh_here, run_probing_torch
 from neuenh_service.cli.main import COMMANDS
@@ -43,3 +46,39 @@ def test_an_unknown_command_is_a_usage_error_naming_the_commands():
     done = neuenh_here("fitt", "a.npz")
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert "invalid choice: 'fitt'" in done.stderr and all(repr(name) in done.stderr for name in COMMANDS)
+
+
+EXAMPLE_SCENE = Path(__file__).resolve().parents[2] / "examples" / "scene.yaml"
+
+
+@pytest.fixture
+def table(tmp_path):
+    """A small measurement table (20 pairs of a grey Lambertian)."""
+    from neuenh.data.directions import sample_directions
+    from neuenh.data.table import write_table
+
+    wi, wo = sample_directions(20, seed=0)
+    return write_table(tmp_path / "t.npz", wi, wo, torch.full((20, 3), 0.1))
+
+
+@pytest.mark.parametrize("command", [
+    ["fit", "--model", "ggx", "TABLE"],
+    ["export", "ggx", "--format", "glsl"],
+    ["render", "--model", "ggx"],
+    ["scene", "plan", EXAMPLE_SCENE],
+], ids=["fit", "export", "render", "scene-plan"])
+def test_an_output_folder_that_is_a_file_is_refused_before_any_work(command, table, tmp_path):
+    """``-o`` naming an existing file: one line, exit 2, the file untouched — before the fit, the export
+    or the plan runs (each ended in a traceback after its work before)."""
+    taken = tmp_path / "taken.json"
+    taken.write_text("{}")
+    out = neuenh_here(*[table if a == "TABLE" else a for a in command], "-o", taken)
+    assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
+    assert f"-o {taken}: exists and is not a folder" in out.stderr and out.stderr.count("\n") == 1, out.stderr
+    assert taken.read_text() == "{}"
+
+
+def test_fit_tells_a_bundle_folder_from_the_json_report(table, tmp_path):
+    out = neuenh_here("fit", "--model", "ggx", table, "-o", tmp_path / "fit.json")
+    assert out.returncode == 2 and f"--json > {tmp_path / 'fit.json'}" in out.stderr, out.stderr
+    assert not (tmp_path / "fit.json").exists()
