@@ -29,6 +29,8 @@ def serve(settings: Settings, announce: Callable[[str], None] = _print_now) -> N
     # after importing torch (~2-3 s of CPU)
     check_listen_address(settings)
     TokenTable(settings)  # a bad tokens file is one line now, not a startup traceback
+    if settings.data_dir.exists() and not settings.data_dir.is_dir():
+        raise ValueError(f"data directory {settings.data_dir} (--data-dir, NEUENH_DATA_DIR) exists and is not a folder")
     artifact_store(settings).close()  # a wrong bucket or endpoint is one line now, not a startup traceback
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     lock = owner_lock(settings).acquire()

@@ -23,6 +23,7 @@ from pathlib import Path
 from neuenh.files import atomic_write
 from neuenh_service.storage import JobStatus, LocalArtifactStore, OwnerLock, SQLiteJobStore, trained_epochs
 
+from .outputs import output_folder
 from .progress import ProgressDisplay
 from .tables import against_plain, still_learning
 
@@ -53,6 +54,9 @@ def run(args) -> int:
     from neuenh_service.orchestrator.spec import load_spec
 
     spec = load_spec(args.spec)
+    for flag, folder in (("--data-dir", args.data_dir), ("--out", args.out)):
+        if folder is not None:
+            output_folder(folder, flag)
     args.data_dir.mkdir(parents=True, exist_ok=True)
     with OwnerLock(args.data_dir / "owner.lock", owner="neuenh search"):  # not while a server runs its jobs
         return _search(spec, args)

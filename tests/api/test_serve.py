@@ -73,3 +73,14 @@ def test_serve_runs_jobs_on_ray_owns_its_store_and_shuts_down_cleanly(tmp_path):
     while alive(ray_processes) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not alive(ray_processes), "Ray processes (or the plan's) outlived the service"
+
+
+def test_a_data_directory_that_is_a_file_is_one_line_before_the_app(tmp_path):
+    taken = tmp_path / "data"
+    taken.write_text("not a folder")
+    run, imported_torch = run_probing_torch("neuenh_service.cli.main", "serve", "--port", "0", "--data-dir", taken,
+                                            cwd=REPO, env=clean_env())
+    assert run.returncode == 2 and "Traceback" not in run.stderr and not imported_torch, run.stderr
+    [line] = run.stderr.strip().splitlines()
+    assert line == f"neuenh serve: error: data directory {taken} (--data-dir, NEUENH_DATA_DIR) exists and is not a folder"
+    assert taken.read_text() == "not a folder"

@@ -49,6 +49,7 @@ def test_an_unknown_command_is_a_usage_error_naming_the_commands():
 
 
 EXAMPLE_SCENE = Path(__file__).resolve().parents[2] / "examples" / "scene.yaml"
+QUICKSTART = EXAMPLE_SCENE.with_name("quickstart.yaml")
 
 
 @pytest.fixture
@@ -61,20 +62,22 @@ def table(tmp_path):
     return write_table(tmp_path / "t.npz", wi, wo, torch.full((20, 3), 0.1))
 
 
-@pytest.mark.parametrize("command", [
-    ["fit", "--model", "ggx", "TABLE"],
-    ["export", "ggx", "--format", "glsl"],
-    ["render", "--model", "ggx"],
-    ["scene", "plan", EXAMPLE_SCENE],
-], ids=["fit", "export", "render", "scene-plan"])
-def test_an_output_folder_that_is_a_file_is_refused_before_any_work(command, table, tmp_path):
-    """``-o`` naming an existing file: one line, exit 2, the file untouched — before the fit, the export
-    or the plan runs (each ended in a traceback after its work before)."""
+@pytest.mark.parametrize("command, flag", [
+    (["fit", "--model", "ggx", "TABLE"], "-o"),
+    (["export", "ggx", "--format", "glsl"], "-o"),
+    (["render", "--model", "ggx"], "-o"),
+    (["scene", "plan", EXAMPLE_SCENE], "-o"),
+    (["search", QUICKSTART], "--out"),
+    (["search", QUICKSTART], "--data-dir"),
+], ids=["fit", "export", "render", "scene-plan", "search-out", "search-data-dir"])
+def test_an_output_folder_that_is_a_file_is_refused_before_any_work(command, flag, table, tmp_path):
+    """An output folder naming an existing file: one line, exit 2, the file untouched — before the fit,
+    the export, the plan or the search runs (each ended in a traceback, most after their work)."""
     taken = tmp_path / "taken.json"
     taken.write_text("{}")
-    out = neuenh_here(*[table if a == "TABLE" else a for a in command], "-o", taken)
+    out = neuenh_here(*[table if a == "TABLE" else a for a in command], flag, taken)
     assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
-    assert f"-o {taken}: exists and is not a folder" in out.stderr and out.stderr.count("\n") == 1, out.stderr
+    assert f"{flag} {taken}: exists and is not a folder" in out.stderr and out.stderr.count("\n") == 1, out.stderr
     assert taken.read_text() == "{}"
 
 
