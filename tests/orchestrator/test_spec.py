@@ -64,6 +64,12 @@ def test_spec_files_report_their_path(tmp_path):
         load_spec(bad)
     with pytest.raises(SpecError, match="nope.yaml: no such file"):
         load_spec(tmp_path / "nope.yaml")
+    (tmp_path / "folder.yaml").mkdir()
+    with pytest.raises(SpecError, match="folder.yaml: a folder, not a job spec"):
+        load_spec(tmp_path / "folder.yaml")
+    bad.write_bytes(b"\x94 binary")
+    with pytest.raises(SpecError, match="job.yaml: not valid YAML"):
+        load_spec(bad)
 
 
 def test_the_fit_scored_reference_spec_holds_out_every_kind_and_fits_as_users_do():
