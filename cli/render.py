@@ -116,7 +116,8 @@ def _lighting(args) -> dict:
     directional = [parse_light(text) for text in args.light]
     env = args.env if args.env is not None else (None if directional else "studio")
     if env not in (None, "studio") and not Path(env).is_file():
-        raise FileNotFoundError(f"--env {env}: no such file (give 'studio' or a lat-long .exr)")
+        what = "not a regular file" if Path(env).exists() else "no such file"
+        raise FileNotFoundError(f"--env {env}: {what} (give 'studio' or a lat-long .exr)")
     return {"environment": env, "samples": (args.samples ** 2) if env else 0, "samples_per_axis": args.samples,
             "seed": args.seed, "sampling": args.sampling, "directional": [{"direction": list(d), "irradiance": list(e)} for d, e in directional]}
 

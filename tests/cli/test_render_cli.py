@@ -150,6 +150,7 @@ def test_refuses_to_overwrite_without_force(tmp_path, capsys):
 @pytest.mark.parametrize("args,fragments", [
     (["--truth", "MISSING", "--model", "ggx"], ["missing.bsdf", "no such file"]),
     (["--env", "MISSING"], ["--env", "missing.bsdf", "no such file"]),
+    (["--env", "FOLDER"], ["--env", "folder: not a regular file"]),
     (["--light", "0,0,0:1"], ["--light '0,0,0:1'"]),
     (["--model", "phong"], ["--model 'phong' is neither an analytical model"]),
     (["--model", "ggx", "--material", "steel"], ["--material 'steel' needs parameters"]),
@@ -160,7 +161,7 @@ def test_refuses_to_overwrite_without_force(tmp_path, capsys):
     (["--model", "ggx", "--params", "MISSING"], ["--params", "missing.bsdf: no such file"]),
     (["--model", "ggx", "--params", "ENHANCED"], ["is a fit of ggx in state 00011100100", "the model is ggx in state "
                                                   "00000000000", "give the model it was fitted with"]),
-], ids=["missing-truth", "missing-env", "zero-light", "unknown-model", "material-without-params", "unknown-material",
+], ids=["missing-truth", "missing-env", "env-folder", "zero-light", "unknown-model", "material-without-params", "unknown-material",
         "truth-folder", "truth-fifo", "params-folder", "params-missing", "params-of-another-model"])
 def test_user_mistakes_are_one_line_errors(tmp_path, capsys, args, fragments):
     params = tmp_path / "fit.json"
