@@ -27,8 +27,9 @@ def add_draw_arguments(p: argparse.ArgumentParser) -> None:
 
 def check_draw_arguments(args: argparse.Namespace, test_samples: int | None = None) -> None:
     """Usage errors of the draw's arguments (``ValueError``)."""
-    if args.samples < 1 or (test_samples is not None and test_samples < 1):
-        raise ValueError(f"--samples and --test-samples must be at least 1, got {args.samples} and {test_samples}")
+    for flag, value in (("--samples", args.samples), ("--test-samples", test_samples)):
+        if value is not None and value < 1:
+            raise ValueError(f"{flag} must be at least 1, got {value}")
     if not 0.0 <= args.near_mirror <= 1.0:
         raise ValueError(f"--near-mirror is a share of the pairs, in [0, 1]; got {args.near_mirror}")
 

@@ -297,11 +297,13 @@ def test_tables_and_measured_files_fit_together_each_as_it_is(merl_ggx, table):
         (["MERL", "--test", "TABLE"], "measured files (RGL, MERL) are measured held out with --test-samples N"),
         (["TABLE", "MERL", "--test-samples", "10"], "--test-samples draws from measured files"),
         (["MERL", "--near-mirror", "1.5"], "--near-mirror is a share of the pairs, in [0, 1]; got 1.5"),
-        (["MERL", "--samples", "0"], "--samples and --test-samples must be at least 1"),
+        (["MERL", "--samples", "0"], "--samples must be at least 1, got 0"),
+        (["MERL", "--test-samples", "0"], "--test-samples must be at least 1, got 0"),
         (["NBRDF"], "NBRDF network weights (a model, not measurements); a fit reads measurement tables"),
         (["MERL", "--predictions", "OUT"], "--predictions needs --test or --test-samples"),
     ],
-    ids=["test-tables", "test-samples-of-tables", "near-mirror", "no-samples", "nbrdf", "predictions"],
+    ids=["test-tables", "test-samples-of-tables", "near-mirror", "no-samples", "no-test-samples", "nbrdf",
+         "predictions"],
 )
 def test_measured_file_mistakes_exit_2_with_one_line(merl_ggx, table, tmp_path, args, message):
     """Refused before anything is drawn or fitted (in-process: the exit code and line the command gives)."""
