@@ -87,6 +87,8 @@ def plan_models(plan_json: Path) -> PlanModels:
         chosen = [(m["name"], m["chosen"], m["params"]) for m in plan["materials"]]
     except FileNotFoundError:
         raise ValueError(f"{plan_json}: no such file") from None
+    except IsADirectoryError:  # the plan's folder: its plan.json is inside
+        raise ValueError(f"{plan_json}: a folder, not a scene plan (give its plan.json)") from None
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{plan_json}: not a scene plan (neuenh scene plan): {type(exc).__name__}: {exc}") from None
     out: dict[str, tuple[object, dict]] = {}

@@ -89,6 +89,8 @@ def test_bad_inputs_are_one_line_errors(fitted, tmp_path):
     one_line_error(neuenh_here("export", "--format", "glsl", "-o", tmp_path), "give a MODEL or --plan")
     one_line_error(neuenh_here("export", "--plan", tmp_path / "none.json", "--format", "glsl", "-o", tmp_path),
                    "none.json: no such file")
+    one_line_error(neuenh_here("export", "--plan", tmp_path, "--format", "glsl", "-o", tmp_path / "out"),
+                   "a folder, not a scene plan (give its plan.json)")
     assert list(tmp_path.glob("*.glsl")) == []  # nothing half-written
 
 
