@@ -28,6 +28,8 @@ import argparse
 import os
 from pathlib import Path
 
+from .outputs import output_folder
+
 
 def configure(p: argparse.ArgumentParser) -> None:
     """``neuenh report``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
@@ -89,6 +91,8 @@ def run(args) -> int:
     from neuenh.study.registry import shipped_others
     from neuenh.study.report import StudySettings, run_study
 
+    for flag, folder in (("--out", args.out), ("--work-dir", args.work_dir)):  # before hours of fitting
+        output_folder(folder, flag)
     settings = StudySettings(
         rgl=args.rgl, model=args.model, baselines=args.baselines, out=args.out, command=command(args),
         materials=tuple(args.materials) if args.materials else None, fit_samples=args.fit_samples,

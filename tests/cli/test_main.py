@@ -69,10 +69,13 @@ def table(tmp_path):
     (["scene", "plan", EXAMPLE_SCENE], "-o"),
     (["search", QUICKSTART], "--out"),
     (["search", QUICKSTART], "--data-dir"),
-], ids=["fit", "export", "render", "scene-plan", "search-out", "search-data-dir"])
+    (["report"], "--out"),
+    (["report"], "--work-dir"),
+], ids=["fit", "export", "render", "scene-plan", "search-out", "search-data-dir", "report-out", "report-work-dir"])
 def test_an_output_folder_that_is_a_file_is_refused_before_any_work(command, flag, table, tmp_path):
     """An output folder naming an existing file: one line, exit 2, the file untouched — before the fit,
-    the export, the plan or the search runs (each ended in a traceback, most after their work)."""
+    the export, the plan, the search or the report runs (each ended in a traceback, most after their
+    work: the report's after hours of it)."""
     taken = tmp_path / "taken.json"
     taken.write_text("{}")
     out = neuenh_here(*[table if a == "TABLE" else a for a in command], flag, taken)
