@@ -13,6 +13,7 @@ from pathlib import Path
 
 from neuenh.files import atomic_write
 
+from ..outputs import output_folder
 from ..tables import plan_totals, table
 from .api import DOWNLOAD_TIMEOUT_S, Api
 from .commands import Commands, json_arg, note, print_json
@@ -36,6 +37,10 @@ def add_parser(commands: Commands) -> None:
 def run(args, api: Api) -> int:
     from neuenh.scene import load_scene
 
+    if args.output is not None:  # where the files go is checked before the plan is submitted, not after it ran
+        if not args.wait:
+            raise ValueError("-o saves the plan's files once it is done: it needs --wait")
+        output_folder(args.output)
     spec, base = load_scene(args.scene)  # a bad scene is a usage error before the service is contacted
     scene = _service_paths(spec.model_dump(mode="json", exclude_none=True), base)
     if args.upload:

@@ -449,6 +449,12 @@ def test_plan_a_scene_on_the_service_wait_and_save_its_files(live_server, tmp_pa
     bad = dict(data, ladder=[])
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
     one_line_error(client("plan", tmp_path / "bad.yaml", url=server.url), "ladder: List should have at least 1 item")
+    # where the files go is refused before anything is submitted
+    plans_before = len(server.app.state.plans.list_plans())
+    one_line_error(client("plan", tables / "scene.yaml", "-o", tmp_path / "files", url=server.url), "needs --wait")
+    one_line_error(client("plan", tables / "scene.yaml", "--wait", "-o", tables / "scene.yaml", url=server.url),
+                   "exists and is not a folder")
+    assert len(server.app.state.plans.list_plans()) == plans_before
 
 
 def test_plan_uploads_the_scenes_files_to_a_service_that_cannot_read_them(live_server, tmp_path):
