@@ -197,7 +197,7 @@ def _model_source(spec: str, params_file: Path | None, material: str | None, fla
     own = model_for(model, params)  # a material fitted at an analytical capacity: that capacity's model
     if own.uses_latent and params.latent is None:
         raise ValueError(f"{origin}: material {name!r} has no latent code, which model {model.name} needs")
-    brdf = model_brdf(model, params)
+    brdf = model_brdf(own, params)  # (own is its own capacity's model: not built a second time)
     # evaluate once so that wrong names, widths or ranges fail before any rendering
     probe = torch.tensor([[0.0, 0.0, 1.0]])
     brdf(probe, probe)
