@@ -46,10 +46,8 @@ def is_measured(path: str | os.PathLike) -> bool:
 
 
 def draw(path: str | os.PathLike, args: argparse.Namespace, test_samples: int | None = None):
-    """(fit, held-out or None) ``Samples`` drawn from the measured file at ``path``. Without
-    ``test_samples`` one held-out pair is drawn and dropped: the fit's draw is the same either way."""
-    from neuenh.data.measured import load_measured
-    from neuenh.study.heldout import draw_fit_test
+    """(fit, held-out or None) ``Samples`` drawn from the measured file at ``path`` with ``args``'
+    draw (``neuenh.study.heldout.draw_measured``)."""
+    from neuenh.study.heldout import draw_measured
 
-    fit, test, _ = draw_fit_test(load_measured(path), args.samples, test_samples or 1, args.seed, args.near_mirror)
-    return fit, (test if test_samples else None)
+    return draw_measured(path, args.samples, args.near_mirror, args.seed, test_samples)

@@ -5,7 +5,7 @@ Each uploaded file is one material, named by its file name: a table (``.npz`` wi
 ``f_r`` or CSV ``wi_x..wo_z,r,g,b[,weight]``; ``neuenh.data.table``), or an RGL ``.bsdf`` or MERL
 ``.binary`` file (told by content), from which ``samples`` pairs are drawn, ``near_mirror`` of them
 near the mirror direction, seeded by ``seed`` — the draw ``neuenh fit`` and ``neuenh-client fit`` make
-(``neuenh.study.heldout.draw_fit_test``), so the three fit the same pairs. The model is the
+(``neuenh.study.heldout.draw_measured``), so the three fit the same pairs. The model is the
 job's last committed bundle, so a running job can be tried before it ends. Fits run one at a time
 (they share the service's CPUs with the candidates being trained): a request that finds another one
 running gets 429 with ``Retry-After`` instead of holding a worker thread while it waits. One fit's
@@ -22,11 +22,10 @@ from fastapi import APIRouter, File, Form, HTTPException, Request, UploadFile, s
 
 from neuenh.checkpoint import Bundle
 from neuenh.data.draws import DRAW_NEAR_MIRROR, DRAW_SAMPLES
-from neuenh.data.measured import load_measured
 from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
 from neuenh.fit import CAPACITIES, FitOptions, fit_materials
-from neuenh.study.heldout import draw_fit_test
+from neuenh.study.heldout import draw_measured
 
 from ..deps import ArtifactStoreDep, Authorized, ChangeableJob, FitLockDep, JobStoreDep, SettingsDep, fit_slot
 from ..errors import COMMON, DAMAGED, documented
@@ -97,7 +96,7 @@ def fit_job(
 def _read_uploads(files: list[UploadFile], max_samples: int, samples: int, near_mirror: float, seed: int
                   ) -> tuple[Samples, list[str]]:
     """Every upload's measurements — a table's rows, or ``samples`` pairs drawn from an RGL or MERL
-    file (one held-out pair drawn and dropped, as ``neuenh fit`` does) — and the names of those drawn."""
+    file as ``neuenh fit`` draws them (``draw_measured``) — and the names of those drawn."""
 
     def read(path: Path, name: str) -> tuple[Samples, bool]:
         if uploaded_kind(path) == "table":
@@ -105,8 +104,7 @@ def _read_uploads(files: list[UploadFile], max_samples: int, samples: int, near_
         if samples > max_samples:  # checked before the file is read (a table's rows are its own)
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"samples: {samples} pairs per material exceed "
                                                                        f"this service's limit of {max_samples} (NEUENH_MAX_SAMPLES)")
-        fit, _, _ = draw_fit_test(load_measured(path, name), samples, 1, seed, near_mirror)
-        return fit, True
+        return draw_measured(path, samples, near_mirror, seed, name=name)[0], True
 
     with tempfile.TemporaryDirectory(prefix="neuenh-fit-") as tmp:
         received = receive(files, Path(tmp), read, max_samples)

@@ -37,7 +37,7 @@ from ..fit import FitOptions, FitResult, fit_materials, losses_at_own_capacity, 
 from ..materials import MaterialTable
 from ..model import BRDFModel
 
-__all__ = ["draw_fit_test", "fit_and_evaluate", "heldout_log_l1", "predict_f_r", "split_rows",
+__all__ = ["draw_fit_test", "draw_measured", "fit_and_evaluate", "heldout_log_l1", "predict_f_r", "split_rows",
            "write_predictions"]
 
 
@@ -147,6 +147,18 @@ def draw_fit_test(material, n_fit: int, n_test: int | None, seed: int,
     fit = _samples(material.name, table.wi[fit_rows], table.wo[fit_rows], table.f_r[fit_rows])
     test = _samples(material.name, table.wi[test_rows], table.wo[test_rows], table.f_r[test_rows])
     return fit, test, "disjoint rows"
+
+
+def draw_measured(path: str | os.PathLike, samples: int, near_mirror: float, seed: int,
+                  test_samples: int | None = None, name: str | None = None) -> tuple[Samples, Samples | None]:
+    """(fit, held-out or None) ``Samples`` drawn from the measured file at ``path`` (an RGL or MERL
+    file, ``data.measured.load_measured``; ``name`` its material's name, default the file's stem) by
+    ``draw_fit_test``: how ``neuenh fit``, ``neuenh-client fit`` and ``POST /v1/jobs/{id}/fit`` draw.
+    Without ``test_samples`` one held-out pair is drawn and dropped: the fit's pairs are the same either way."""
+    from ..data.measured import load_measured
+
+    fit, test, _ = draw_fit_test(load_measured(path, name), samples, test_samples or 1, seed, near_mirror)
+    return fit, (test if test_samples else None)
 
 
 def fit_and_evaluate(model: BRDFModel, material, n_fit: int, n_test: int | None = None, seed: int = 0,
