@@ -1,8 +1,10 @@
 """The ``neuenh`` command as the tests run it.
 
-``neuenh``: in a fresh process, as a user runs it. ``neuenh_here``: ``cli.main.main`` in this process,
-for bad input that is refused before any work is done: there a fresh interpreter's imports (torch,
-~2.5 s) are nearly the whole run, and the exit code, stdout and stderr are the same.
+``neuenh``: in a fresh process, as a user runs it — each command's own tests run it so at least once,
+and wherever the process is what is checked (its imports, its children, a kill, a resume).
+``neuenh_here``: ``cli.main.main`` in this process, wherever what is checked is the command's exit
+code, output and files: the same code from the parsed arguments on, without a fresh interpreter's
+imports (torch: ~2.5 s of CPU, which the suite, CPU-bound on two cores, pays in wall time).
 ``run_probing_torch``: a command's module in a fresh process, and whether that process imported torch.
 """
 
@@ -10,8 +12,10 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 import subprocess
 import sys
+import unittest.mock
 
 
 def neuenh(*args, timeout: float = 180, **kw) -> subprocess.CompletedProcess:
@@ -24,13 +28,20 @@ def neuenh_here(*args) -> subprocess.CompletedProcess:
     """``cli.main.main(ARGS)`` in this process, its output captured as ``neuenh`` captures it."""
     from neuenh_service.cli.main import main
 
+    return run_here(main, "neuenh", args)
+
+
+def run_here(main, name: str, args, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """``main(ARGS)`` of a command in this process — stdout, stderr and the exit code captured as
+    ``subprocess.run`` would — with ``env``, when given, as the whole environment while it runs."""
     out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+    environ = unittest.mock.patch.dict(os.environ, env, clear=True) if env is not None else contextlib.nullcontext()
+    with environ, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             code = main([str(a) for a in args])
         except SystemExit as exc:  # argparse's usage errors exit 2
             code = exc.code if isinstance(exc.code, int) else 1
-    return subprocess.CompletedProcess(["neuenh", *map(str, args)], code, out.getvalue(), err.getvalue())
+    return subprocess.CompletedProcess([name, *map(str, args)], code, out.getvalue(), err.getvalue())
 
 
 # runs ``python -m MODULE ARGS`` (MODULE the first argument), then says on stderr whether torch was imported

@@ -1,4 +1,4 @@
-"""``neuenh-client`` as a user runs it: a subprocess against a real server (uvicorn, SQLite, the
+"""``neuenh-client`` as a user runs it, in-process and as a subprocess, against a real server (uvicorn, SQLite, the
 in-process executor), checked on its exit codes (ARCHITECTURE §4), its one-line errors and what it
 prints against what the service holds."""
 
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
-from cli_runs import run_probing_torch
+from cli_runs import run_here, run_probing_torch
 from jobspecs import fit_scored_spec, tiny_spec
 
 from live_api import live_server, running_server, wait_for  # noqa: F401  (live_server: fixture)
@@ -26,6 +26,7 @@ from neuenh.checkpoint import Bundle
 from neuenh.data.directions import sample_directions
 from neuenh.data.table import write_table
 from neuenh.models import get_model
+from neuenh_service.cli.client import main as client_main
 
 TOKEN = "s3cret"
 
@@ -38,7 +39,11 @@ def environ(url, token) -> dict:
 
 
 def client(*args, url=None, token=TOKEN, cwd=None):
-    """Run ``neuenh-client ARGS`` to the end."""
+    """Run ``neuenh-client ARGS`` to the end: in this process (``tests/cli_runs.py``: the command's
+    exit code and output, without an interpreter's start), or with ``cwd`` in a fresh one (a working
+    directory is the whole process's). ``popen`` and the torch probes run it as a process."""
+    if cwd is None:
+        return run_here(client_main, "neuenh-client", args, env=environ(url, token))
     return subprocess.run([sys.executable, "-m", "neuenh_service.cli.client", *map(str, args)], capture_output=True,
                           text=True, env=environ(url, token), cwd=cwd, timeout=120)
 

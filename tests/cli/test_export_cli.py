@@ -31,7 +31,7 @@ def fitted(tmp_path_factory):
     where = tmp_path_factory.mktemp("fit")
     (material,) = synthetic_ggx(1, seed=11, noise_sigma=0.0)
     table = write_table(where / "brushed steel.npz", *material.samples(500, seed=0))
-    out = neuenh("fit", "--model", "enhanced-ggx", table, "--epochs", "5", "--json", "-o", where / "bundle")
+    out = neuenh_here("fit", "--model", "enhanced-ggx", table, "--epochs", "5", "--json", "-o", where / "bundle")
     assert out.returncode == 0, out.stderr
     (where / "fit.json").write_text(out.stdout)
     return where / "fit.json", where / "bundle"
@@ -65,7 +65,7 @@ def test_a_fit_report_exports_to_glsl_that_runs_on_llvmpipe(fitted, tmp_path):
 
 def test_a_fitted_bundle_exports_its_own_materials(fitted, tmp_path):
     _, bundle = fitted
-    out = neuenh("export", bundle, "--format", "glsl", "-o", tmp_path)
+    out = neuenh_here("export", bundle, "--format", "glsl", "-o", tmp_path)
     assert out.returncode == 0, out.stderr
     assert [Path(p).name for p in out.stdout.split()] == ["brushed_steel.glsl", "ggx-generic.glsl"]
 
@@ -131,7 +131,7 @@ def test_a_plan_exports_each_material_with_its_rung_and_only_its_modules(plan, t
     from neuenh.scene.outputs import safe_name
 
     path, data = plan
-    out = neuenh("export", "--plan", path, "--format", "onnx", "-o", tmp_path)
+    out = neuenh_here("export", "--plan", path, "--format", "onnx", "-o", tmp_path)
     assert out.returncode == 0, out.stderr
     gloss_rung, retro_rung = (m["chosen"] for m in data["materials"])
     assert (tmp_path / safe_name(gloss_rung) / "gloss.onnx").exists() or gloss_rung == retro_rung
@@ -162,7 +162,7 @@ def test_a_plan_without_its_bundle_is_a_one_line_error(plan, tmp_path):
     copy = tmp_path / "plan"
     shutil.copytree(path.parent, copy)
     shutil.rmtree(copy / "bundles")
-    one_line_error(neuenh("export", "--plan", copy / "plan.json", "--format", "glsl", "-o", tmp_path / "o"),
+    one_line_error(neuenh_here("export", "--plan", copy / "plan.json", "--format", "glsl", "-o", tmp_path / "o"),
                    "needs its bundle")
 
 
@@ -175,7 +175,7 @@ def test_a_plan_skips_the_materials_planned_with_nbrdf_and_names_them(plan, tmp_
     data["materials"][0]["chosen"] = "nbrdf"
     copy = path.parent / "with-nbrdf.json"  # beside the plan's bundles
     copy.write_text(json.dumps(data))
-    out = neuenh("export", "--plan", copy, "--format", "onnx", "-o", tmp_path)
+    out = neuenh_here("export", "--plan", copy, "--format", "onnx", "-o", tmp_path)
     assert out.returncode == 0, out.stderr
     assert "skipped 'gloss': planned with the per-material NBRDF rung" in out.stderr
     written = sorted(p.name for p in tmp_path.rglob("*") if p.is_file())

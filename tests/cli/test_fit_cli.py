@@ -1,4 +1,5 @@
-"""``neuenh fit`` as a user runs it: a subprocess, exit codes, JSON, one-line errors."""
+"""``neuenh fit`` as a user runs it (a subprocess, and in-process where its output is what is checked:
+``tests/cli_runs.py``): exit codes, JSON, one-line errors."""
 
 import json
 from pathlib import Path
@@ -37,7 +38,7 @@ def test_fit_with_a_bundle_directory(table, tmp_path):
     from neuenh.models import get_model
 
     Bundle(get_model("ggx", state=PAPER_STATE, seed=0)).save(tmp_path / "enh")
-    out = neuenh("fit", "--model", tmp_path / "enh", table, "--epochs", "3", "--json")
+    out = neuenh_here("fit", "--model", tmp_path / "enh", table, "--epochs", "3", "--json")
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     (material,) = report["materials"]
@@ -60,13 +61,13 @@ def test_capacity_auto_reports_each_materials_choice_and_a_bundle_keeps_it(tmp_p
     Bundle(get_model("ggx", state=PAPER_STATE, seed=0)).save(tmp_path / "enh")
     args = ("fit", "--model", tmp_path / "enh", small, "--capacity", "auto", "--epochs", "4",
             "--lbfgs-iterations", "20", "--json")
-    out = neuenh(*args)
+    out = neuenh_here(*args)
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     (fitted,) = report["materials"]
     assert report["protocol"]["name"] == "adaptive"
     assert (fitted["capacity"], fitted["latent"], fitted["params_per_material"]) == ("analytical", None, 12)
-    out = neuenh(*args, "-o", tmp_path / "b")
+    out = neuenh_here(*args, "-o", tmp_path / "b")
     assert out.returncode == 0, out.stderr
     bundle = Bundle.load(tmp_path / "b")
     assert bundle.materials.as_params(0).capacity == "analytical" and bundle.materials.coded() == []
@@ -88,7 +89,7 @@ def test_fit_with_the_shipped_enhanced_ggx_out_of_the_box(table):
     "as low as plain GGX": its start imitates the analytical model of the same graph (the search's
     alternative terms kept, 60 Adam epochs), not plain GGX's L-BFGS fit (~4e-4 here; the latent fit
     ~2.6e-3 on AMD EPYC)."""
-    out = neuenh("fit", "--model", "enhanced-ggx", table, "--epochs", "60", "--json")
+    out = neuenh_here("fit", "--model", "enhanced-ggx", table, "--epochs", "60", "--json")
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     assert report["state"] != "0" * 11 and len(report["materials"][0]["latent"]) == 27
@@ -163,8 +164,8 @@ def held_out(tmp_path_factory):
 def heldout_run(table, held_out, tmp_path_factory):
     """One user run: fit ``table``, measure on ``held_out``, write predictions; (report, dir)."""
     out_dir = tmp_path_factory.mktemp("pred")
-    out = neuenh("fit", "--model", "ggx", table, "--epochs", "40", "--json", "--test", held_out,
-                 "--predictions", out_dir / "pred.npz")
+    out = neuenh_here("fit", "--model", "ggx", table, "--epochs", "40", "--json", "--test", held_out,
+                      "--predictions", out_dir / "pred.npz")
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout), out_dir
 
@@ -251,10 +252,10 @@ def merl_ggx(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def drawn_run(merl_ggx, tmp_path_factory):
-    """``neuenh fit --model ggx gold.binary --samples 1500 --test-samples 400 --predictions``, as a user runs it."""
+    """``neuenh fit --model ggx gold.binary --samples 1500 --test-samples 400 --predictions``."""
     out_dir = tmp_path_factory.mktemp("drawn")
-    out = neuenh("fit", "--model", "ggx", merl_ggx[0], "--samples", "1500", "--test-samples", "400", "--epochs", "40",
-                 "--json", "--predictions", out_dir / "pred.npz", "-o", out_dir / "bundle")
+    out = neuenh_here("fit", "--model", "ggx", merl_ggx[0], "--samples", "1500", "--test-samples", "400",
+                      "--epochs", "40", "--json", "--predictions", out_dir / "pred.npz", "-o", out_dir / "bundle")
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout), out_dir
 
@@ -284,7 +285,7 @@ def test_a_measured_file_is_drawn_fitted_and_measured_on_an_independent_draw(mer
 
 def test_tables_and_measured_files_fit_together_each_as_it_is(merl_ggx, table):
     """A table keeps its rows, a measured file is drawn (docs/EXPORT.md fits a .bsdf beside a .npz)."""
-    out = neuenh("fit", "--model", "ggx", table, merl_ggx[0], "--samples", "700", "--epochs", "20", "--json")
+    out = neuenh_here("fit", "--model", "ggx", table, merl_ggx[0], "--samples", "700", "--epochs", "20", "--json")
     assert out.returncode == 0, out.stderr
     steel, gold = json.loads(out.stdout)["materials"]
     assert (steel["name"], gold["name"]) == ("steel", "gold")

@@ -1,15 +1,14 @@
-"""``neuenh render`` as a user runs it (subprocesses, exit codes, files, JSON, one-line errors), and
-the procedural studio environment.
+"""``neuenh render`` as a user runs it (exit codes, files, JSON, one-line errors), and the procedural
+studio environment.
 
-Every command line runs once, all of them side by side in one module fixture (each process is
-mostly interpreter and library start-up), and the tests read their results. Two of the error
-cases call ``cli.main.main`` in this process instead: the same code path, without a start-up.
+Every command line runs once in one module fixture, and the tests read their results: one of them in
+a fresh process, as a user runs it, the others in this process (``tests/cli_runs.py``: the same code
+from the parsed arguments on, without an interpreter's start, which is most of a small render's cost).
 """
 
 import json
 import os
 import math
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +18,7 @@ import torch
 from neuenh.data.exr import read_rgb_exr
 from neuenh.render import EnvironmentMap
 from neuenh.render.envmaps import KEY_LIGHT, RIM_LIGHT, studio_environment
-from cli_runs import neuenh
+from cli_runs import neuenh, neuenh_here
 
 RGL = Path(__file__).resolve().parents[3] / "shared" / "data" / "rgl" / "paper_white_rgb.bsdf"
 SIZE, SAMPLES = 48, 8
@@ -32,7 +31,7 @@ MATTE = {**GGX, "rho_d": [0.8, 0.8, 0.8], "rho_s": [0, 0, 0]}
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """name -> (CompletedProcess, output directory) of every command line, run concurrently."""
+    """name -> (CompletedProcess, output directory) of every command line."""
     tmp = tmp_path_factory.mktemp("render")
     params = tmp / "fit.json"  # the `neuenh fit --json` format
     params.write_text(json.dumps({"model": "ggx", "materials": [
@@ -47,10 +46,9 @@ def runs(tmp_path_factory):
     if RGL.is_file():
         lines["rgl"] = ["--truth", RGL, "--model", "ggx", "--json"]
     outputs = {name: tmp / ("overwrite" if name == "directional" else name) for name in lines}
-    with ThreadPoolExecutor(max_workers=3) as pool:
-        futures = {name: pool.submit(neuenh, "render", *args, *SMALL, "-o", outputs[name])
-                   for name, args in lines.items()}
-        return {name: (future.result(), outputs[name]) for name, future in futures.items()}
+    run = {name: neuenh if name == "identity" else neuenh_here for name in lines}
+    return {name: (run[name]("render", *args, *SMALL, "-o", outputs[name]), outputs[name])
+            for name, args in lines.items()}
 
 
 def ok(result):

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from cli_runs import neuenh, neuenh_here
+from cli_runs import neuenh_here
 from neuenh.files import is_temporary
 from scene_files import scene, write_tables
 
@@ -28,7 +28,7 @@ def test_the_command_writes_the_plan_and_resumes_after_a_kill(tables, tmp_path):
     path = tmp_path / "scene.yaml"
     data = scene(tables, materials=[{"path": str(tables / n)} for n in ("gloss.npz", "retro.npz", "sheen.npz")])
     path.write_text(yaml.safe_dump(data))
-    whole = neuenh("scene", "plan", str(path), "-o", str(tmp_path / "whole"), "--chunk", "1", "--json", cwd=REPO)
+    whole = neuenh_here("scene", "plan", path, "-o", tmp_path / "whole", "--chunk", "1", "--json")
     assert whole.returncode == 0, whole.stderr
     reference = json.loads((tmp_path / "whole" / "plan.json").read_text())
     assert [m["name"] for m in reference["materials"]] == ["gloss", "retro", "sheen"]
@@ -52,7 +52,7 @@ def test_the_command_writes_the_plan_and_resumes_after_a_kill(tables, tmp_path):
     proc.wait()
     kept = len(planned())
     assert 1 <= kept < 3
-    again = neuenh("scene", "plan", str(path), "-o", str(out), "--chunk", "1", cwd=REPO)
+    again = neuenh_here("scene", "plan", path, "-o", out, "--chunk", "1")  # the kill is the process's
     assert again.returncode == 0 and f"resuming: {kept} material(s) already planned" in again.stderr
     resumed = json.loads((out / "plan.json").read_text())
     for a, b in zip(resumed["materials"], reference["materials"]):
