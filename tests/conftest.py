@@ -22,28 +22,33 @@ def _deterministic_threads():
     torch.set_num_threads(threads)
 
 
-# The files that take longest, heaviest first (seconds of test time summed over each file's tests,
-# `pytest -n 3 --dist loadfile --no-loadscope-reorder` on a quiet 2-core EPYC with an empty inductor
-# cache, as in a clean clone, stop 41). `make test` hands files to its processes in collection order
-# (--no-loadscope-reorder; xdist's own reorder puts files with the most tests first, which left
+# The files that take longest, heaviest first (seconds of wall time summed over each file's tests in
+# a full run of `make test`'s command, under the suite's own load, on a 2-core Zen 4 EPYC with an empty
+# inductor cache, as in a clean clone; stop 50). `make test` hands files to its processes in collection
+# order (--no-loadscope-reorder; xdist's own reorder puts files with the most tests first, which left
 # test_compose's two tests to start near the end while another process sat idle): starting the
 # longest first leaves only short files for the end.
 HEAVIEST_FIRST = (
-    "tests/cli/test_client.py",  # 107 s
-    "tests/api/test_shared_cluster.py",  # 98 s
-    "tests/api/test_dashboard.py",  # 44 s
-    "tests/workers/test_ray_cluster.py",  # 41 s
-    "tests/cli/test_service_demo.py",  # 36 s
-    "tests/neuenh/test_train.py",  # 36 s (stop 42): its compiled step (one graph) compiles from nothing in a new checkout
-    "tests/deploy/test_compose.py",  # 34 s alone (stop 42: 22 candidates a round, 67 before; 57 s in the suite then)
-    "tests/neuenh/test_fit.py",  # 29 s
-    "tests/api/test_plans.py",  # 28 s
-    "tests/cli/test_export_cli.py",  # 28 s
-    "tests/cli/test_fit_cli.py",  # 26 s
-    "tests/cli/test_report_cli.py",  # 24 s
-    "tests/cli/test_scene_cli.py",  # 20 s
-    "tests/api/test_serve.py",  # 20 s
-    "tests/orchestrator/test_runner.py",  # 20 s
+    "tests/api/test_shared_cluster.py",  # 105 s
+    "tests/cli/test_client.py",  # 70 s
+    "tests/api/test_plans.py",  # 69 s
+    "tests/deploy/test_compose.py",  # 64 s
+    "tests/api/test_dashboard.py",  # 57 s
+    "tests/neuenh/test_train.py",  # 54 s: its compiled step compiles from nothing in a new checkout
+    "tests/cli/test_service_demo.py",  # 52 s
+    "tests/neuenh/test_fit.py",  # 39 s
+    "tests/workers/test_ray_cluster.py",  # 43 s with a cluster per test, ~30 s with one for two
+    "tests/cli/test_search_cli.py",  # 30 s
+    "tests/cli/test_report_cli.py",  # 27 s
+    "tests/cli/test_fit_cli.py",  # 22 s
+    "tests/api/test_openapi.py",  # 22 s
+    "tests/api/test_serve.py",  # 19 s
+    "tests/neuenh/scene/test_planner.py",  # 19 s
+    "tests/neuenh/export/test_equals_specialized.py",  # 19 s
+    "tests/deploy/test_scaling.py",  # 18 s
+    "tests/api/test_hostile_service.py",  # 18 s
+    "tests/neuenh/study/test_contenders.py",  # 16 s
+    "tests/orchestrator/test_runner.py",  # 15 s
 )
 
 

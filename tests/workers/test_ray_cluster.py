@@ -16,8 +16,10 @@ STATES = [f"{'0' * i}1{'0' * (10 - i)}" for i in range(11)] + ["0" * 11]
 CONFIG = TrainConfig(epochs=2, batch_size=1000, lr=5e-3)
 
 
-@pytest.fixture()
+@pytest.fixture(scope="module")
 def cluster():
+    """One cluster for the module's two tests, in file order: the second removes a node. Ray's workers
+    (torch imported) serve both, instead of two clusters each starting its own."""
     if ray.is_initialized():
         ray.shutdown()
     c = Cluster(initialize_head=True, head_node_args={"num_cpus": 0})
