@@ -1,14 +1,16 @@
 """``neuenh encoder train``: train a bundle's encoder (amortised starts) and write it into the bundle.
 
-    neuenh encoder train BUNDLE [--spec SPEC.yaml] [--steps N] [--holdout 0.1] [--seed S] [--json]
+    neuenh encoder train BUNDLE [--spec SPEC.yaml] [--steps N] [--holdout 0.1] [--seed S] [-o DIR] [--json]
 
 The bundle's modules stay frozen. The encoder (``neuenh.encoder``) learns to map a set of a
 material's measurements to its parameters, on the materials of the job spec's ``data:`` sources
 (by default the spec the bundle's provenance names, e.g. ``examples/reference.yaml``; paths in it
 are relative to the current directory; RGL sources are refused) minus ``--holdout`` of them, held
-out to measure it (``neuenh.encoder_training``). The bundle is then saved again in place with
-``encoder.safetensors`` (every file atomically, ``model.json`` last); its ``model.json`` records the
-training and the held-out errors. A bundle that has an encoder gets a new one.
+out to measure it (``neuenh.encoder_training``). The bundle is then saved with ``encoder.safetensors``
+(every file atomically, ``model.json`` last) — in place, or with ``-o DIR`` as a new bundle there; its
+``model.json`` records the training and the held-out errors. A bundle that has an encoder gets a new
+one. A shipped model named by its name (``enhanced-ggx``) is part of the installation: it needs ``-o``
+(its folder's path, given as BUNDLE, is rewritten in place, as for any folder).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from .outputs import output_folder
 from .tables import help_description
 
 if TYPE_CHECKING:  # torch and the encoder are imported by run_train: `neuenh encoder --help` needs neither
@@ -48,6 +51,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                        help="measurements drawn per material, uniform and near the mirror (default 4096 2048)")
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: all)")
+    train.add_argument("-o", "--output", type=Path, default=None,
+                       help="write the bundle with its encoder here instead of in place (needed for a shipped "
+                            "model named by its name)")
     train.add_argument("--json", action="store_true", help="print the training record as JSON")
     train.set_defaults(run=run_train)
 
@@ -71,6 +77,11 @@ def run_train(args) -> int:
     path = bundle_path(args.bundle)
     if path is None:
         raise ValueError(f"{args.bundle!r} is neither a bundle folder nor a shipped model")
+    if args.output is not None:
+        output_folder(args.output)
+    elif not Path(args.bundle).is_dir():
+        raise ValueError(f"{args.bundle} is a shipped model, part of the installation ({path}): give -o DIR to "
+                         f"write it with its encoder as a new bundle")
     bundle = Bundle.load(path)
     spec = args.spec or _provenance_spec(bundle, path)
     sources, _, _ = load_sample_spec(spec)
@@ -100,7 +111,7 @@ def run_train(args) -> int:
         "trained_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
     bundle.encoder = encoder
-    bundle.save(path)
+    path = bundle.save(args.output or path)
     if args.json:
         print(json.dumps(encoder.describe(), indent=1))
     else:

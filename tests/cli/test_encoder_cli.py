@@ -58,6 +58,34 @@ def test_not_a_bundle(tmp_path):
     assert out.returncode == 2 and "neither a bundle folder nor a shipped model" in out.stderr
 
 
+def test_output_writes_a_new_bundle_and_leaves_the_given_one_as_it_was(bundle, tmp_path):
+    spec = _spec(tmp_path, [{"source": "synthetic_ggx", "materials": 3, "seed": 1}])
+    before = {f.name: f.read_bytes() for f in bundle.iterdir()}
+    out = neuenh_here("encoder", "train", bundle, "--spec", spec, "--steps", "2", "--pool", "32", "16",
+                      "--holdout", "0", "-o", tmp_path / "with-encoder")
+    assert out.returncode == 0, out.stderr
+    assert Bundle.load(tmp_path / "with-encoder").encoder is not None
+    assert {f.name: f.read_bytes() for f in bundle.iterdir()} == before
+
+
+def test_a_shipped_model_by_name_needs_an_output_folder(tmp_path):
+    """The shipped model's folder is part of the installation (site-packages for a wheel): training
+    its encoder in place would change the model for every user of it. Refused before any work."""
+    from neuenh.pretrained import bundle_path
+
+    shipped = bundle_path("enhanced-ggx")
+    if shipped is None:
+        pytest.skip("no shipped models/enhanced-ggx in this tree")
+    before = {f.name: f.stat().st_mtime_ns for f in shipped.iterdir()}
+    out = neuenh_here("encoder", "train", "enhanced-ggx", "--spec", tmp_path / "spec.yaml")
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert "enhanced-ggx is a shipped model" in out.stderr and "give -o DIR" in out.stderr
+    assert {f.name: f.stat().st_mtime_ns for f in shipped.iterdir()} == before
+    (tmp_path / "file").write_text("")
+    out = neuenh_here("encoder", "train", "enhanced-ggx", "-o", tmp_path / "file")
+    assert out.returncode == 2 and "-o " in out.stderr and "exists and is not a folder" in out.stderr
+
+
 def test_the_help_names_the_steps_the_training_takes_by_default():
     """``neuenh encoder train --help`` names the default steps without importing torch
     (tests/cli/test_main.py); the training config takes them: the two numbers are one."""
