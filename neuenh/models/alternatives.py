@@ -110,9 +110,9 @@ def conductor_fresnel(xp, cos, eta, kappa):
     eta_kappa2 = eta * eta * kappa * kappa
     a2b2 = xp.sqrt(t0 * t0 + 4.0 * eta_kappa2)  # a² + b²
     # a² = (a² + b² + t0) / 2, written without its cancellation when t0 < 0 (κ ≪ η past the critical
-    # angle: a relative error of ~1e-8 in float64 at κ ~ 1e-4): (a2b2 + t0) / 2 = max(t0, 0) +
+    # angle, where F lost up to 6e-4 relative in float32): (a2b2 + t0) / 2 = max(t0, 0) +
     # 2η²κ² / (a2b2 + |t0|), both terms ≥ 0 (multiply a2b2 − |t0| by a2b2 + |t0|). The floor on the
-    # denominator binds only where the term is below 1e-24.
+    # denominator binds only where ηκ < 5e-13, the term then under a's own floor below.
     a_squared = xp.clamp(t0, 0.0) + 2.0 * eta_kappa2 / xp.clamp(a2b2 + xp.abs(t0), 1e-12)
     # a kept off 0 so its gradient stays finite (a dielectric past its critical angle, which η < 1
     # with κ = 0 allows): where a² < 1e-12, F is off by up to ~4e-6 relative (rs moves by 4·a·cos/t1)

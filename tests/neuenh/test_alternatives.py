@@ -69,10 +69,11 @@ def random_pairs(params, n: int, rng: np.random.Generator) -> tuple[np.ndarray, 
 
 def exact_pairs(wi, wo, params) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """The rows where the model evaluates its formulas as written, with no floor binding: below a
-    horizon (both give 0), or every cosine it reads at least ``COS_EPS`` (``neuenh.shading``), and, for the conductor's Fresnel, ηκ at
-    least 1e-5 (its ``a`` is floored at 1e-6: past the critical angle a ≈ ηκ/sqrt|t0|, and F moves by
-    up to 4e-6 relative where the floor binds). Elsewhere the floors are by design; the stability
-    tests below check them. A few rows in ten thousand of a random draw."""
+    horizon (both give 0), or every cosine it reads at least ``COS_EPS`` (``neuenh.shading``), and,
+    for the conductor's Fresnel, ηκ at least 1e-5 (its ``a`` is floored at 1e-6: past the critical
+    angle a ≈ ηκ/sqrt|t0|, and F moves by up to 4e-6 relative where the floor binds). Elsewhere the
+    floors are by design; the stability tests below check them. A few rows in ten thousand of a
+    random draw."""
     _, g = ref._geometry(wi, wo, params)
     keep = ~g["above"] | (np.minimum.reduce([g["cos_i"], g["cos_o"], g["cos_h"], g["cos_d"]]) >= COS_EPS)  # 0 below
     if "kappa" in params:
@@ -276,7 +277,8 @@ def test_the_conductors_fresnel_keeps_float32_accuracy_past_the_critical_angle()
     cos = (rng.uniform(0.01, 0.99, 4000) * np.sqrt(1.0 - eta.astype(np.float64) ** 2)).astype(np.float32)
     kappa = (10.0 ** rng.uniform(-5, -1, 4000)).astype(np.float32)
     got = conductor_fresnel(TORCH, *(torch.from_numpy(v)[:, None] for v in (cos, eta, kappa))).double().numpy()[:, 0]
-    want = ref.conductor_f(cos.astype(np.float64), eta[:, None].astype(np.float64), kappa[:, None].astype(np.float64))[:, 0]
+    cos64, eta64, kappa64 = (v.astype(np.float64) for v in (cos, eta, kappa))
+    want = ref.conductor_f(cos64, eta64[:, None], kappa64[:, None])[:, 0]
     # ~25 float32 operations, none cancelling: each a rounding of at most eps/2
     assert np.max(np.abs(got - want) / want) <= 25 * np.finfo(np.float32).eps / 2
 
