@@ -2,7 +2,7 @@
 
     neuenh data inspect FILE [--json]            what FILE is (by content), its materials, ranges
     neuenh data sample SPEC.yaml -o out.npz      materialise a dataset spec (train/val arrays)
-    neuenh data slice FILE -o slice.png [--model ggx|BUNDLE_DIR] [--material NAME]
+    neuenh data slice FILE -o slice.png [--model ggx|BUNDLE_DIR [--params FIT.json]] [--material NAME]
 
 ``inspect`` reads RGL ``.bsdf``, MERL ``.binary``, NBRDF weights, measurement tables (npz or
 CSV), capture folders (or their JSON) and parameter EXRs. For continuous materials the value
@@ -19,7 +19,8 @@ rusinkiewicz``) over (theta_h, theta_d) at fixed ``--phi-d`` (90 degrees) and ph
 ``--view hemisphere``, over every outgoing direction (orthographic view of the hemisphere from
 above, +x to the right) for a light at ``--theta-i``. With ``--model`` the model is first fitted
 to ``--fit-samples`` samples of the material (``neuenh.fit``, fast protocol) and drawn next to it
-with the same colour scale, with a third panel of log10(model / measured).
+with the same colour scale, with a third panel of log10(model / measured); with ``--params`` the fit
+a report holds is drawn instead (``neuenh fit --json``: its capacity and corrections as fitted).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ import numpy as np
 from neuenh.data.table import savez
 from neuenh.files import atomic_write
 
+from .fit_reports import read_fit_report
 from .tables import help_description
 
 if TYPE_CHECKING:  # torch is imported where a command runs: `neuenh data --help` answers without it
@@ -76,6 +78,9 @@ def configure(p: argparse.ArgumentParser) -> None:
     c.add_argument("-o", "--output", type=Path, required=True, metavar="SLICE.png", help="the picture")
     c.add_argument("--material", help="which network of an NBRDF file (required when it holds several)")
     c.add_argument("--model", help="fit this model (a name such as ggx, or a bundle directory) and show it too")
+    c.add_argument("--params", type=Path, metavar="FIT.json",
+                   help="show --model's fit from this report (neuenh fit --json) instead of fitting again: its "
+                        "material of FILE's name")
     c.add_argument("--view", choices=("rusinkiewicz", "hemisphere"), default="rusinkiewicz")
     c.add_argument("--phi-d", type=float, default=90.0, help="phi_d of the rusinkiewicz view, degrees (90)")
     c.add_argument("--theta-i", type=float, default=30.0, help="light elevation of the hemisphere view, degrees (30)")
@@ -382,10 +387,13 @@ def run_slice(args) -> int:
         raise DataCommandError(f"{args.file}: a capture holds measured texels, not a continuous BRDF; slice "
                                "draws RGL, MERL or NBRDF files")
     model = None
+    if args.params is not None and not args.model:
+        raise DataCommandError("--params needs --model: the model the report is a fit of")
     if args.model:
         from neuenh.pretrained import load_model
 
         model, trained = load_model(args.model, "--model")
+        fitted = read_fit_report(args.params, model) if args.params is not None else None
     material = load_measured(args.file, name=args.material)
     if isinstance(material, TableMaterial):
         raise DataCommandError(f"{args.file}: a measurement table has no continuous evaluation to slice; slice "
@@ -397,27 +405,47 @@ def run_slice(args) -> int:
     panels = [(f"measured: {material.name}", measured)]
     report = {"file": str(args.file), "material": material.name, "view": args.view, "output": str(args.output)}
     if model is not None:
-        from neuenh.data.samples import sample_materials
-        from neuenh.fit import FitOptions, fit_materials
+        label = model.name if model.state.strip("0") == "" else f"{model.name} {model.state}"
+        report.update({"model": model.name, "state": model.state})
+        if fitted is not None:
+            own, params = _reported_material(fitted, material.name, args.params, model)
+            capacity = fitted[material.name].capacity
+            report.update({"params_from": str(args.params), "capacity": capacity})
+            caption = f"{label} as fitted ({args.params.name}{f', {capacity}' if capacity else ''})"
+        else:
+            from neuenh.data.samples import sample_materials
+            from neuenh.fit import FitOptions, fit_materials
 
-        samples = sample_materials([material], args.fit_samples, args.seed)
-        result = fit_materials(model, samples, FitOptions(epochs=args.epochs).protocol_for(model), seed=args.seed,
-                               trained=trained)
-        own, params = result.material_model(model, 0)
+            samples = sample_materials([material], args.fit_samples, args.seed)
+            result = fit_materials(model, samples, FitOptions(epochs=args.epochs).protocol_for(model),
+                                   seed=args.seed, trained=trained)
+            own, params = result.material_model(model, 0)
+            report.update({"fit_loss": result.losses[0], "fit_seconds": round(result.wall_s, 3),
+                           "fit_samples": args.fit_samples})
+            caption = f"{label} fit (log-L1 {result.losses[0]:.4f})"
         with torch.no_grad():
             predicted = _luminance(own.evaluate(wi.float(), wo.float(), params), wi, wo, n)
-        label = model.name if model.state.strip("0") == "" else f"{model.name} {model.state}"
-        panels.append((f"{label} fit (log-L1 {result.losses[0]:.4f})", predicted))
-        report.update({"model": model.name, "state": model.state, "fit_loss": result.losses[0],
-                       "fit_seconds": round(result.wall_s, 3), "fit_samples": args.fit_samples})
+        panels.append((caption, predicted))
     if args.view == "rusinkiewicz":
         subtitle = f"phi_d = {args.phi_d:g} deg, phi_h = 0"
     else:
         subtitle = f"light at theta_i = {args.theta_i:g} deg, phi_i = 0; wo seen from above"
     report["range"] = _draw(args.output, panels, extent, labels, subtitle + "; grey: f_r = 0")
     print(json.dumps(report, indent=2) if args.json else f"wrote {args.output} ({material.name}, {args.view} slice"
-          + (f", {report['model']} fit log-L1 {report['fit_loss']:.4f}" if model is not None else "") + ")")
+          + (f", {panels[-1][0]}" if model is not None else "") + ")")
     return 0
+
+
+def _reported_material(fitted: dict, name: str, path: Path, model):
+    """(model that evaluates it, its record) of the material named ``name`` in a fit report."""
+    from neuenh.fit import model_for
+
+    if name not in fitted:
+        raise DataCommandError(f"--params {path}: no material named {name!r}, the sliced file's (it holds "
+                               f"{', '.join(fitted)})")
+    params = fitted[name]
+    own = model_for(model, params)
+    return own, own.used_params(params)
 
 
 def _draw(path: Path, panels, extent, labels, subtitle: str) -> list[float]:

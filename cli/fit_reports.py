@@ -1,7 +1,7 @@
 """Fit reports as the commands read them: the JSON ``neuenh fit --json`` prints (and ``POST
 /v1/jobs/{id}/fit`` answers), ``{"model": ..., "state": ..., "materials": [{"name": ..., "params":
-{...}, "latent": ..., "capacity": ..., ...}]}``. ``neuenh render --params`` and ``neuenh export
---params`` read them here, with the same checks and the same messages.
+{...}, "latent": ..., "capacity": ..., ...}]}``. ``neuenh render --params``, ``neuenh export
+--params`` and ``neuenh data slice --params`` read them here, with the same checks and the same messages.
 """
 
 from __future__ import annotations

@@ -7,6 +7,7 @@ subprocess to check exit codes and that no traceback leaks.
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -120,6 +121,46 @@ def test_slice_draws_measured_next_to_a_fitted_model(capsys, files, tmp_path, vi
     report = json.loads(out)
     assert report["material"] == "blue" and report["model"] == "ggx" and report["fit_loss"] > 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
+
+
+def _ggx_report(path: Path, name: str, **params) -> Path:
+    """A fit report (``neuenh fit --json``'s form) of plain GGX with one material."""
+    values = {"normal": [0, 0], "t_theta": [0], "rho_d": [0.3, 0.2, 0.1], "rho_s": [0.4, 0.4, 0.4],
+              "alpha_x": [0.2], "alpha_y": [0.3], "f0": [0.6], **params}
+    path.write_text(json.dumps({"model": "ggx", "state": "0" * 11,
+                                "materials": [{"name": name, "params": values, "capacity": "analytical"}]}))
+    return path
+
+
+def test_slice_draws_the_fit_a_report_holds_instead_of_fitting(capsys, files, tmp_path):
+    """``--params``: the report's material of the sliced file's name, as fitted — no fit runs; another
+    report's material draws another picture."""
+    pictures = []
+    for i, rho_d in enumerate(([0.3, 0.2, 0.1], [0.9, 0.9, 0.9])):
+        png = tmp_path / f"{i}.png"
+        code, out, err = run(capsys, "data", "slice", files / "nets.npz", "--material", "blue", "-o", png,
+                             "--model", "ggx", "--params", _ggx_report(tmp_path / f"{i}.json", "blue", rho_d=rho_d),
+                             "--resolution", "24", "--json")
+        assert code == 0, err
+        report = json.loads(out)
+        assert report["params_from"] == str(tmp_path / f"{i}.json") and report["capacity"] == "analytical"
+        assert "fit_loss" not in report and "fit_samples" not in report  # nothing was fitted
+        pictures.append(png.read_bytes())
+    assert pictures[0] != pictures[1]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--params", "REPORT"], "--params needs --model"),
+    (["--model", "ggx", "--params", "OTHER"], "no material named 'blue', the sliced file's (it holds red)"),
+    (["--model", "enhanced-ggx", "--params", "REPORT"], "is a fit of ggx in state 00000000000, but the model is"),
+], ids=["no-model", "other-material", "other-model"])
+def test_slice_params_mistakes_are_one_line(capsys, files, tmp_path, args, message):
+    swap = {"REPORT": str(_ggx_report(tmp_path / "blue.json", "blue")),
+            "OTHER": str(_ggx_report(tmp_path / "red.json", "red"))}
+    code, out, err = run(capsys, "data", "slice", files / "nets.npz", "--material", "blue", "-o", tmp_path / "s.png",
+                         *[swap.get(a, a) for a in args])
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1 and out == ""
+    assert not (tmp_path / "s.png").exists()
 
 
 # -- mistakes --------------------------------------------------------------------------------
