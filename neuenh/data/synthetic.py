@@ -17,6 +17,7 @@ from typing import Callable
 
 import torch
 
+from ..models.alternatives import conductor_fresnel as alternative_conductor_fresnel
 from ..models.microfacet import ggx_distribution, smith_shadowing
 from ..ops import TORCH
 from ..shading import COS_EPS, Shading, make_shading
@@ -68,24 +69,10 @@ def _ggx_lobe(wi, wo, alpha_x, alpha_y, t_theta=0.0):
 
 
 def conductor_fresnel(cos: torch.Tensor, eta: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
-    """Unpolarised Fresnel reflectance of a conductor with complex IOR eta + i k, per channel.
-
-    Exact formula (e.g. Pharr, Jakob, Humphreys, PBRT 3rd ed., eq. 8.3; Born & Wolf): with
-    a² + b² = sqrt((eta² - k² - sin²)² + 4 eta² k²), Rs and Rp of the two polarisations.
-    """
-    cos = cos.clamp(COS_EPS, 1.0)
-    cos2 = cos * cos
-    sin2 = 1.0 - cos2
-    t0 = eta * eta - k * k - sin2
-    a2b2 = torch.sqrt(t0 * t0 + 4 * eta * eta * k * k)
-    a = torch.sqrt((0.5 * (a2b2 + t0)).clamp_min(0.0))
-    t1 = a2b2 + cos2
-    t2 = 2 * cos * a
-    rs = (t1 - t2) / (t1 + t2)
-    t3 = cos2 * a2b2 + sin2 * sin2
-    t4 = t2 * sin2
-    rp = rs * (t3 - t4) / (t3 + t4)
-    return 0.5 * (rs + rp)
+    """Unpolarised Fresnel reflectance of a conductor with complex IOR eta + i k, per channel: the
+    model's own exact formula (``neuenh.models.alternatives.conductor_fresnel``), at ``cos`` clamped
+    to [COS_EPS, 1]."""
+    return alternative_conductor_fresnel(TORCH, cos.clamp(COS_EPS, 1.0), eta, k)
 
 
 def dielectric_fresnel(cos: torch.Tensor, eta: float) -> torch.Tensor:
