@@ -408,10 +408,16 @@ def run_slice(args) -> int:
         label = model.name if model.state.strip("0") == "" else f"{model.name} {model.state}"
         report.update({"model": model.name, "state": model.state})
         if fitted is not None:
-            own, params = _reported_material(fitted, material.name, args.params, model)
-            capacity = fitted[material.name].capacity
-            report.update({"params_from": str(args.params), "capacity": capacity})
-            caption = f"{label} as fitted ({args.params.name}{f', {capacity}' if capacity else ''})"
+            from neuenh.fit import model_for
+
+            if material.name not in fitted:
+                raise DataCommandError(f"--params {args.params}: no material named {material.name!r}, the sliced "
+                                       f"file's (it holds {', '.join(fitted)})")
+            record = fitted[material.name]
+            own = model_for(model, record)  # a material fitted at an analytical capacity: that capacity's model
+            params = own.used_params(record)
+            report.update({"params_from": str(args.params), "capacity": record.capacity})
+            caption = f"{label} as fitted ({args.params.name}{f', {record.capacity}' if record.capacity else ''})"
         else:
             from neuenh.data.samples import sample_materials
             from neuenh.fit import FitOptions, fit_materials
@@ -434,18 +440,6 @@ def run_slice(args) -> int:
     print(json.dumps(report, indent=2) if args.json else f"wrote {args.output} ({material.name}, {args.view} slice"
           + (f", {panels[-1][0]}" if model is not None else "") + ")")
     return 0
-
-
-def _reported_material(fitted: dict, name: str, path: Path, model):
-    """(model that evaluates it, its record) of the material named ``name`` in a fit report."""
-    from neuenh.fit import model_for
-
-    if name not in fitted:
-        raise DataCommandError(f"--params {path}: no material named {name!r}, the sliced file's (it holds "
-                               f"{', '.join(fitted)})")
-    params = fitted[name]
-    own = model_for(model, params)
-    return own, own.used_params(params)
 
 
 def _draw(path: Path, panels, extent, labels, subtitle: str) -> list[float]:
