@@ -114,33 +114,25 @@ def test_a_directional_light_leaves_the_far_side_black(runs):
     assert (out / "model.png").read_bytes()[:4] == b"\x89PNG"
 
 
-def _one_line_error(code, stdout, stderr, *fragments):
-    assert code == 2, stdout + stderr
-    lines = stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in stderr, stderr
+def _one_line_error(result, *fragments):
+    assert result.returncode == 2, result.stdout + result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr
     assert lines[0].startswith("neuenh render: error: ")
     for fragment in fragments:
         assert fragment in lines[0], lines[0]
-    assert stdout == ""
+    assert result.stdout == ""
 
 
 def test_a_bad_light_is_a_one_line_error(runs):
     result, out = runs["bad-light"]
-    _one_line_error(result.returncode, result.stdout, result.stderr, "--light '1,2:3'", "x,y,z:r,g,b")
+    _one_line_error(result, "--light '1,2:3'", "x,y,z:r,g,b")
     assert not out.exists()
 
 
-def in_process(capsys, *args):
-    from neuenh_service.cli.main import main
-
-    code = main(["render", *map(str, args)])
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
-def test_refuses_to_overwrite_without_force(tmp_path, capsys):
+def test_refuses_to_overwrite_without_force(tmp_path):
     (tmp_path / "model.png").write_bytes(b"earlier")
-    _one_line_error(*in_process(capsys, "--model", "ggx", *SMALL, "-o", tmp_path), "model.png", "--force")
+    _one_line_error(neuenh_here("render", "--model", "ggx", *SMALL, "-o", tmp_path), "model.png", "--force")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.png"]
     assert (tmp_path / "model.png").read_bytes() == b"earlier"
 
@@ -161,7 +153,7 @@ def test_refuses_to_overwrite_without_force(tmp_path, capsys):
                                                   "00000000000", "give the model it was fitted with"]),
 ], ids=["missing-truth", "missing-env", "env-folder", "zero-light", "unknown-model", "material-without-params", "unknown-material",
         "truth-folder", "truth-fifo", "params-folder", "params-missing", "params-of-another-model"])
-def test_user_mistakes_are_one_line_errors(tmp_path, capsys, args, fragments):
+def test_user_mistakes_are_one_line_errors(tmp_path, args, fragments):
     params = tmp_path / "fit.json"
     params.write_text(json.dumps({"materials": [{"name": "glossy", "params": GGX}]}))
     enhanced = tmp_path / "enhanced.json"  # `neuenh fit --json` of another state of the graph
@@ -172,7 +164,7 @@ def test_user_mistakes_are_one_line_errors(tmp_path, capsys, args, fragments):
     subs = {"MISSING": tmp_path / "missing.bsdf", "PARAMS": params, "FOLDER": tmp_path / "folder",
             "FIFO": tmp_path / "fifo", "ENHANCED": enhanced}
     args = [subs.get(a, a) for a in args]
-    _one_line_error(*in_process(capsys, *args, *SMALL, "-o", tmp_path / "out"), *fragments)
+    _one_line_error(neuenh_here("render", *args, *SMALL, "-o", tmp_path / "out"), *fragments)
     assert not (tmp_path / "out").exists()
 
 
@@ -218,7 +210,7 @@ def test_params_files_pick_a_material_by_name_or_index(tmp_path):
         read_fit_report(params, get_model("ggx"))
 
 
-def test_a_material_fitted_at_an_analytical_capacity_renders_with_that_model(tmp_path, capsys):
+def test_a_material_fitted_at_an_analytical_capacity_renders_with_that_model(tmp_path):
     """`neuenh fit --capacity auto` may give a material of an enhanced model the model the search
     started from (capacity ``original``): rendered with the enhanced model, it is plain GGX with
     its parameters, image for image."""
@@ -231,9 +223,9 @@ def test_a_material_fitted_at_an_analytical_capacity_renders_with_that_model(tmp
     images = {}
     for key, model in (("plain", "ggx"), ("enhanced", "enhanced-ggx")):
         (tmp_path / f"{key}.json").write_text(json.dumps(reports[key]))
-        code, _, err = in_process(capsys, "--model", model, "--params", tmp_path / f"{key}.json", *SMALL,
-                                  "-o", tmp_path / key)
-        assert code == 0, err
+        done = neuenh_here("render", "--model", model, "--params", tmp_path / f"{key}.json", *SMALL,
+                           "-o", tmp_path / key)
+        assert done.returncode == 0, done.stderr
         images[key] = read_rgb_exr(tmp_path / key / "model.exr")
     assert images["plain"].max() > 0
     np.testing.assert_array_equal(images["enhanced"], images["plain"])
