@@ -108,12 +108,14 @@ def conductor_fresnel(xp, cos, eta, kappa):
     sin2 = 1.0 - cos2
     t0 = eta * eta - kappa * kappa - sin2
     eta_kappa2 = eta * eta * kappa * kappa
-    a2b2 = xp.sqrt(t0 * t0 + 4.0 * eta_kappa2)  # a² + b²
+    # a² + b², kept at least 1e-12 (= a's floor below): its square root has a finite gradient at the
+    # critical angle of a dielectric (t0 = 0 = κ), and t1 ≥ t2, t3 ≥ t4 below hold with a floored, so
+    # F stays in [0, 1] (index-matched, η = 1 and κ = 0, at grazing it was -1/3)
+    a2b2 = xp.sqrt(xp.clamp(t0 * t0 + 4.0 * eta_kappa2, 1e-24))
     # a² = (a² + b² + t0) / 2, written without its cancellation when t0 < 0 (κ ≪ η past the critical
     # angle, where F lost up to 6e-4 relative in float32): (a2b2 + t0) / 2 = max(t0, 0) +
-    # 2η²κ² / (a2b2 + |t0|), both terms ≥ 0 (multiply a2b2 − |t0| by a2b2 + |t0|). The floor on the
-    # denominator binds only where ηκ < 5e-13, the term then under a's own floor below.
-    a_squared = xp.clamp(t0, 0.0) + 2.0 * eta_kappa2 / xp.clamp(a2b2 + xp.abs(t0), 1e-12)
+    # 2η²κ² / (a2b2 + |t0|), both terms ≥ 0 (multiply a2b2 − |t0| by a2b2 + |t0|)
+    a_squared = xp.clamp(t0, 0.0) + 2.0 * eta_kappa2 / (a2b2 + xp.abs(t0))
     # a kept off 0 so its gradient stays finite (a dielectric past its critical angle, which η < 1
     # with κ = 0 allows): where a² < 1e-12, F is off by up to ~4e-6 relative (rs moves by 4·a·cos/t1)
     a = xp.sqrt(xp.clamp(a_squared, 1e-12))

@@ -265,6 +265,24 @@ def test_hard_cases_are_finite_zero_below_and_have_finite_gradients(choices):
             assert raw.grad is None, f"{name} is not read by {model.describe()}"
 
 
+def test_the_conductors_fresnel_is_a_reflectance_with_finite_gradients_at_its_edges():
+    """In float32, on every edge of its domain at once — grazing (cosine COS_EPS), normal incidence,
+    exactly a dielectric's critical angle (cos² = 1 − η², κ = 0), index-matched (η = 1, κ = 0),
+    κ of 0, 1e-30 and the range's 8 —: F in [0, 1] and every gradient finite. The critical angle
+    gave NaN gradients (the square root of t0² + 4η²κ² at 0), index-matched grazing F = −1/3."""
+    from neuenh.models.alternatives import conductor_fresnel
+
+    etas, kappas = [0.05, 0.5, 0.999, 1.0, 1.5, 4.0], [0.0, 1e-30, 1e-12, 1e-6, 1e-3, 1.0, 8.0]
+    cosines = [COS_EPS, 1e-3, 0.1, *(math.sqrt(1.0 - e * e) for e in etas if e < 1.0), 0.999999, 1.0]
+    grid = torch.tensor([(c, e, k) for c in cosines for e in etas for k in kappas], dtype=torch.float32)
+    cos, eta, kappa = (grid[:, i : i + 1].clone().requires_grad_() for i in range(3))
+    f = conductor_fresnel(TORCH, cos, eta, kappa)
+    f.sum().backward()
+    assert ((f >= 0) & (f <= 1 + 4 * torch.finfo(torch.float32).eps)).all(), grid[((f < 0) | (f > 1)).squeeze(1)]
+    for name, x in (("cos", cos), ("eta", eta), ("kappa", kappa)):
+        assert torch.isfinite(x.grad).all(), (name, grid[~torch.isfinite(x.grad).squeeze(1)])
+
+
 def test_the_conductors_fresnel_keeps_float32_accuracy_past_the_critical_angle():
     """Past a weakly absorbing conductor's critical angle (η < 1, κ ≪ η) the textbook
     a² = (sqrt(t0² + 4η²κ²) + t0) / 2 cancels (t0 < 0): in float32 it lost up to 4e-4 relative here.
