@@ -17,7 +17,7 @@ from typing import Callable
 
 import torch
 
-from ..models.alternatives import conductor_fresnel as alternative_conductor_fresnel
+from ..models.alternatives import conductor_fresnel
 from ..models.microfacet import ggx_distribution, smith_shadowing
 from ..ops import TORCH
 from ..shading import COS_EPS, Shading, make_shading
@@ -68,13 +68,6 @@ def _ggx_lobe(wi, wo, alpha_x, alpha_y, t_theta=0.0):
     return ggx_distribution(s) * smith_shadowing(s) / (4 * s.cos_i * s.cos_o), s
 
 
-def conductor_fresnel(cos: torch.Tensor, eta: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
-    """Unpolarised Fresnel reflectance of a conductor with complex IOR eta + i k, per channel: the
-    model's own exact formula (``neuenh.models.alternatives.conductor_fresnel``), at ``cos`` clamped
-    to [COS_EPS, 1]."""
-    return alternative_conductor_fresnel(TORCH, cos.clamp(COS_EPS, 1.0), eta, k)
-
-
 def dielectric_fresnel(cos: torch.Tensor, eta: float) -> torch.Tensor:
     """Unpolarised Fresnel reflectance from air into a dielectric of IOR eta (Born & Wolf)."""
     cos = cos.clamp(COS_EPS, 1.0)
@@ -105,7 +98,7 @@ def _conductor(g: torch.Generator, i: int) -> AnalyticMaterial:
 
     def f(wi, wo):
         lobe, s = _ggx_lobe(wi, wo, ax, ay, t_theta)
-        return lobe * conductor_fresnel(s.cos_d, eta, k)
+        return lobe * conductor_fresnel(TORCH, s.cos_d, eta, k)  # the model's exact formula; cos_d in [COS_EPS, 1]
 
     return AnalyticMaterial(f"conductor-{metal}-{i:03d}", f, isotropic=False,
                             metadata={"family": "conductor", "metal": metal, "alpha": (ax, ay)})

@@ -7,12 +7,13 @@ from neuenh.data.samples import Samples, sample_materials
 from neuenh.data.synthetic import (
     CONDUCTORS,
     ZOO_FAMILIES,
-    conductor_fresnel,
     dielectric_fresnel,
     synthetic_ggx,
     synthetic_zoo,
 )
 from neuenh.models import get_model
+from neuenh.models.alternatives import conductor_fresnel
+from neuenh.ops import TORCH
 
 ZOO = synthetic_zoo(len(ZOO_FAMILIES), seed=11)
 
@@ -55,12 +56,12 @@ def test_zoo_is_seeded_and_covers_every_family():
 
 def test_conductor_fresnel_closed_forms():
     eta, k = (torch.tensor(v, dtype=torch.float64) for v in CONDUCTORS["gold"])
-    normal = conductor_fresnel(torch.ones(1, 1, dtype=torch.float64), eta, k)
+    normal = conductor_fresnel(TORCH, torch.ones(1, 1, dtype=torch.float64), eta, k)
     assert torch.allclose(normal, ((eta - 1) ** 2 + k**2) / ((eta + 1) ** 2 + k**2), rtol=1e-12)
-    grazing = conductor_fresnel(torch.full((1, 1), 1e-6, dtype=torch.float64), eta, k)
+    grazing = conductor_fresnel(TORCH, torch.full((1, 1), 1e-6, dtype=torch.float64), eta, k)
     assert torch.allclose(grazing, torch.ones(3, dtype=torch.float64), atol=1e-4)
     # k -> 0 is a dielectric.
-    dielectric = conductor_fresnel(torch.full((1, 1), 0.6, dtype=torch.float64),
+    dielectric = conductor_fresnel(TORCH, torch.full((1, 1), 0.6, dtype=torch.float64),
                                    torch.tensor([1.5], dtype=torch.float64), torch.zeros(1, dtype=torch.float64))
     assert torch.allclose(dielectric, dielectric_fresnel(torch.full((1, 1), 0.6, dtype=torch.float64), 1.5))
 
