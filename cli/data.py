@@ -407,15 +407,13 @@ def run_slice(args) -> int:
     if model is not None:
         label = model.name if model.state.strip("0") == "" else f"{model.name} {model.state}"
         report.update({"model": model.name, "state": model.state})
-        if fitted is not None:
-            from neuenh.fit import model_for
+        from neuenh.render import model_brdf  # a material as its fit measured it (its capacity's model)
 
+        if fitted is not None:
             if material.name not in fitted:
                 raise DataCommandError(f"--params {args.params}: no material named {material.name!r}, the sliced "
                                        f"file's (it holds {', '.join(fitted)})")
             record = fitted[material.name]
-            own = model_for(model, record)  # a material fitted at an analytical capacity: that capacity's model
-            params = own.used_params(record)
             report.update({"params_from": str(args.params), "capacity": record.capacity})
             caption = f"{label} as fitted ({args.params.name}{f', {record.capacity}' if record.capacity else ''})"
         else:
@@ -425,12 +423,12 @@ def run_slice(args) -> int:
             samples = sample_materials([material], args.fit_samples, args.seed)
             result = fit_materials(model, samples, FitOptions(epochs=args.epochs).protocol_for(model),
                                    seed=args.seed, trained=trained)
-            own, params = result.material_model(model, 0)
+            record = result.materials.as_params(0)
             report.update({"fit_loss": result.losses[0], "fit_seconds": round(result.wall_s, 3),
                            "fit_samples": args.fit_samples})
             caption = f"{label} fit (log-L1 {result.losses[0]:.4f})"
         with torch.no_grad():
-            predicted = _luminance(own.evaluate(wi.float(), wo.float(), params), wi, wo, n)
+            predicted = _luminance(model_brdf(model, record)(wi.float(), wo.float()), wi, wo, n)
         panels.append((caption, predicted))
     if args.view == "rusinkiewicz":
         subtitle = f"phi_d = {args.phi_d:g} deg, phi_h = 0"
