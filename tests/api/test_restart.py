@@ -9,10 +9,16 @@ from live_api import wait_for
 from neuenh_service.storage import SQLiteJobStore
 
 
+# Rounds of ~1.3 s alone (30 epochs: 3.8 s for the three; at one epoch the whole job took 0.5 s and
+# once ended before the stop below, which follows the first committed round by a poll of 0.1 s): the
+# stop lands mid-job.
+SPEC = tiny_spec(max_rounds=3, epochs_per_round=30).model_dump(mode="json")
+
+
 def test_stop_mid_job_then_resume(live_server, tmp_path):
     first = live_server()
     with first.client() as c:
-        job_id = c.post("/jobs", json=tiny_spec(max_rounds=3).model_dump(mode="json")).json()["id"]
+        job_id = c.post("/jobs", json=SPEC).json()["id"]
         wait_for(c, job_id, until=lambda job: job["last_round"] is not None or job["terminal"])
     first.stop()
 
