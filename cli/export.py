@@ -9,8 +9,8 @@ with ``--params`` those of a fit report (``neuenh fit --json``, or the answer of
 /v1/jobs/{id}/fit``), which must be a fit of this very model; ``--material`` picks some by name.
 With ``--plan`` (written by ``neuenh scene plan``) every material is exported with the rung the plan
 chose for it, one folder per rung (``OUT/<rung>/``), each holding only that rung's modules; the
-materials planned with the per-material NBRDF rung are skipped, each named on stderr (no exporter
-writes NBRDF networks), and naming one with ``--material`` is an error. A material fitted at an
+materials planned with the per-material NBRDF rung are written from their networks into
+``OUT/nbrdf/`` (``neuenh.export.nbrdf``: the same files and function names). A material fitted at an
 analytical capacity (``neuenh fit --capacity auto`` may choose one) is evaluated by an analytical
 model of the same graph, not by the modules: it is written with that model into a folder named after
 its capacity inside the model's (``OUT/original/``, ``OUT/<rung>/analytical/``).
@@ -20,11 +20,10 @@ Each format's files are described in docs/EXPORT.md and ``neuenh.export``.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from neuenh.export import FORMATS, export
+from neuenh.export import FORMATS, export, export_nbrdf
 
 from .fit_reports import read_fit_report
 from .outputs import output_folder
@@ -56,29 +55,23 @@ def run(args) -> int:
         raise ValueError("--params goes with a MODEL; a plan holds its materials' parameters")
     output_folder(args.output)
     wanted = set(args.material or ())
+    networks: dict = {}  # the plan's materials with the per-material NBRDF rung: name -> network
     if args.plan:
+        from neuenh.scene.ladder import NBRDFRung
         from neuenh.scene.outputs import plan_models, safe_name
 
         planned = plan_models(args.plan)
-        named = sorted(wanted & set(planned.nbrdf))
-        if named:
-            raise ValueError(f"{', '.join(map(repr, named))} planned with the per-material NBRDF rung, which the "
-                             "exporters do not write")
         groups = [group for key, model, materials in planned.groups
                   for group in by_own_model(args.output / safe_name(key), model, materials)]
-        if not groups:
-            raise ValueError(f"{args.plan}: every material was planned with the per-material NBRDF rung; nothing to "
-                             "export")
-        for name in [] if wanted else planned.nbrdf:
-            print(f"skipped {name!r}: planned with the per-material NBRDF rung, which the exporters do not write "
-                  f"(its network's weights are in {args.plan})", file=sys.stderr)
+        networks = planned.nbrdf
+        networks_folder = args.output / safe_name(NBRDFRung.key)
     else:
         from neuenh.pretrained import load_model
 
         model, trained = load_model(args.model, "MODEL")
         materials = read_fit_report(args.params, model) if args.params else bundle_materials(trained, args.model)
         groups = by_own_model(args.output, model, materials)
-    every = {m for _, _, materials in groups for m in materials}
+    every = {m for _, _, materials in groups for m in materials} | set(networks)
     missing = sorted(wanted - every)
     if missing:
         raise ValueError(f"no material {', '.join(map(repr, missing))}; there are: {', '.join(sorted(every))}")
@@ -87,6 +80,10 @@ def run(args) -> int:
         if chosen:
             for path in export(model, chosen, args.format, folder):
                 print(path)
+    chosen_networks = {m: net for m, net in networks.items() if not wanted or m in wanted}
+    if chosen_networks:
+        for path in export_nbrdf(chosen_networks, args.format, networks_folder):
+            print(path)
     return 0
 
 

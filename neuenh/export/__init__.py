@@ -15,6 +15,9 @@ either horizon. Every format is checked by running the artifact in its real runt
 * ``mitsuba`` (``neuenh.export.mitsuba``): a Mitsuba 3 BSDF plugin (Python, Dr.Jit) and a scene per
   material, run in Mitsuba (its chi-square test, against its built-in GGX).
 
+``export_nbrdf`` writes per-material NBRDF networks (a scene plan's ``nbrdf`` rung) in the same three
+formats, with the same names and conventions (``neuenh.export.nbrdf``).
+
 The runtimes are the optional extra ``neuenh[export]``; this package imports them only inside the
 format that needs them. Imports neither Ray, FastAPI nor SQL.
 """
@@ -28,6 +31,7 @@ from typing import TYPE_CHECKING, Mapping
 
 if TYPE_CHECKING:
     from ..materials import MaterialParams
+    from ..study.nbrdf_fit import NBRDFNetwork
 
 FORMATS = ("glsl", "onnx", "mitsuba")
 
@@ -43,16 +47,26 @@ class ExportError(ValueError):
 
 def export(model, materials: Mapping[str, MaterialParams], fmt: str, out_dir: Path) -> list[Path]:
     """Write ``materials`` of ``model`` in format ``fmt`` into ``out_dir``; returns the files."""
+    return _writer(fmt, materials).write(model, materials, Path(out_dir))
+
+
+def export_nbrdf(networks: Mapping[str, NBRDFNetwork], fmt: str, out_dir: Path) -> list[Path]:
+    """Write per-material NBRDF ``networks`` (name -> network, a scene plan's ``nbrdf`` rung) in
+    format ``fmt`` into ``out_dir`` (``neuenh.export.nbrdf``); returns the files."""
+    return _writer(fmt, networks).write_nbrdf(networks, Path(out_dir))
+
+
+def _writer(fmt: str, materials: Mapping):
+    """The format's module, once the request is known to be one it can write."""
     if fmt not in FORMATS:
         raise ExportError(f"unknown export format {fmt!r}; choose one of {', '.join(FORMATS)}")
     if not materials:
         raise ExportError("nothing to export: no materials")
     try:
-        writer = importlib.import_module(f"{__name__}.{fmt}")
+        return importlib.import_module(f"{__name__}.{fmt}")
     except ImportError as exc:
         raise MissingRuntime(f"the {fmt} export needs {exc.name or 'a package'}, which is not installed "
                              "(pip install 'neuenh[export]')") from None
-    return writer.write(model, materials, Path(out_dir))
 
 
 def file_names(materials, suffix: str) -> dict[str, str]:

@@ -187,13 +187,18 @@ class GlslOps(EmittingOps):
 
 
 # -- one material ----------------------------------------------------------------------------------
-def material_source(brdf: SpecializedBRDF, name: str) -> str:
-    """The GLSL of one specialized material (see the module docstring); ``name`` must be an
-    identifier part (``neuenh.export.identifier``)."""
+def _prefix(name: str) -> str:
+    """The symbols' prefix of material ``name``, an identifier part (``neuenh.export.identifier``)."""
     if not re.fullmatch(r"[A-Za-z0-9_]+", name) or "__" in name:
         raise ValueError(f"{name!r}: a GLSL material name is letters, digits and single underscores "
                          "(neuenh.export.identifier)")
-    prefix = f"neuenh_{name}_"
+    return f"neuenh_{name}_"
+
+
+def material_source(brdf: SpecializedBRDF, name: str) -> str:
+    """The GLSL of one specialized material (see the module docstring); ``name`` must be an
+    identifier part (``neuenh.export.identifier``)."""
+    prefix = _prefix(name)
     folded = brdf.folded.to(torch.float64)  # constants at full precision; GLSL rounds each once
     code = Code(prefix)
     xp = GlslOps(code)
@@ -228,6 +233,33 @@ def material_source(brdf: SpecializedBRDF, name: str) -> str:
     ]
     if folded.rotation is not None:
         header.append(f"const mat3 {frame} = mat3({rows});  // rows: tangent, bitangent, normal")
+    return _source(header, functions, prefix, code, value)
+
+
+def nbrdf_source(net, name: str) -> str:
+    """The GLSL of one NBRDF network (``neuenh.export.nbrdf``, a ``NBRDFNetwork``) as material ``name``:
+    the same function and names as a model's material."""
+    from .nbrdf import above, brdf, folded_network
+
+    prefix, network = _prefix(name), folded_network(net)
+    code = Code(prefix)
+    xp = GlslOps(code)
+    wi, wo = Expr(code, "vec3", "wi"), Expr(code, "vec3", "wo")
+    value = brdf(xp, wi, wo, lambda inputs: _call_module(code, prefix, network, inputs, (1,) * len(inputs)))
+    header = [
+        f"// neuenh export: the per-material NBRDF network (Sztrajman et al. 2021) of material '{name}'",
+        "// f_r = exp(W3 relu(W2 relu(W1 x + b1) + b2) + b3) - 1, x of the Rusinkiewicz angles (neuenh.export.nbrdf)",
+        "// f_r(wi, wo) without the cosine factor; wi, wo: unit vectors in the local frame (z the normal);",
+        "// zero below either horizon.",
+        f"// GLSL {VERSION} core; no #version line and no main(): include it in your shader.",
+    ]
+    value = xp.where(above(wi, wo), value, (0.0, 0.0, 0.0))
+    return _source(header, [_module_function(prefix, network)], prefix, code, value)
+
+
+def _source(header: list[str], functions: list[str], prefix: str, code: Code, value) -> str:
+    """A material's file: ``header`` comments, the module ``functions``, ``<prefix>brdf`` returning
+    ``value`` clamped at 0, and ``neuenh_brdf`` forwarding to it."""
     body = [f"vec3 {prefix}brdf(vec3 wi, vec3 wo) {{", *code.lines,
             f"    return max({value.text}, vec3(0.0));", "}"]
     default = ["#ifndef NEUENH_NO_DEFAULT_BRDF",
@@ -414,3 +446,11 @@ def write(model, materials: Mapping[str, MaterialParams], out_dir: Path) -> list
     written = [atomic_write(out_dir / f"{name}.glsl", material_source(model.specialize(materials[material]), name))
                for name, material in names.items()]
     return written + [atomic_write(out_dir / generic, model_source(model))]
+
+
+def write_nbrdf(networks: Mapping[str, Any], out_dir: Path) -> list[Path]:
+    """``NAME.glsl`` (``nbrdf_source``) per NBRDF network, written atomically."""
+    names = file_names(networks, ".glsl")
+    sources = {name: nbrdf_source(networks[material], name) for name, material in names.items()}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return [atomic_write(out_dir / f"{name}.glsl", source) for name, source in sources.items()]

@@ -25,6 +25,10 @@ Files (``write``): ``neuenh-model/`` (the model's bundle: module weights, no mat
 material ``NAME.json`` (its parameters and the bundle's folder) and ``NAME.xml`` (the ball under the
 studio environment map ``studio.exr``, a path tracer, the plugin with ``filename`` = ``NAME.json``).
 
+``write_nbrdf``: per NBRDF network (a scene plan's ``nbrdf`` rung, ``neuenh.export.nbrdf``) ``NAME.json``
+(format ``neuenh-mitsuba-nbrdf``: its weights and the lobe it is sampled with, no shading frame) and
+``NAME.xml``; the same plugin reads either kind of ``NAME.json``.
+
 Imports ``mitsuba`` only inside ``set_variant``, ``register`` and the plugin (the ``neuenh[export]``
 extra). The LLVM variants JIT-compile with the system's libLLVM, which must be version 17 or newer
 (Dr.Jit 1.5 emits ``llvm.minimum``/``maximum``, which LLVM 15 and 16 cannot select on x86 and abort
@@ -53,6 +57,7 @@ from . import file_names
 
 PLUGIN = "neuenh"
 FORMAT = "neuenh-mitsuba-material"
+NBRDF_FORMAT = "neuenh-mitsuba-nbrdf"  # an NBRDF network's material (write_nbrdf)
 BUNDLE_DIR = "neuenh-model"
 ENVMAP = "studio.exr"
 
@@ -158,9 +163,7 @@ class DrJitMaterial:
         self.rotation = None if k.rotation is None else [[float(v) for v in row] for row in k.rotation.tolist()]
         self.params = {name: self._constant(v) for name, v in k.params.items()}
         self.constants = {name: self._constant(v) for name, v in k.constants.items()}
-        self.modules = {name: ([[[float(w) for w in row] for row in weight.tolist()] for weight, _ in m.layers],
-                               [[float(b) for b in bias.tolist()] for _, bias in m.layers], m.negative_slope)
-                        for name, m in k.modules.items()}
+        self.modules = {name: _constants(m) for name, m in k.modules.items()}
         self._mi = mi
 
     def _constant(self, value):
@@ -172,26 +175,10 @@ class DrJitMaterial:
         return self.xp.mi.Color3f(*flat) if len(flat) == 3 else tuple(flat)
 
     def _rotate(self, w):
-        if self.rotation is None:
-            return w
-        (a, b, c), (d, e, f), (g, h, i) = self.rotation
-        return self._mi.Vector3f(a * w.x + b * w.y + c * w.z, d * w.x + e * w.y + f * w.z, g * w.x + h * w.y + i * w.z)
+        return _rotate(self._mi, self.rotation, w)
 
     def _mlp(self, name: str, inputs: list):
-        weights, biases, slope = self.modules[name]
-        x = inputs
-        for layer, (weight, bias) in enumerate(zip(weights, biases)):
-            out = []
-            for row, b in zip(weight, bias):
-                acc = b
-                for w, v in zip(row, x):
-                    if w != 0.0:
-                        acc = acc + w * v
-                out.append(acc)
-            if layer < len(weights) - 1:  # LeakyReLU: max(x, slope x) for a slope below 1
-                out = [self.xp.dr.maximum(v, slope * v) if not _is_const(v) else max(v, slope * v) for v in out]
-            x = out
-        return x[0] if len(x) == 1 else self._mi.Color3f(*x)
+        return _mlp(self.xp, self.modules[name], inputs)
 
     def _flat(self, value, width: int) -> list:
         if width == 1:
@@ -219,24 +206,106 @@ class DrJitMaterial:
         return xp.dr.maximum(value, 0.0)
 
 
+class DrJitNBRDF:
+    """An NBRDF network (``neuenh.export.nbrdf``) on Dr.Jit arrays, called as ``DrJitMaterial`` is:
+    ``f_r(wi, wo, active)`` -> ``mi.Color3f``, the network inside the same conditional."""
+
+    def __init__(self, net):
+        from .nbrdf import folded_network
+
+        self.xp = DrJitOps()
+        self.network = _constants(folded_network(net).to(torch.float64))
+
+    def __call__(self, wi, wo, active=True):
+        from .nbrdf import above, brdf
+
+        mi, xp = self.xp.mi, self.xp
+
+        def value():
+            return mi.Color3f(brdf(xp, wi, wo, lambda inputs: _mlp(xp, self.network, inputs)))
+
+        return xp.dr.maximum(xp.dr.if_stmt((), active & above(wi, wo), value, lambda: mi.Color3f(0.0)), 0.0)
+
+
+def _rotate(mi, rows: list | None, w, inverse: bool = False):
+    """``w`` (``mi.Vector3f``) times the rotation whose ``rows`` are given (None: none), or its inverse
+    (the transpose)."""
+    if rows is None:
+        return w
+    (a, b, c), (d, e, f), (g, h, i) = rows
+    if inverse:
+        return mi.Vector3f(a * w.x + d * w.y + g * w.z, b * w.x + e * w.y + h * w.z, c * w.x + f * w.y + i * w.z)
+    return mi.Vector3f(a * w.x + b * w.y + c * w.z, d * w.x + e * w.y + f * w.z, g * w.x + h * w.y + i * w.z)
+
+
+def _constants(module) -> tuple[list, list, float]:
+    """A ``FoldedModule``'s layers as Python floats (weights row by row, biases) and its slope."""
+    return ([[[float(w) for w in row] for row in weight.tolist()] for weight, _ in module.layers],
+            [[float(b) for b in bias.tolist()] for _, bias in module.layers], module.negative_slope)
+
+
+def _mlp(xp: DrJitOps, module: tuple[list, list, float], inputs: list):
+    """The MLP ``_constants`` holds on Dr.Jit values: a product per non-zero weight, LeakyReLU between
+    layers; a ``mi.Float`` for one output, else a ``mi.Color3f``."""
+    weights, biases, slope = module
+    x = inputs
+    for layer, (weight, bias) in enumerate(zip(weights, biases)):
+        out = []
+        for row, b in zip(weight, bias):
+            acc = b
+            for w, v in zip(row, x):
+                if w != 0.0:
+                    acc = acc + w * v
+            out.append(acc)
+        if layer < len(weights) - 1:  # LeakyReLU: max(x, slope x) for a slope below 1
+            out = [xp.dr.maximum(v, slope * v) if not _is_const(v) else max(v, slope * v) for v in out]
+        x = out
+    return x[0] if len(x) == 1 else xp.mi.Color3f(*x)
+
+
 # -- the plugin -------------------------------------------------------------------------------------------
+def _read(path: Path) -> dict:
+    """An exported material file's JSON, of either kind (``FORMAT``, ``NBRDF_FORMAT``)."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: not a neuenh Mitsuba material ({exc})") from None
+    if not isinstance(data, dict) or data.get("format") not in (FORMAT, NBRDF_FORMAT):
+        what = data.get("format") if isinstance(data, dict) else None
+        raise ValueError(f"{path}: not a neuenh Mitsuba material (format {what!r})")
+    return data
+
+
 def load_material(path: str | Path):
     """(model, params) of an exported ``NAME.json`` (``write``)."""
     from ..checkpoint import Bundle
 
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: not a neuenh Mitsuba material ({exc})") from None
-    if data.get("format") != FORMAT:
-        raise ValueError(f"{path}: not a neuenh Mitsuba material (format {data.get('format')!r})")
+    data = _read(path)
+    if data["format"] != FORMAT:
+        raise ValueError(f"{path}: an NBRDF network's material (load_nbrdf reads it), not a model's")
     try:
         params = MaterialParams.from_json(data)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
     bundle = Bundle.load(path.parent / data["bundle"])
     return bundle.model, params
+
+
+def load_nbrdf(path: str | Path):
+    """(the network, (alpha, p_spec) of its sampling lobe) of an NBRDF material's ``NAME.json``
+    (``write_nbrdf``)."""
+    from ..study.nbrdf_fit import NBRDFNetwork
+
+    path = Path(path)
+    data = _read(path)
+    if data["format"] != NBRDF_FORMAT:
+        raise ValueError(f"{path}: a model's material (load_material reads it), not an NBRDF network's")
+    try:
+        lobe = data["sampling"]
+        return NBRDFNetwork.from_state(data["weights"]), (float(lobe["alpha"]), float(lobe["p_spec"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def _plugin_class():
@@ -250,31 +319,32 @@ def _plugin_class():
             super().__init__(props)
             # relative to the scene file, as Mitsuba resolves every file a scene names
             self.filename = str(mi.file_resolver().resolve(str(props["filename"])))
-            model, params = load_material(self.filename)
-            special = model.specialize(params)
-            self.material = DrJitMaterial(special)
-            values = {k: v.reshape(-1).tolist() for k, v in params.values.items()}
-            ax = values.get("alpha_x", [0.5])[0]
-            ay = values.get("alpha_y", [ax])[0]
+            if _read(Path(self.filename))["format"] == NBRDF_FORMAT:
+                net, (ax, self.p_spec) = load_nbrdf(self.filename)
+                self.material, ay, self.frame = DrJitNBRDF(net), ax, None
+            else:
+                model, params = load_material(self.filename)
+                special = model.specialize(params)
+                self.material = DrJitMaterial(special)
+                values = {k: v.reshape(-1).tolist() for k, v in params.values.items()}
+                ax = values.get("alpha_x", [0.5])[0]
+                ay = values.get("alpha_y", [ax])[0]
+                specular = sum(values.get("rho_s", [0.5])) / 3.0
+                diffuse = sum(values.get("rho_d", [0.5])) / 3.0
+                self.p_spec = min(max(specular / max(specular + diffuse, 1e-8), 0.1), 0.9)
+                rotation = special.folded.rotation
+                self.frame = None if rotation is None else [[float(v) for v in row] for row in rotation.tolist()]
             self.lobe = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, max(ax, 1e-4), max(ay, 1e-4), True)
-            specular = sum(values.get("rho_s", [0.5])) / 3.0
-            diffuse = sum(values.get("rho_d", [0.5])) / 3.0
-            self.p_spec = min(max(specular / max(specular + diffuse, 1e-8), 0.1), 0.9)
-            rotation = special.folded.rotation
-            self.frame = None if rotation is None else [[float(v) for v in row] for row in rotation.tolist()]
             self.m_components = [mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide,
                                  mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide]
             self.m_flags = self.m_components[0] | self.m_components[1]
 
         # the material's shading frame (where its GGX lobe lives) and back
         def _to_shading(self, w):
-            return self.material._rotate(w)
+            return _rotate(mi, self.frame, w)
 
         def _from_shading(self, w):
-            if self.frame is None:
-                return w
-            (a, b, c), (d, e, f), (g, h, i) = self.frame  # the transpose of the rotation
-            return mi.Vector3f(a * w.x + d * w.y + g * w.z, b * w.x + e * w.y + h * w.z, c * w.x + f * w.y + i * w.z)
+            return _rotate(mi, self.frame, w, inverse=True)
 
         def _pdf(self, wi, wo, active):
             """The lobe mixture's density of ``wo``; 0 where the material is (below either horizon,
@@ -353,6 +423,26 @@ def write(model, materials: Mapping[str, MaterialParams], out_dir: Path) -> list
         data = {"format": FORMAT, "version": 2, "material": material, "model": model.name, "state": model.state,
                 "bundle": BUNDLE_DIR, **record.to_json()}
         written.append(atomic_write(out_dir / f"{name}.json", json.dumps(data, indent=1) + "\n"))
+        written.append(atomic_write(out_dir / f"{name}.xml", scene_xml(f"{name}.json")))
+    return written
+
+
+def write_nbrdf(networks: Mapping[str, object], out_dir: Path) -> list[Path]:
+    """``NAME.json`` (the network's weights and its sampling lobe, ``neuenh.export.nbrdf.sampling_lobe``)
+    and ``NAME.xml`` per NBRDF network, and the environment map."""
+    from ..data.exr import write_rgb_exr
+    from ..render.envmaps import studio_environment
+    from .nbrdf import sampling_lobe
+
+    names = file_names(networks, ".json")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = [write_rgb_exr(out_dir / ENVMAP, studio_environment())]
+    for name, material in names.items():
+        net = networks[material]
+        alpha, p_spec = sampling_lobe(net)
+        data = {"format": NBRDF_FORMAT, "version": 1, "material": material, "model": "nbrdf",
+                "sampling": {"alpha": alpha, "p_spec": p_spec}, "weights": net.state()}
+        written.append(atomic_write(out_dir / f"{name}.json", json.dumps(data) + "\n"))
         written.append(atomic_write(out_dir / f"{name}.xml", scene_xml(f"{name}.json")))
     return written
 

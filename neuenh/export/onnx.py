@@ -56,7 +56,7 @@ from ..ops import BatchVec3, EmittingOps, _is_const
 from ..shading import make_shading, shade
 from ..specialize import FoldedModule, SpecializedBRDF, walk
 
-__all__ = ["OPSET", "file_stem", "generic_graph", "material_graph", "write"]
+__all__ = ["OPSET", "file_stem", "generic_graph", "material_graph", "nbrdf_graph", "write", "write_nbrdf"]
 
 OPSET = 18
 BATCH = "n"  # the dynamic batch dimension of wi, wo and f_r
@@ -392,6 +392,28 @@ def generic_graph(model: BRDFModel) -> bytes:
     return _serialize(b, output, inputs, doc, _provenance(model.name, model.state, model.describe()))
 
 
+def nbrdf_graph(net, name: str | None = None) -> bytes:
+    """The ONNX model (serialized) of one NBRDF network (``neuenh.export.nbrdf``, a ``NBRDFNetwork``):
+    inputs ``wi``, ``wo``, output ``f_r``, as a material's graph."""
+    from .nbrdf import above, brdf, folded_network
+
+    b = _Builder()
+    wi, wo = _Value(b, "wi", 3, True), _Value(b, "wo", 3, True)
+    xp = _OnnxOps(b, wi)
+    network = folded_network(net)
+    value = brdf(xp, BatchVec3(wi), BatchVec3(wo),
+                 lambda inputs: xp.mlp(network.layers, network.negative_slope, xp.concat(inputs)))
+    output = xp.finish(value, above(BatchVec3(wi), BatchVec3(wo)))
+    inputs = {"wi": ([BATCH, 3], "incident direction, local frame (z = normal), unit"),
+              "wo": ([BATCH, 3], "outgoing direction, local frame, unit")}
+    formula = "exp(W3 relu(W2 relu(W1 x + b1) + b2) + b3) - 1"
+    what = f"material {name!r}" if name is not None else "one material"
+    doc = (f"f_r(wi, wo) of {what}: its per-material NBRDF network (Sztrajman et al. 2021), f_r = {formula}; "
+           "without the cosine factor, 0 below either horizon, >= 0.")
+    metadata = {"material": name} if name is not None else {}
+    return _serialize(b, output, inputs, doc, {**metadata, **_provenance("nbrdf", "", formula)})
+
+
 def _provenance(model_name: str, state: str, formula: str) -> dict[str, str]:
     return {"model": model_name, "state": state, "formula": formula, "neuenh_version": __version__}
 
@@ -440,22 +462,39 @@ def write(model: BRDFModel, materials: Mapping[str, MaterialParams], out_dir: Pa
     whose file name another name already takes, case-insensitively) raises a ValueError and writes
     nothing. Each file is written to a temporary file in ``out_dir`` and renamed into place, so a
     reader never sees half a file."""
-    out_dir = Path(out_dir)
     generic = f"{file_stem(model.name)}{GENERIC_SUFFIX}.onnx"
-    taken: dict[str, str] = {generic.casefold(): f"the generic model's {generic}"}
-    files: list[tuple[Path, bytes]] = []
-    for name, params in materials.items():
-        file = f"{file_stem(name)}.onnx"
-        if file.casefold() in taken:
-            raise ValueError(f"material {name!r} would be written to {file}, as {taken[file.casefold()]}; rename one")
-        taken[file.casefold()] = f"material {name!r}"
+
+    def graph(name: str, params: MaterialParams) -> bytes:
         try:
             specialized = model.specialize(params)
         except ValueError as error:
             raise ValueError(f"material {name!r}: {error}") from None
-        files.append((out_dir / file, material_graph(specialized, name=name)))
-    files.append((out_dir / generic, generic_graph(model)))
+        return material_graph(specialized, name=name)
+
+    return _write_graphs(materials, graph, Path(out_dir), {generic: (f"the generic model's {generic}",
+                                                                     lambda: generic_graph(model))})
+
+
+def write_nbrdf(networks: Mapping[str, object], out_dir: Path) -> list[Path]:
+    """``NAME.onnx`` (``nbrdf_graph``) per NBRDF network, as ``write`` writes a model's materials."""
+    return _write_graphs(networks, lambda name, net: nbrdf_graph(net, name=name), Path(out_dir), {})
+
+
+def _write_graphs(materials: Mapping, graph, out_dir: Path, extra: Mapping) -> list[Path]:
+    """``graph(name, material)`` as ``NAME.onnx`` per material, then ``extra`` (file -> (what it is,
+    its graph's maker)): every graph built before anything is written, no two file names alike
+    (case-insensitively), each file written atomically."""
+    taken = {file.casefold(): what for file, (what, _) in extra.items()}
+    files: list[tuple[Path, bytes]] = []
+    for name, material in materials.items():
+        file = f"{file_stem(name)}.onnx"
+        if file.casefold() in taken:
+            raise ValueError(f"material {name!r} would be written to {file}, as {taken[file.casefold()]}; rename one")
+        taken[file.casefold()] = f"material {name!r}"
+        files.append((out_dir / file, graph(name, material)))
+    files += [(out_dir / file, make()) for file, (_, make) in extra.items()]
     out_dir.mkdir(parents=True, exist_ok=True)
     for path, blob in files:
         atomic_write(path, blob)
     return [path for path, _ in files]
+

@@ -124,19 +124,13 @@ class NBRDFRung(Rung):
         from ..study.nbrdf_fit import NBRDFConfig, fit_nbrdf
 
         result = fit_nbrdf(samples, NBRDFConfig(epochs=options.epochs) if options.epochs else NBRDFConfig(), seed=seed)
-        out = []
-        for net, loss in zip(result.networks, result.losses):
-            params = {name: [float(x) for x in p.detach().reshape(-1)] for name, p in net.state_dict().items()}
-            out.append(FittedRung(net.evaluate, torch.no_grad()(net.forward), params, net.n_weights(), loss))
-        return out
+        return [FittedRung(net.evaluate, torch.no_grad()(net.forward), net.state(), net.n_weights(), loss)
+                for net, loss in zip(result.networks, result.losses)]
 
     def brdf_of(self, params):
         from ..study.nbrdf_fit import NBRDFNetwork
 
-        net = NBRDFNetwork()
-        shapes = {k: v.shape for k, v in net.state_dict().items()}
-        net.load_state_dict({k: torch.tensor(v, dtype=torch.float32).reshape(shapes[k]) for k, v in params.items()})
-        return net.eval().evaluate
+        return NBRDFNetwork.from_state(params).evaluate
 
 
 def build_ladder(entries: Sequence[Any], where: str = "ladder") -> list[Rung]:

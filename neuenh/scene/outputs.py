@@ -69,17 +69,18 @@ class PlanModels:
     """What the exporters take from a written plan (``plan_models``)."""
 
     groups: list[tuple[str, object, dict]]  # (rung key, BRDFModel, {material: MaterialParams}), in ladder order
-    nbrdf: list[str]  # the materials planned with the per-material NBRDF rung, which no exporter writes
+    nbrdf: dict[str, object]  # material -> its NBRDFNetwork, for those planned with the per-material NBRDF rung
 
 
 def plan_models(plan_json: Path) -> PlanModels:
     """The models a written plan uses, each with its materials' records, read from ``plan.json`` and
     the bundles beside it (what the exporters take, ``neuenh export --plan``). The materials planned
-    with the NBRDF rung are not in ``groups`` but named in ``PlanModels.nbrdf`` (their networks'
-    weights stay in ``plan.json``). A rung whose bundle is missing is a ValueError naming it."""
+    with the NBRDF rung are not in ``groups`` but in ``PlanModels.nbrdf``, each with its network (its
+    weights are in ``plan.json``). A rung whose bundle is missing is a ValueError naming it."""
     from ..checkpoint import Bundle, BundleError
     from ..materials import MaterialParams
     from ..models import get_model
+    from ..study.nbrdf_fit import NBRDFNetwork
 
     try:
         plan = json.loads(Path(plan_json).read_text())
@@ -92,11 +93,14 @@ def plan_models(plan_json: Path) -> PlanModels:
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{plan_json}: not a scene plan (neuenh scene plan): {type(exc).__name__}: {exc}") from None
     out: dict[str, tuple[object, dict]] = {}
-    nbrdf = []
+    nbrdf = {}
     for name, key, params in chosen:
         rung = ladder[key]
         if rung["model"] == "nbrdf":
-            nbrdf.append(name)
+            try:
+                nbrdf[name] = NBRDFNetwork.from_state(params)
+            except ValueError as exc:
+                raise ValueError(f"{plan_json}: material {name!r}: {exc}") from None
             continue
         if key not in out:
             if rung["shared_weights"]:

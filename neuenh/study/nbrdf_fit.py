@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Mapping, Sequence
 
 import torch
 from torch import nn
@@ -55,6 +56,22 @@ class NBRDFNetwork(nn.Module):
 
     def n_weights(self) -> int:
         return sum(p.numel() for p in self.parameters())
+
+    def state(self) -> dict[str, list[float]]:
+        """The weights as flat lists of floats by ``state_dict`` name (a scene plan's parameters)."""
+        return {name: [float(x) for x in p.detach().reshape(-1)] for name, p in self.state_dict().items()}
+
+    @classmethod
+    def from_state(cls, state: Mapping[str, Sequence[float]]) -> "NBRDFNetwork":
+        """The network ``state()`` wrote (its width read from the first layer's size); a ValueError
+        naming what does not fit."""
+        try:
+            net = cls(hidden=len(state["layers.0.weight"]) // 6)
+            shapes = {k: v.shape for k, v in net.state_dict().items()}
+            net.load_state_dict({k: torch.tensor(state[k], dtype=torch.float32).reshape(shapes[k]) for k in shapes})
+        except (KeyError, RuntimeError, TypeError, ValueError) as exc:
+            raise ValueError(f"not the weights of an NBRDF network ({type(exc).__name__}: {exc})") from None
+        return net.eval()
 
 
 @dataclass(frozen=True)

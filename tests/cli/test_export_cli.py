@@ -166,27 +166,43 @@ def test_a_plan_without_its_bundle_is_a_one_line_error(plan, tmp_path):
                    "needs its bundle")
 
 
-def test_a_plan_skips_the_materials_planned_with_nbrdf_and_names_them(plan, tmp_path):
+def test_a_plan_writes_the_materials_planned_with_nbrdf_from_their_networks(plan, tmp_path):
+    """A material the plan gave the per-material NBRDF rung is written from its network into
+    ``OUT/nbrdf/``, and the file runs in onnxruntime as that network; ``--material`` picks it; a plan
+    whose NBRDF weights are not a network's is a one-line error naming the material."""
+    import onnxruntime as ort
+
     from neuenh.scene.outputs import safe_name
+    from neuenh.study.nbrdf_fit import NBRDFNetwork
 
     path, data = plan
     data = json.loads(path.read_text())
+    net = NBRDFNetwork(seed=4)
     data["ladder"].append({"key": "nbrdf", "label": "NBRDF", "model": "nbrdf", "state": None, "shared_weights": 0})
-    data["materials"][0]["chosen"] = "nbrdf"
+    data["materials"][0].update(chosen="nbrdf", params=net.state())
     copy = path.parent / "with-nbrdf.json"  # beside the plan's bundles
     copy.write_text(json.dumps(data))
-    out = neuenh_here("export", "--plan", copy, "--format", "onnx", "-o", tmp_path)
+    out = neuenh_here("export", "--plan", copy, "--format", "onnx", "-o", tmp_path / "all")
     assert out.returncode == 0, out.stderr
-    assert "skipped 'gloss': planned with the per-material NBRDF rung" in out.stderr
-    written = sorted(p.name for p in tmp_path.rglob("*") if p.is_file())
-    assert "retro.onnx" in written and not any("gloss" in n for n in written)
-    assert (tmp_path / safe_name(data["materials"][1]["chosen"])).is_dir()
-    one_line_error(neuenh_here("export", "--plan", copy, "--format", "glsl", "--material", "gloss", "-o", tmp_path / "o"),
-                   "'gloss' planned with the per-material NBRDF rung")
-    data["materials"][1]["chosen"] = "nbrdf"
+    written = sorted(p.relative_to(tmp_path / "all").as_posix() for p in (tmp_path / "all").rglob("*.onnx"))
+    assert written == sorted(["nbrdf/gloss.onnx", f"{safe_name(data['materials'][1]['chosen'])}/retro.onnx",
+                              f"{safe_name(data['materials'][1]['chosen'])}/ggx-generic.onnx"]), written
+    session = ort.InferenceSession(str(tmp_path / "all" / "nbrdf" / "gloss.onnx"), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(0)
+    wi, wo = ((w / np.linalg.norm(w, axis=1, keepdims=True)).astype(np.float32)
+              for w in (np.abs(rng.normal(size=(512, 3))) for _ in range(2)))
+    want = net.evaluate(torch.as_tensor(wi), torch.as_tensor(wo)).numpy()
+    np.testing.assert_allclose(session.run(["f_r"], {"wi": wi, "wo": wo})[0], want, rtol=1e-4, atol=1e-6)
+    # (the export's own bound is test_nbrdf's; this checks the plan's weights reach the right file)
+
+    out = neuenh_here("export", "--plan", copy, "--format", "glsl", "--material", "gloss", "-o", tmp_path / "one")
+    assert out.returncode == 0, out.stderr
+    assert [p.name for p in (tmp_path / "one").rglob("*.glsl")] == ["gloss.glsl"]
+    data["materials"][0]["params"] = {"layers.0.weight": [0.0] * 7}
     copy.write_text(json.dumps(data))
-    one_line_error(neuenh_here("export", "--plan", copy, "--format", "glsl", "-o", tmp_path / "o"),
-                   "every material was planned with the per-material NBRDF rung")
+    one_line_error(neuenh_here("export", "--plan", copy, "--format", "glsl", "-o", tmp_path / "bad"),
+                   "material 'gloss': not the weights of an NBRDF network")
+    assert not (tmp_path / "bad").exists() or not any((tmp_path / "bad").rglob("*.glsl"))
 
 
 @pytest.fixture(scope="module")

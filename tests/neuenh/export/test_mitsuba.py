@@ -88,6 +88,32 @@ def test_sampling_passes_mitsubas_chi_square_test(fixed, wi, tmp_path, monkeypat
     assert test.run(), test.messages
 
 
+@pytest.mark.parametrize("wi", [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+def test_an_nbrdf_networks_sampling_passes_mitsubas_chi_square_test(wi, tmp_path, monkeypatch):
+    """A scene plan's per-material network (``neuenh.export.nbrdf``): the same plugin, its lobe read
+    off the network."""
+    from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
+    from test_nbrdf import random_network
+
+    monkeypatch.chdir(tmp_path)
+    nm.write_nbrdf({"m": random_network()}, tmp_path)
+    sample, pdf = BSDFAdapter("neuenh", {"type": "neuenh", "filename": str(tmp_path / "m.json")}, wi=wi)
+    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3,
+                         sample_count=400_000)
+    assert test.run(), test.messages
+
+
+def test_an_nbrdf_networks_scene_loads_and_renders(tmp_path):
+    from test_nbrdf import random_network
+
+    paths = nm.write_nbrdf({"felt 2": random_network()}, tmp_path)
+    assert {p.name for p in paths} == {"studio.exr", "felt_2.json", "felt_2.xml"}
+    image = np.array(mi.render(mi.load_file(str(tmp_path / "felt_2.xml"), spp=4)))
+    assert image.shape == (256, 256, 3) and np.isfinite(image).all() and image.mean() > 0.01
+    with pytest.raises(ValueError, match="an NBRDF network's material"):
+        nm.load_material(tmp_path / "felt_2.json")
+
+
 ALPHAS = (0.25, 0.1)  # anisotropic: pins which axis is which
 
 

@@ -147,7 +147,10 @@ def test_the_example_scene_is_valid_and_names_files_beside_it():
     assert all((base / m.path).resolve().name.endswith("_rgb.bsdf") for m in spec.materials)
 
 
-def test_a_plan_with_nbrdf_writes_its_files_counts_each_rung_and_names_what_exporters_skip(known_plan, tmp_path):
+def test_a_plan_with_nbrdf_writes_its_files_counts_each_rung_and_reads_back_its_network(known_plan, tmp_path):
+    import torch
+
+    from neuenh.scene.ladder import NBRDFRung
     from neuenh.scene.outputs import plan_models, write_plan
 
     write_plan(known_plan, tmp_path)
@@ -158,7 +161,10 @@ def test_a_plan_with_nbrdf_writes_its_files_counts_each_rung_and_names_what_expo
     assert rows == {"ggx": "1", "NBRDF (per material)": "1"}  # the ladder's count of materials given to each rung
     assert not (tmp_path / "bundles").exists()  # neither rung has modules
     planned = plan_models(tmp_path / "plan.json")
-    assert planned.nbrdf == ["retro"]
+    assert list(planned.nbrdf) == ["retro"]
+    wi, wo = (torch.nn.functional.normalize(torch.rand(256, 3) + 0.05, dim=1) for _ in range(2))
+    fitted = [m for m in known_plan.materials if m.name == "retro"][0].result("nbrdf")
+    assert torch.equal(planned.nbrdf["retro"].evaluate(wi, wo), NBRDFRung().brdf_of(fitted.params)(wi, wo))
     [(key, model, materials)] = planned.groups
     assert key == "ggx" and list(materials) == ["gloss"] and not model.has_modules
 
