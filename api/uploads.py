@@ -20,9 +20,8 @@ from typing import Any, Callable
 
 from fastapi import HTTPException, UploadFile, status
 
-from neuenh.data.draws import DRAWN_KINDS
 from neuenh.data.errors import DataError
-from neuenh.data.formats import detect_format
+from neuenh.data.formats import fit_kind
 from neuenh.data.table import TableTooLarge
 from neuenh_service.storage import PlanRecord, PlanStore
 
@@ -32,13 +31,13 @@ UPLOADABLE = "measurement tables (.npz, CSV), RGL .bsdf or MERL .binary files"
 
 
 def uploaded_kind(path: Path) -> str:
-    """What an uploaded file is, told by its content (``neuenh.data.formats.detect_format``):
-    ``"table"`` or one of ``DRAWN_KINDS`` (a measured file pairs are drawn from); anything else (NBRDF
-    weights, an EXR capture, junk) is a ``DataError`` naming it."""
-    kind = detect_format(path)
-    if kind != "table" and kind not in DRAWN_KINDS:
-        raise DataError(f"{path}: a {kind} file; uploads are {UPLOADABLE}")
-    return kind
+    """What an uploaded file is, told by its content (``neuenh.data.formats.fit_kind``): ``"table"``
+    or a measured file pairs are drawn from; anything else (NBRDF weights, an EXR capture, junk) is a
+    ``DataError`` naming it."""
+    try:
+        return fit_kind(path)
+    except DataError as exc:
+        raise DataError(f"{exc}; uploads are {UPLOADABLE}") from None
 
 
 @dataclass(frozen=True)

@@ -2,9 +2,10 @@
 
     .venv/bin/python bench/bench_export.py [--before-rev REV] --write docs/BENCHMARKS.md
 
-One RGL material (``--material``, default chm_orange) fitted by the shipped ``models/enhanced-ggx``
-and by plain GGX on the same 10,000 measurements, then each exported and timed in one interleaved run
-(``bench.harness.Timer``):
+One RGL material (``--material``, default chm_orange) fitted by the shipped ``models/enhanced-ggx``,
+by plain GGX and by a per-material NBRDF network (a scene plan's ``nbrdf`` rung) on the same 10,000
+measurements, each fit's held-out log-L1 measured on 10,000 others drawn alike (half of both near the
+mirror direction), then each exported and timed in one interleaved run (``bench.harness.Timer``):
 
 * **Mitsuba 3** (``llvm_ad_rgb``): the exported scene (``neuenh export --format mitsuba``: the ball
   under the studio environment map, a path tracer of depth 8) rendered at 128² with 64 samples per
@@ -29,7 +30,9 @@ import statistics
 import subprocess
 import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -45,20 +48,53 @@ SIZE, SPP, PAIRS = 128, 64, 1 << 20
 RGL = ROOT.parent / "shared" / "data" / "rgl"
 
 
-def fitted_materials(material: str, rgl: Path) -> dict[str, tuple]:
-    """label -> (model, the material's fitted parameters)."""
+@dataclass
+class Case:
+    """One fitted material, exported: its held-out log-L1, ``write_mitsuba(folder)`` -> its scene file,
+    ``glsl()`` -> its GLSL source (``neuenh_m_brdf``, and ``neuenh_brdf``)."""
+
+    heldout: float
+    write_mitsuba: Callable[[Path], Path]
+    glsl: Callable[[], str]
+
+
+def fitted_materials(material: str, rgl: Path) -> dict[str, Case]:
+    """label -> the material fitted by that model (``Case``), in the table's order."""
+    import torch
+
     from neuenh.data.measured import load_measured
+    from neuenh.export import export_nbrdf, mitsuba as nm
+    from neuenh.export.glsl import material_source, nbrdf_source
     from neuenh.fit import fit_materials
     from neuenh.models import get_model
     from neuenh.pretrained import load_model
-    from neuenh.study.heldout import draw_fit_test
+    from neuenh.study.heldout import draw_fit_test, heldout_log_l1
+    from neuenh.study.nbrdf_fit import fit_nbrdf
+    from neuenh.train import log_l1
 
-    fit, _, _ = draw_fit_test(load_measured(rgl / f"{material}.bsdf"), 10_000, 1, 0)
+    fit, test, _ = draw_fit_test(load_measured(rgl / f"{material}.bsdf"), 10_000, 10_000, 0, near_mirror=0.5)
     enhanced, trained = load_model("enhanced-ggx")
     out = {}
     for label, model, training in (("enhanced GGX", enhanced, trained), ("plain GGX", get_model("ggx"), None)):
         result = fit_materials(model, fit, trained=training)
-        out[label] = result.material_model(model, 0)
+        own, params = result.material_model(model, 0)
+
+        def write(folder: Path, own=own, params=params) -> Path:
+            nm.write(own, {"m": params}, folder)
+            return folder / "m.xml"
+
+        out[label] = Case(heldout_log_l1(model, result, test)[0], write,
+                          lambda own=own, params=params: material_source(own.specialize(params.to(torch.float64)), "m"))
+    net = fit_nbrdf(fit).networks[0]
+    with torch.no_grad():
+        heldout = float(log_l1(net(test.wi, test.wo), test.f_r, test.wi).double().mean())
+
+
+    def write_network(folder: Path) -> Path:
+        export_nbrdf({"m": net}, "mitsuba", folder)
+        return folder / "m.xml"
+
+    out["NBRDF (per material)"] = Case(heldout, write_network, lambda: nbrdf_source(net, "m"))
     return out
 
 
@@ -119,11 +155,8 @@ class RenderWorkers:
             proc.wait()
 
 
-def glsl_cases(models: dict) -> dict:
-    import torch
-
+def glsl_cases(models: dict[str, Case]) -> dict:
     from gl_runtime import HARNESS, gl_context
-    from neuenh.export.glsl import material_source
 
     ctx = gl_context()
     rng = np.random.default_rng(0)
@@ -134,9 +167,8 @@ def glsl_cases(models: dict) -> dict:
     for binding, buffer in enumerate(buffers):
         buffer.bind_to_storage_buffer(binding)
     cases = {}
-    for label, (model, params) in models.items():
-        source = material_source(model.specialize(params.to(torch.float64)), "m")
-        program = ctx.compute_shader(HARNESS.format(source=source, call="neuenh_brdf"))
+    for label, case in models.items():
+        program = ctx.compute_shader(HARNESS.format(source=case.glsl(), call="neuenh_brdf"))
         program["n"] = PAIRS
 
         def run(program=program):
@@ -147,17 +179,11 @@ def glsl_cases(models: dict) -> dict:
     return cases
 
 
-def measure_mitsuba(models: dict, repeats: int) -> tuple[dict[str, dict[str, float]], Timer]:
+def measure_mitsuba(models: dict[str, Case], repeats: int) -> tuple[dict[str, dict[str, float]], Timer]:
     """label -> {"rays": camera rays/s of ``mi.render``, "kernel_rays": of its kernels alone}, each
     scene rendered in its own process (``RenderWorkers``), interleaved; and the timer that measured."""
-    from neuenh.export import mitsuba as nm
-
     with tempfile.TemporaryDirectory() as tmp:
-        scenes = {}
-        for label, (model, params) in models.items():
-            folder = Path(tmp) / label.replace(" ", "-")
-            nm.write(model, {"m": params}, folder)
-            scenes[label] = folder / "m.xml"
+        scenes = {label: case.write_mitsuba(Path(tmp) / str(i)) for i, (label, case) in enumerate(models.items())}
         workers = RenderWorkers(scenes)
         try:
             timer = Timer(repeats, min_time=0.5, max_background=0.3, other_own_cpu=workers.cpu)
@@ -200,27 +226,34 @@ def main() -> int:
     glsl = timer.measure(glsl_cases(models), warmup=2)
     evals = {k: PAIRS / t.seconds for k, t in glsl.items()}
     if args.json:
-        write_json(args.json, {"mitsuba": mitsuba, "glsl": evals, "before": before})
+        write_json(args.json, {"mitsuba": mitsuba, "glsl": evals, "before": before,
+                               "heldout": {label: case.heldout for label, case in models.items()}})
     lines = [TITLE, "", f"Command: `{' '.join(['python bench/bench_export.py', *sys.argv[1:]])}`  ",
              machine_line(env) + "  ",
              f"Method: Mitsuba {mitsuba_timer.method()}; llvmpipe {timer.method()} (waited {waited:.0f} s for a quiet "
              "machine).", "",
-             f"The RGL material {args.material} fitted (10,000 measurements) by the shipped enhanced GGX and by plain "
-             "GGX, each exported and run in the runtime, one interleaved run. *Mitsuba*: the exported scene (ball "
+             f"The RGL material {args.material} fitted (10,000 measurements, half near the mirror direction) by the "
+             "shipped enhanced GGX, by plain GGX and by a per-material NBRDF network, each fit's held-out log-L1 on "
+             "10,000 other pairs drawn alike, each exported and run in the runtime, one interleaved run. *Mitsuba*: "
+             "the exported scene (ball "
              f"under the studio environment, path tracer) at {SIZE}² and {SPP} spp, `llvm_ad_rgb` on the CPU, each scene "
              "in its own process, camera rays per second of `mi.render` and of its kernels alone (without tracing "
              f"the integrator and the plugin in Python). *llvmpipe*: the exported GLSL function over {PAIRS:,} pairs "
              "in a compute shader.", "",
-             "| model | Mitsuba rays/s | of its kernels | llvmpipe evaluations/s |", "|---|---:|---:|---:|"]
-    cases = [(label, mitsuba[label], fmt_rate(evals[label])) for label in models]
+             "| model | held-out log-L1 | Mitsuba rays/s | of its kernels | llvmpipe evaluations/s |",
+             "|---|---:|---:|---:|---:|"]
+    cases = [(label, f"{models[label].heldout:.4f}", mitsuba[label], fmt_rate(evals[label])) for label in models]
     if before:
-        cases += [(f"{label}, at {args.before_rev}", before["mitsuba"][label], "") for label in models]
-    for label, m, glsl_rate in cases:
-        lines.append(f"| {label} | {fmt_rate(m['rays'])} | {fmt_rate(m['kernel_rays'])} | {glsl_rate} |")
+        cases += [(f"{label}, at {args.before_rev}", "", before["mitsuba"][label], "") for label in before["mitsuba"]]
+    for label, heldout, m, glsl_rate in cases:
+        lines.append(f"| {label} | {heldout} | {fmt_rate(m['rays'])} | {fmt_rate(m['kernel_rays'])} | {glsl_rate} |")
     ratio = lambda m, key: m["enhanced GGX"][key] / m["plain GGX"][key]  # noqa: E731
+    nbrdf = lambda m, key: m["NBRDF (per material)"][key] / m["plain GGX"][key]  # noqa: E731
     lines += ["", f"Enhanced / plain GGX: **{ratio(mitsuba, 'rays'):.2f}** in Mitsuba, **{ratio(mitsuba, 'kernel_rays'):.2f}** "
               "in its kernels alone (paper, Mitsuba on an RTX 3090: 13.68 / 21.83 = 0.63), "
-              f"**{evals['enhanced GGX'] / evals['plain GGX']:.2f}** on llvmpipe."]
+              f"**{evals['enhanced GGX'] / evals['plain GGX']:.2f}** on llvmpipe. NBRDF / plain GGX: "
+              f"{nbrdf(mitsuba, 'rays'):.2f} in Mitsuba, {nbrdf(mitsuba, 'kernel_rays'):.2f} in its kernels, "
+              f"{evals['NBRDF (per material)'] / evals['plain GGX']:.2f} on llvmpipe."]
     if before:
         lines += [f"At {args.before_rev} (run first, {before['method']}): **{ratio(before['mitsuba'], 'rays'):.2f}** in "
                   f"Mitsuba, **{ratio(before['mitsuba'], 'kernel_rays'):.2f}** in its kernels alone."]

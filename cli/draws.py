@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from neuenh.data.draws import DRAW_NEAR_MIRROR, DRAW_SAMPLES, DRAWN_KINDS
+from neuenh.data.draws import DRAW_NEAR_MIRROR, DRAW_SAMPLES
 
 READABLE = "measurement tables (.npz, CSV), RGL .bsdf and MERL .binary files"
 
@@ -36,13 +36,13 @@ def check_draw_arguments(args: argparse.Namespace, test_samples: int | None = No
 
 def is_measured(path: str | os.PathLike) -> bool:
     """True for an RGL or MERL file, False for a table; a ``ValueError`` naming anything else."""
-    from neuenh.data.formats import MEASURED_NOT, detect_format
+    from neuenh.data.errors import DataError
+    from neuenh.data.formats import fit_kind
 
-    kind = detect_format(path)
-    if kind not in ("table", *DRAWN_KINDS):
-        what = MEASURED_NOT.get(kind, "NBRDF network weights (a model, not measurements)")
-        raise ValueError(f"{path}: {what}; a fit reads {READABLE}")
-    return kind != "table"
+    try:
+        return fit_kind(path) != "table"
+    except DataError as exc:
+        raise ValueError(f"{exc}; a fit reads {READABLE}") from None
 
 
 def draw(path: str | os.PathLike, args: argparse.Namespace, test_samples: int | None = None):

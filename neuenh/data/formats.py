@@ -24,15 +24,18 @@ import numpy as np
 from .errors import DataError
 from .merl import looks_like_merl
 from .nbrdf import is_nbrdf_keys
+from .draws import DRAWN_KINDS
 from .rgl import is_tensor_file
 from .table import looks_like_csv_table
 
-__all__ = ["CAPTURE_JSON", "MEASURED", "MEASURED_NOT", "TABLE_KEYS", "ZIP_MAGIC", "detect_format", "read_head"]
+__all__ = ["CAPTURE_JSON", "MEASURED", "MEASURED_NOT", "TABLE_KEYS", "ZIP_MAGIC", "detect_format", "fit_kind",
+           "read_head"]
 
 CAPTURE_JSON = "capture.json"
 MEASURED = ("rgl", "merl", "nbrdf", "table")
 MEASURED_NOT = {"capture": "an image-based capture (one material per texel: read it with neuenh.data.capture)",
                 "exr": "an OpenEXR image", "dataset": "a materialised training dataset (neuenh data sample)"}
+NOT_MEASURED_NBRDF = "NBRDF network weights (a model, not measurements)"  # what a fit (fit_kind) calls them
 ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
 EXR_MAGIC = b"\x76\x2f\x31\x01"
 TABLE_KEYS = {"wi", "wo", "f_r"}
@@ -47,6 +50,16 @@ def read_head(path: Path) -> bytes:
             return f.read(_HEAD_BYTES)
     except OSError as exc:
         raise DataError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+
+
+def fit_kind(path: str | os.PathLike) -> str:
+    """What a fit reads at ``path``: ``"table"`` (its rows) or one of ``draws.DRAWN_KINDS`` (a measured
+    file pairs are drawn from); any other kind is a DataError naming what the file is."""
+    kind = detect_format(path)
+    if kind == "table" or kind in DRAWN_KINDS:
+        return kind
+    what = NOT_MEASURED_NBRDF if kind == "nbrdf" else MEASURED_NOT.get(kind, f"a {kind} file")
+    raise DataError(f"{path}: {what}")
 
 
 def detect_format(path: str | os.PathLike) -> str:

@@ -107,7 +107,7 @@ def test_fit_draws_pairs_from_an_rgl_file_as_neuenh_fit_does(client, plain_job, 
 
 @pytest.mark.parametrize("case, status, words", [
     ("not a table", 422, ["junk.npz"]),
-    ("nbrdf weights", 422, ["weights.npz", "a nbrdf file", "uploads are measurement tables"]),
+    ("nbrdf weights", 422, ["weights.npz", "NBRDF network weights (a model, not measurements)", "uploads are measurement tables"]),
     ("truncated rgl", 422, ["broken.bsdf"]),
     ("too many drawn", 422, ["samples: 5001", "NEUENH_MAX_SAMPLES"]),
     ("near_mirror out of range", 422, ["near_mirror"]),
