@@ -56,8 +56,8 @@ def unit(w: np.ndarray) -> np.ndarray:
 
 def directions(rng, n: int = 4096) -> tuple[np.ndarray, np.ndarray]:
     """Float64 pairs: uniform on the sphere (a quarter below a horizon), ``n // 2`` near the mirror
-    direction, grazing ones, in-plane ones (phi_d exactly 0 or pi), wi = wo (theta_d = 0) and the
-    normal itself (theta_h = 0)."""
+    direction, grazing ones, in-plane ones (phi_d exactly 0 or pi), wi = wo (theta_d = 0), the
+    normal itself (theta_h = 0) and wo = -wi (no half vector: wo into the surface)."""
     wi = unit(rng.normal(size=(n, 3)))
     wo = unit(rng.normal(size=(n, 3)))
     wi[: n // 2, 2], wo[: n // 2, 2] = np.abs(wi[: n // 2, 2]), np.abs(wo[: n // 2, 2])
@@ -67,9 +67,9 @@ def directions(rng, n: int = 4096) -> tuple[np.ndarray, np.ndarray]:
     plane_i = np.stack([np.sin(t), np.zeros_like(t), np.cos(t)], -1)
     plane_o = plane_i[::-1] * [0.8, 0, 1]
     grazing = unit(np.stack([np.cos(t), np.sin(t), np.full_like(t, 1e-3)], -1))
-    z = np.array([[0.0, 0.0, 1.0]])
-    return (np.vstack([wi, near_i, plane_i, unit(plane_o), grazing, plane_i, z]),
-            np.vstack([wo, near_o, unit(plane_o), plane_i, grazing[::-1], plane_i, z]))
+    z, tilted = np.array([[0.0, 0.0, 1.0]]), unit(np.array([[0.3, 0.2, 0.9]]))
+    return (np.vstack([wi, near_i, plane_i, unit(plane_o), grazing, plane_i, z, tilted]),
+            np.vstack([wo, near_o, unit(plane_o), plane_i, grazing[::-1], plane_i, z, -tilted]))
 
 
 # -- 1. the inputs, against the angles in 40 digits ---------------------------------------------------
