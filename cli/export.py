@@ -2,9 +2,13 @@
 
     neuenh export MODEL --format glsl|onnx|mitsuba -o DIR [--params FIT.json] [--material NAME ...]
     neuenh export --plan DIR/plan.json --format glsl|onnx|mitsuba -o OUT [--material NAME ...]
+    neuenh export NBRDF.npz --format glsl|onnx|mitsuba -o DIR [--material NAME ...]
 
 ``MODEL`` is a bundle folder (e.g. one written by ``neuenh fit -o DIR``, which holds the fitted
-materials), a shipped model or an analytical model. The materials exported are the bundle's own, or
+materials), a shipped model, an analytical model, or a file of NBRDF networks (the published networks
+of the MERL materials, ``../shared/data/merl_nbrdf``: each a material of its own, exported as a plan's
+NBRDF materials are, so a measured MERL material renders in the same renderer as a fitted model). The
+materials exported are the bundle's own, or
 with ``--params`` those of a fit report (``neuenh fit --json``, or the answer of ``POST
 /v1/jobs/{id}/fit``), which must be a fit of this very model; ``--material`` picks some by name.
 With ``--plan`` (written by ``neuenh scene plan``) every material is exported with the rung the plan
@@ -37,7 +41,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     """``neuenh export``'s arguments, on the parser ``cli.main`` made for it (with its one-line help)."""
     p.description = help_description(__doc__)
     p.add_argument("model", metavar="MODEL", nargs="?",
-                   help="a bundle folder, a shipped model or an analytical model (not with --plan)")
+                   help="a bundle folder, a shipped model, an analytical model or an NBRDF networks file "
+                        "(not with --plan)")
     p.add_argument("--format", required=True, choices=FORMATS, help="what to write")
     p.add_argument("-o", "--output", required=True, type=Path, metavar="DIR", help="folder to write into")
     p.add_argument("--params", type=Path, metavar="FIT.json",
@@ -65,6 +70,10 @@ def run(args) -> int:
                   for group in by_own_model(args.output / safe_name(key), model, materials)]
         networks = planned.nbrdf
         networks_folder = args.output / safe_name(NBRDFRung.key)
+    elif is_nbrdf_file(args.model):
+        if args.params:
+            raise ValueError(f"--params goes with a model; {args.model} holds its networks' weights")
+        groups, networks, networks_folder = [], published_networks(Path(args.model), wanted), args.output
     else:
         from neuenh.pretrained import load_model
 
@@ -85,6 +94,24 @@ def run(args) -> int:
         for path in export_nbrdf(chosen_networks, args.format, networks_folder):
             print(path)
     return 0
+
+
+def is_nbrdf_file(model_arg: str) -> bool:
+    """Whether MODEL names a file of NBRDF networks (by its content; a model's name or folder is not)."""
+    from neuenh.data.formats import detect_format
+
+    return Path(model_arg).is_file() and detect_format(model_arg) == "nbrdf"
+
+
+def published_networks(path: Path, wanted: set[str]) -> dict:
+    """Name -> ``NBRDFNetwork`` of the file's networks (``wanted`` ones, or all), in the file's order;
+    a name it does not hold is a ValueError naming the file (``neuenh.data.nbrdf``)."""
+    from neuenh.data.nbrdf import nbrdf_material, nbrdf_names
+    from neuenh.study.nbrdf_fit import NBRDFNetwork
+
+    held = nbrdf_names(path)
+    names = [n for n in held if not wanted or n in wanted] + sorted(wanted - set(held))  # the last: its error
+    return {name: NBRDFNetwork.from_published(nbrdf_material(path, name).weights) for name in names}
 
 
 def by_own_model(folder: Path, model, materials: dict[str, MaterialParams]) -> list[tuple[Path, object, dict]]:

@@ -73,6 +73,14 @@ class NBRDFNetwork(nn.Module):
             raise ValueError(f"not the weights of an NBRDF network ({type(exc).__name__}: {exc})") from None
         return net.eval()
 
+    @classmethod
+    def from_published(cls, weights: Mapping[str, Sequence]) -> "NBRDFNetwork":
+        """A published network (``neuenh.data.nbrdf.NBRDFMaterial.weights``: ``W1`` (6 x H) ... ``b3``,
+        (in, out) as in its authors' code) as this module, which evaluates it as that reader does."""
+        layers = [torch.as_tensor(weights[k], dtype=torch.float32) for k in ("W1", "b1", "W2", "b2", "W3", "b3")]
+        return cls.from_state({f"layers.{2 * i}.{kind}": (t.t() if kind == "weight" else t).reshape(-1).tolist()
+                               for i in range(3) for kind, t in zip(("weight", "bias"), layers[2 * i : 2 * i + 2])})
+
 
 @dataclass(frozen=True)
 class NBRDFConfig:

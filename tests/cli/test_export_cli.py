@@ -193,7 +193,7 @@ def test_a_plan_writes_the_materials_planned_with_nbrdf_from_their_networks(plan
               for w in (np.abs(rng.normal(size=(512, 3))) for _ in range(2)))
     want = net.evaluate(torch.as_tensor(wi), torch.as_tensor(wo)).numpy()
     np.testing.assert_allclose(session.run(["f_r"], {"wi": wi, "wo": wo})[0], want, rtol=1e-4, atol=1e-6)
-    # (the export's own bound is test_nbrdf's; this checks the plan's weights reach the right file)
+    # (the export's own bound is test_nbrdf_export's; this checks the plan's weights reach the right file)
 
     out = neuenh_here("export", "--plan", copy, "--format", "glsl", "--material", "gloss", "-o", tmp_path / "one")
     assert out.returncode == 0, out.stderr
@@ -203,6 +203,36 @@ def test_a_plan_writes_the_materials_planned_with_nbrdf_from_their_networks(plan
     one_line_error(neuenh_here("export", "--plan", copy, "--format", "glsl", "-o", tmp_path / "bad"),
                    "material 'gloss': not the weights of an NBRDF network")
     assert not (tmp_path / "bad").exists() or not any((tmp_path / "bad").rglob("*.glsl"))
+
+
+def test_a_file_of_nbrdf_networks_exports_each_network_as_a_material(tmp_path):
+    """``neuenh export NBRDF.npz``: every network (or ``--material``'s) into one folder, each file the
+    network the reader (``neuenh.data.nbrdf``) evaluates; misuses are one-line errors."""
+    import onnxruntime as ort
+
+    from data_files import nbrdf_weights
+    from neuenh.data.nbrdf import nbrdf_material
+
+    weights = tmp_path / "networks.npz"
+    np.savez(weights, **nbrdf_weights(["red paint", "felt"], seed=3))
+    out = neuenh_here("export", weights, "--format", "onnx", "-o", tmp_path / "all")
+    assert out.returncode == 0, out.stderr
+    assert sorted(p.name for p in (tmp_path / "all").iterdir()) == ["felt.onnx", "red_paint.onnx"]
+    rng = np.random.default_rng(1)
+    wi, wo = ((w / np.linalg.norm(w, axis=1, keepdims=True)).astype(np.float32)
+              for w in (np.abs(rng.normal(size=(512, 3))) for _ in range(2)))
+    session = ort.InferenceSession(str(tmp_path / "all" / "red_paint.onnx"), providers=["CPUExecutionProvider"])
+    want = nbrdf_material(weights, "red paint").evaluate(torch.as_tensor(wi), torch.as_tensor(wo)).numpy()
+    np.testing.assert_allclose(session.run(["f_r"], {"wi": wi, "wo": wo})[0], want, rtol=1e-4, atol=1e-6 * want.max())
+    # (the format's own bound is test_nbrdf_export's; this checks which network reaches which file)
+
+    out = neuenh_here("export", weights, "--format", "glsl", "--material", "felt", "-o", tmp_path / "one")
+    assert out.returncode == 0, out.stderr
+    assert [p.name for p in (tmp_path / "one").iterdir()] == ["felt.glsl"]
+    one_line_error(neuenh_here("export", weights, "--format", "glsl", "--material", "gold", "-o", tmp_path / "x"),
+                   "gold")
+    one_line_error(neuenh_here("export", weights, "--format", "glsl", "--params", weights, "-o", tmp_path / "y"),
+                   "--params goes with a model")
 
 
 @pytest.fixture(scope="module")

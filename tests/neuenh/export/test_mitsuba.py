@@ -93,7 +93,7 @@ def test_an_nbrdf_networks_sampling_passes_mitsubas_chi_square_test(wi, tmp_path
     """A scene plan's per-material network (``neuenh.export.nbrdf``): the same plugin, its lobe read
     off the network."""
     from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
-    from test_nbrdf import random_network
+    from test_nbrdf_export import random_network
 
     monkeypatch.chdir(tmp_path)
     nm.write_nbrdf({"m": random_network()}, tmp_path)
@@ -104,7 +104,7 @@ def test_an_nbrdf_networks_sampling_passes_mitsubas_chi_square_test(wi, tmp_path
 
 
 def test_an_nbrdf_networks_scene_loads_and_renders(tmp_path):
-    from test_nbrdf import random_network
+    from test_nbrdf_export import random_network
 
     paths = nm.write_nbrdf({"felt 2": random_network()}, tmp_path)
     assert {p.name for p in paths} == {"studio.exr", "felt_2.json", "felt_2.xml"}

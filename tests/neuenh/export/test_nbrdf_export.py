@@ -37,17 +37,10 @@ def random_network(seed: int = 3) -> NBRDFNetwork:
 
 
 def published_network(name: str) -> NBRDFNetwork:
-    """A published MERL network (``../shared``), its (in, out) weights as ``nn.Linear``'s (out, in)."""
+    """A published MERL network (``../shared``)."""
     from neuenh.data.nbrdf import nbrdf_material
 
-    weights = nbrdf_material(shared(NBRDF_WEIGHTS), name).weights
-    net = NBRDFNetwork(hidden=np.asarray(weights["W1"]).shape[1])
-    layers = [m for m in net.layers if isinstance(m, torch.nn.Linear)]
-    with torch.no_grad():
-        for i, layer in enumerate(layers, start=1):
-            layer.weight.copy_(torch.as_tensor(np.asarray(weights[f"W{i}"]).T))
-            layer.bias.copy_(torch.as_tensor(np.asarray(weights[f"b{i}"]).reshape(-1)))
-    return net.eval()
+    return NBRDFNetwork.from_published(nbrdf_material(shared(NBRDF_WEIGHTS), name).weights)
 
 
 def unit(w: np.ndarray) -> np.ndarray:
