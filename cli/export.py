@@ -60,7 +60,7 @@ def run(args) -> int:
         raise ValueError("--params goes with a MODEL; a plan holds its materials' parameters")
     output_folder(args.output)
     wanted = set(args.material or ())
-    networks: dict = {}  # the plan's materials with the per-material NBRDF rung: name -> network
+    networks: dict = {}  # name -> NBRDFNetwork: a plan's NBRDF materials, or an NBRDF file's networks
     if args.plan:
         from neuenh.scene.ladder import NBRDFRung
         from neuenh.scene.outputs import plan_models, safe_name
@@ -98,9 +98,13 @@ def run(args) -> int:
 
 def is_nbrdf_file(model_arg: str) -> bool:
     """Whether MODEL names a file of NBRDF networks (by its content; a model's name or folder is not)."""
+    from neuenh.data.errors import DataError
     from neuenh.data.formats import detect_format
 
-    return Path(model_arg).is_file() and detect_format(model_arg) == "nbrdf"
+    try:
+        return Path(model_arg).is_file() and detect_format(model_arg) == "nbrdf"
+    except DataError:  # not data at all: load_model says what a MODEL may be
+        return False
 
 
 def published_networks(path: Path, wanted: set[str]) -> dict:
