@@ -419,10 +419,11 @@ def run_slice(args) -> int:
         else:
             from neuenh.data.samples import sample_materials
             from neuenh.fit import FitOptions, fit_materials
+            from neuenh.pretrained import load_encoder
 
             samples = sample_materials([material], args.fit_samples, args.seed)
             result = fit_materials(model, samples, FitOptions(epochs=args.epochs).protocol_for(model),
-                                   seed=args.seed, trained=trained)
+                                   seed=args.seed, trained=trained, encoder=load_encoder(args.model))
             record = result.materials.as_params(0)
             report.update({"fit_loss": result.losses[0], "fit_seconds": round(result.wall_s, 3),
                            "fit_samples": args.fit_samples})

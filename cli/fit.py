@@ -101,7 +101,7 @@ def run(args) -> int:
 
     from neuenh.checkpoint import Bundle
     from neuenh.fit import FitOptions, fit_in_processes
-    from neuenh.pretrained import load_model
+    from neuenh.pretrained import load_encoder, load_model
     from neuenh.study.heldout import heldout_log_l1, predict_f_r, write_predictions
 
     if args.threads:
@@ -121,7 +121,9 @@ def run(args) -> int:
     samples, test = _measurements(args, drawn)
     if len(set(samples.names)) != len(samples.names):
         raise ValueError(f"two measurements share a material name: {samples.names}")
-    result = fit_in_processes(model, samples, options.protocol_for(model), args.jobs, trained=trained)
+    encoder = load_encoder(args.model)
+    result = fit_in_processes(model, samples, options.protocol_for(model), args.jobs, trained=trained,
+                              encoder=encoder)
     report = result.report(model, samples)
     metrics: dict = {"fit_loss": result.losses}
     if test is not None:
@@ -141,7 +143,7 @@ def run(args) -> int:
                                    "test_samples": args.test_samples}
         if args.test:
             provenance["heldout_tables"] = [str(t) for t in args.test]
-        Bundle(model, result.materials, provenance=provenance, metrics=metrics).save(args.output)
+        Bundle(model, result.materials, provenance=provenance, metrics=metrics, encoder=encoder).save(args.output)
         report["bundle"] = str(args.output)
     print(json.dumps(report, indent=2) if args.json else fit_report(report))
     return 0

@@ -66,7 +66,8 @@ def fit_report(report: dict) -> str:
     protocol = report["protocol"]  # the protocol's name and budgets (neuenh.fit)
     budget = ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in protocol.items()
                        if k != "name" and isinstance(v, int) and not isinstance(v, bool))
-    lines = [f"{report['model']} (state {report['state']}), {protocol['name']} fit ({budget}) "
+    encoder = " with the encoder's start" if protocol.get("encoder_start") else ""
+    lines = [f"{report['model']} (state {report['state']}), {protocol['name']} fit ({budget}){encoder} "
              f"in {report['wall_s']:.1f} s"]
     for m in report["materials"]:
         p = m["params"]

@@ -20,6 +20,7 @@ from .models import available_models, get_model
 
 if TYPE_CHECKING:
     from .checkpoint import Rung
+    from .encoder import MaterialEncoder
     from .materials import MaterialTable
     from .model import BRDFModel
 
@@ -75,6 +76,15 @@ def load_model(spec: str, what: str = "model") -> tuple[BRDFModel, MaterialTable
         return get_model(spec), None
     raise ValueError(f"{what} {spec!r} is neither an analytical model ({', '.join(available_models())}), "
                      f"a shipped model ({', '.join(shipped_models()) or 'none found'}) nor a bundle folder")
+
+
+def load_encoder(spec: str) -> MaterialEncoder | None:
+    """The encoder of the bundle or shipped model ``spec`` names (``neuenh.encoder``: one more start
+    of its latent fits), None for one without or for an analytical model."""
+    from .checkpoint import Bundle
+
+    path = bundle_path(spec)
+    return Bundle.load(path).encoder if path is not None else None
 
 
 def rungs(spec: str) -> list[Rung]:

@@ -87,7 +87,7 @@ def fit_job(
                                 f"files: {fitted} measurements fitted x {protocol.budget_epochs} epochs of the "
                                 f"{protocol.name} fit = {work} exceed this service's limit of {settings.max_fit_work} per fit "
                                 "(NEUENH_MAX_FIT_WORK); send fewer rows or ask fewer epochs")
-        result = fit_materials(model, measurements, protocol, trained=bundle.materials)
+        result = fit_materials(model, measurements, protocol, trained=bundle.materials, encoder=bundle.encoder)
     request.app.state.metrics.fits.inc()
     draw = DrawPublic(samples=samples, near_mirror=near_mirror, seed=seed, materials=drawn) if drawn else None
     return FitPublic(job_id=job_id, round=last.index, drawn=draw, **result.report(model, measurements))

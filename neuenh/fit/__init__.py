@@ -11,6 +11,7 @@ the materials over several processes.
 from __future__ import annotations
 
 from ..data.samples import Samples
+from ..encoder import MaterialEncoder
 from ..materials import MaterialTable
 from ..model import BRDFModel
 from .capacity import CAPACITIES, Adaptive
@@ -34,8 +35,9 @@ def default_protocol(model: BRDFModel) -> FitProtocol:
 
 def fit_materials(model: BRDFModel, samples: Samples, protocol: FitProtocol | None = None, *,
                   start: MaterialTable | None = None, trained: MaterialTable | None = None,
-                  seed: int = 0) -> FitResult:
+                  encoder: MaterialEncoder | None = None, seed: int = 0) -> FitResult:
     """Fit every material of ``samples`` with ``model`` frozen by ``protocol`` (default:
-    ``default_protocol(model)``); ``start`` and ``trained`` as ``FitProtocol.fit`` takes them."""
+    ``default_protocol(model)``); ``start``, ``trained`` and ``encoder`` as ``FitProtocol.fit``
+    takes them."""
     protocol = protocol or default_protocol(model)
-    return protocol.fit(model, samples, start=start, trained=trained, seed=seed)
+    return protocol.fit(model, samples, start=start, trained=trained, encoder=encoder, seed=seed)

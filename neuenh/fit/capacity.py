@@ -149,7 +149,9 @@ class Adaptive(FitProtocol):
     ``LatentAdam`` (``latent_epochs``, from ``latent_starts``), corrections by ``correction_epochs``
     Adam epochs at lr ``correction_lr`` from the latent fit of the same samples. A single candidate
     is fitted without validation. ``standard_errors``: how far above the lowest validation loss a
-    simpler candidate may be and still be chosen (module doc; 0: the lowest, 1: the one-SE rule)."""
+    simpler candidate may be and still be chosen (module doc; 0: the lowest, 1: the one-SE rule).
+    The model's ``encoder`` gives it no start: each fold's latent fit would need the encoder's
+    prediction from that fold's samples alone (not measured; its starts are ``LatentAdam``'s own)."""
 
     name: ClassVar[str] = "adaptive"
     # "original" so that few samples can keep the model the search started from (plain GGX): at 100
@@ -184,7 +186,7 @@ class Adaptive(FitProtocol):
         return [(c, p) for c in self.capacities for p in ((None,) if CAPACITIES[c] is None or c == "latent"
                                                           else self.priors)]
 
-    def fit(self, model, samples, *, start=None, trained=None, seed=0) -> FitResult:
+    def fit(self, model, samples, *, start=None, trained=None, encoder=None, seed=0) -> FitResult:
         _check(model, samples, start)
         start_time = time.perf_counter()
         rows = Rows(samples, seed)

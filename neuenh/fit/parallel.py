@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from ..data.samples import Samples
+from ..encoder import MaterialEncoder
 from ..materials import MaterialTable
 from ..model import BRDFModel
 from .protocols import FitProtocol
@@ -39,20 +40,21 @@ def shares(materials: int, jobs: int) -> list[list[int]]:
 
 
 def fit_in_processes(model: BRDFModel, samples: Samples, protocol: FitProtocol, jobs: int, *,
-                     trained: MaterialTable | None = None, seed: int = 0) -> FitResult:
-    """``fit_materials(model, samples, protocol, trained=trained, seed=seed)`` with the materials
-    split over ``jobs`` processes of one torch thread each (module doc); a single share (``jobs`` 1,
-    or one material) is ``fit_materials`` here. ``wall_s`` is the whole fit's; ``protocol`` records
-    the processes."""
+                     trained: MaterialTable | None = None, encoder: MaterialEncoder | None = None,
+                     seed: int = 0) -> FitResult:
+    """``fit_materials(model, samples, protocol, trained=trained, encoder=encoder, seed=seed)`` with
+    the materials split over ``jobs`` processes of one torch thread each (module doc); a single share
+    (``jobs`` 1, or one material) is ``fit_materials`` here. ``wall_s`` is the whole fit's;
+    ``protocol`` records the processes."""
     start = time.perf_counter()
     groups = shares(len(samples.names), jobs)
     if len(groups) <= 1:  # nothing to split: this process fits it, as fit_materials does
-        return protocol.fit(model, samples, trained=trained, seed=seed)
+        return protocol.fit(model, samples, trained=trained, encoder=encoder, seed=seed)
     context = multiprocessing.get_context("spawn")  # no forked copy of this process's threads and locks
     with ProcessPoolExecutor(len(groups), mp_context=context, initializer=torch.set_num_threads,
                              initargs=(1,)) as pool:
-        futures = [pool.submit(protocol.fit, model, samples.select(group), trained=trained, seed=seed)
-                   for group in groups]
+        futures = [pool.submit(protocol.fit, model, samples.select(group), trained=trained, encoder=encoder,
+                               seed=seed) for group in groups]
         results = [future.result() for future in futures]
     return FitResult(MaterialTable.concat([r.materials for r in results]), [x for r in results for x in r.losses],
                      time.perf_counter() - start, {**results[0].protocol, "processes": len(groups)},

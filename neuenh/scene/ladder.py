@@ -28,6 +28,7 @@ import torch
 
 from ..data.directions import sample_directions
 from ..data.samples import Samples
+from ..encoder import MaterialEncoder
 from ..fit import FitOptions, fit_materials, model_for
 from ..materials import MaterialParams, MaterialTable
 from ..model import BRDFModel
@@ -82,8 +83,8 @@ class Rung(ABC):
 class GraphRung(Rung):
     def __init__(self, label: str, key: str, model: BRDFModel, latent_mean: torch.Tensor | None = None,
                  source: str | None = None, round_index: int | None = None, val_loss: float | None = None,
-                 capacity: str | None = None):
-        self.label, self.key, self.model = label, key, model
+                 capacity: str | None = None, encoder: MaterialEncoder | None = None):
+        self.label, self.key, self.model, self.encoder = label, key, model, encoder  # encoder: one more start
         self.capacity = capacity  # the fit's capacity (FitOptions.capacity); None: the scene's
         self.model_name, self.state, self.shared_weights = model.name, model.state, model.n_weights()
         self.source, self.round = source, round_index  # the shipped model or bundle it is a rung of
@@ -97,7 +98,8 @@ class GraphRung(Rung):
         model = self.model
         if self.capacity is not None:
             options = options.replace(capacity=self.capacity)
-        result = fit_materials(model, samples, options.protocol_for(model), seed=seed, trained=self.trained)
+        result = fit_materials(model, samples, options.protocol_for(model), seed=seed, trained=self.trained,
+                               encoder=self.encoder)
         out = []
         for i in range(len(samples.names)):
             own, params = result.material_model(model, i)  # its capacity's model and record
@@ -138,7 +140,7 @@ def build_ladder(entries: Sequence[Any], where: str = "ladder") -> list[Rung]:
     folder: its final model) or ``nbrdf``, ``{model: MODEL, capacity: C}`` (that model fitted at
     capacity C), or ``{rungs: MODEL}`` (every rung of a searched model). Every problem is a
     ValueError naming the entry."""
-    from ..pretrained import load_model, rungs
+    from ..pretrained import load_encoder, load_model, rungs
 
     out: list[Rung] = []
     for i, entry in enumerate(entries):
@@ -152,7 +154,8 @@ def build_ladder(entries: Sequence[Any], where: str = "ladder") -> list[Rung]:
                 latent = trained.mean_latent() if trained is not None else None
                 label, key = (name, name) if capacity is None else \
                     (f"{name} ({capacity} capacity)", f"{name}:{capacity}")
-                out.append(GraphRung(label, key, model, latent, source=name, capacity=capacity))
+                out.append(GraphRung(label, key, model, latent, source=name, capacity=capacity,
+                                     encoder=load_encoder(name)))
             else:
                 for r in rungs(name):
                     label = f"{name} r{r.round}" if r.round >= 0 else name

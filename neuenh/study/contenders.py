@@ -70,15 +70,19 @@ def _one_material(samples: Samples) -> None:
 
 
 class GraphContender(Contender):
+    """``model`` fitted by ``options``' protocol from its ``trained`` materials' starts and its
+    ``encoder``'s (``fit.fit_materials``)."""
+
     def __init__(self, name: str, label: str, family: str, model: BRDFModel,
-                 trained: MaterialTable | None = None, options: FitOptions = FitOptions()):
+                 trained: MaterialTable | None = None, options: FitOptions = FitOptions(),
+                 encoder: MaterialEncoder | None = None):
         self.name, self.label, self.family = name, label, family
-        self.model, self.trained, self.options = model, trained, options
+        self.model, self.trained, self.options, self.encoder = model, trained, options, encoder
 
     def fit(self, samples: Samples, seed: int = 0) -> FittedMaterial:
         _one_material(samples)
         result = fit_materials(self.model, samples, self.options.protocol_for(self.model), seed=seed,
-                               trained=self.trained)
+                               trained=self.trained, encoder=self.encoder)
         model, params = result.material_model(self.model, 0)  # its capacity's model and record
         return _fitted(self.name, model, params, result.losses[0], result.wall_s, self.model.n_weights())
 

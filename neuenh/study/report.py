@@ -147,7 +147,8 @@ def build_contenders(s: StudySettings, names: tuple[str, ...] | None = None) -> 
         else:
             raise ValueError(f"the registry names a contender nothing builds: {info.name!r}")
         out.append(GraphContender(info.name, info.label, info.family, model, trained,
-                                  fit.replace(capacity=info.capacity)))
+                                  fit.replace(capacity=info.capacity),
+                                  encoder if info.name in (ENHANCED, ENHANCED_ADAPTIVE) else None))
     return out
 
 

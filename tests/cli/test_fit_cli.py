@@ -82,18 +82,23 @@ SHIPPED = Path(__file__).resolve().parents[2] / "models" / "enhanced-ggx" / "mod
 
 
 @pytest.mark.skipif(not SHIPPED.exists(), reason="no shipped model in this tree")
-def test_fit_with_the_shipped_enhanced_ggx_out_of_the_box(table):
+def test_fit_with_the_shipped_enhanced_ggx_out_of_the_box(table, tmp_path):
     """``--model enhanced-ggx`` works out of the box: on a material its analytical part can represent
     exactly (noiseless GGX) the latent fit ends within a 1 % mean log error, the product's promise
     there, an order of magnitude below plain GGX's error on the visible RGL materials (~0.03). Not
     "as low as plain GGX": its start imitates the analytical model of the same graph (the search's
     alternative terms kept, 60 Adam epochs), not plain GGX's L-BFGS fit (~4e-4 here; the latent fit
-    ~2.6e-3 on AMD EPYC)."""
-    out = neuenh_here("fit", "--model", "enhanced-ggx", table, "--epochs", "60", "--json")
+    ~2.6e-3 on AMD EPYC). The shipped encoder's prediction is one of its starts, and the bundle the
+    fit writes keeps the encoder for the next fit."""
+    from neuenh.checkpoint import Bundle
+
+    out = neuenh_here("fit", "--model", "enhanced-ggx", table, "--epochs", "60", "--json", "-o", tmp_path / "fitted")
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     assert report["state"] != "0" * 11 and len(report["materials"][0]["latent"]) == 27
     assert report["materials"][0]["loss"] < 0.01
+    assert report["protocol"]["encoder_start"] is True
+    assert Bundle.load(tmp_path / "fitted").encoder is not None
 
 
 @pytest.mark.parametrize(
