@@ -10,7 +10,8 @@ fit and test sets of the study (``neuenh.study.heldout.draw_fit_test``, seed 0, 
 the pairs near the mirror direction: 0.5 is the README's protocol), one torch thread, and:
 
 * **encoder alone**: the encoder's parameters from the fit set, no fitting; held-out log-L1;
-* **today**: ``fit_materials`` with ``LatentAdam()`` (the default: its analytical and imitation starts,
+* **today**: ``fit_materials`` with ``LatentAdam()`` from its own starts, without the encoder's (which
+  ``neuenh fit`` adds as one more start: docs/BENCHMARKS.md, "The encoder as a start"; its analytical and imitation starts,
   300 Adam epochs); held-out log-L1, fit loss and wall time;
 * **from the encoder, E epochs**: one start, the encoder's, ``LatentAdam(epochs=E).fit(..., start=...)``;
 * **epochs to today's loss**: the shortest of the E above whose fit loss is at most today's final
@@ -122,7 +123,8 @@ def markdown_section(env: dict, groups: dict[str, list[dict]], command: str, mod
     lines = [SECTION, "", f"Command: `{command}`  ", machine_line(env) + "  ", f"Model: {model}", "",
              f"Fit sets of {n_fit:,} measurements ({near_mirror:.0%} near the mirror direction), held-out "
              "log-L1 on independent test sets; medians over each group's materials, ratios per material first "
-             "(`bench/bench_encoder.py` says what each column is). *Today*: the default fit of `neuenh fit`.", "",
+             "(`bench/bench_encoder.py` says what each column is). *Today*: the latent fit from its own starts, without "
+             "the encoder's (which `neuenh fit` adds as one more: \"The encoder as a start\").", "",
              "| materials | n | encoder alone | today | alone / today | "
              + " | ".join(f"encoder + {e} epochs / today (worst)" for e in SHORT)
              + " | time of encoder + 100 / today | epochs from the encoder to today's fit loss (reached) "
