@@ -103,7 +103,7 @@ def is_nbrdf_file(model_arg: str) -> bool:
 
     try:
         return Path(model_arg).is_file() and detect_format(model_arg) == "nbrdf"
-    except DataError:  # not data at all: load_model says what a MODEL may be
+    except (DataError, OSError, ValueError):  # not data, or no usable path: load_model says what a MODEL may be
         return False
 
 

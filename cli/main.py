@@ -63,6 +63,9 @@ def main(argv: list[str] | None = None) -> int:
         # The reader went away (`neuenh ... | head`): stop quietly, as SIGPIPE would.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
+    except OSError as exc:  # a path the file system refuses (too long, not permitted, disk full): one line
+        print(f"neuenh {args.command}: error: {exc}", file=sys.stderr)
+        return 2
 
 
 def _version() -> str:

@@ -56,9 +56,14 @@ def shipped_models() -> dict[str, Path]:
 
 
 def bundle_path(spec: str) -> Path | None:
-    """The bundle folder ``spec`` names: itself if it is a folder, else a shipped model's, else None."""
+    """The bundle folder ``spec`` names: itself if it is a folder, else a shipped model's, else None
+    (a name no file system can hold, too long or with a NUL, is no folder)."""
     path = Path(spec)
-    return path if path.is_dir() else shipped_models().get(spec)
+    try:
+        is_folder = path.is_dir()
+    except (OSError, ValueError):  # ENAMETOOLONG and the like: Path.is_dir() lets them through
+        is_folder = False
+    return path if is_folder else shipped_models().get(spec)
 
 
 def load_model(spec: str, what: str = "model") -> tuple[BRDFModel, MaterialTable | None]:

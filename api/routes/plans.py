@@ -226,6 +226,15 @@ def _files(plan: PlanRecord, artifacts: ArtifactStore) -> list[str]:
     return [name for name in PLAN_FILES if artifacts.exists(plan_file_key(plan.id, name))]
 
 
+def _exists(path: str) -> bool:
+    """Whether a file or folder of that name exists; a name no file system holds (too long, a NUL) does not
+    (``Path.exists`` raises for those)."""
+    try:
+        return Path(path).exists()
+    except (OSError, ValueError):
+        return False
+
+
 def _outside_data_roots(spec, settings: Settings, uploaded: set[str] = frozenset()) -> list[str]:
     """Files and folders the scene would read outside the data roots (after resolving ``..`` and links).
     Ladder entries that are not paths (model names) read nothing of the user's; ``uploaded`` files
@@ -239,8 +248,8 @@ def _outside_data_roots(spec, settings: Settings, uploaded: set[str] = frozenset
     for where, path in paths:
         if path in uploaded:
             continue
-        if where.startswith("ladder") and "/" not in path and not Path(path).exists():
-            continue  # a model's name
+        if where.startswith("ladder") and "/" not in path and not _exists(path):
+            continue  # a model's name (or no usable name at all: building the ladder says so)
         try:
             resolved = Path(path).resolve()
         except (ValueError, OSError) as exc:

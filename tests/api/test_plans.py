@@ -80,12 +80,17 @@ def test_bad_scenes_are_refused_before_anything_is_stored(live_server, tables, c
         assert c.get("/plans").json()["plans"] == []
 
 
-def test_a_scene_that_fails_while_planning_says_why(live_server, tables):
+@pytest.mark.parametrize("entry, said", [
+    (lambda t: str(t / "not-a-bundle"), "not-a-bundle"),
+    (lambda t: "é" * 300, "neither an analytical model"),  # a name no file system holds: Path.exists() raises
+], ids=["missing-bundle", "name-too-long"])
+def test_a_scene_that_fails_while_planning_says_why(live_server, tables, entry, said):
     server = live_server(data_roots=[tables])
     with server.client() as c:
-        r = c.post("/plans", json=absolute(tables, ladder=["ggx", str(tables / "not-a-bundle")]))
+        r = c.post("/plans", json=absolute(tables, ladder=["ggx", entry(tables)]))
+        assert r.status_code == 202, r.text
         plan = wait_plan(c, r.json()["id"])
-    assert plan["status"] == "FAILED" and "not-a-bundle" in plan["error"] and "\n" not in plan["error"]
+    assert plan["status"] == "FAILED" and said in plan["error"] and "\n" not in plan["error"]
 
 
 def upload(c, data: dict, files: dict[str, bytes], **headers):

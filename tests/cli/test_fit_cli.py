@@ -109,13 +109,20 @@ def test_fit_with_the_shipped_enhanced_ggx_out_of_the_box(table, tmp_path):
         (["fit", "BAD"], "f_r has negative values"),
         (["fit", "--jobs", "0", "TABLE"], "--jobs must be at least 1, got 0"),
         (["fit", "--capacity", "everything", "TABLE"], "capacity must be one of auto, analytical, original, latent"),
+        # names no file system holds (pathlib's stat raises for them, where it returns False for a missing file)
+        (["fit", "LONG"], "not a usable path (File name too long)"),
+        (["fit", "--model", "LONG", "TABLE"], "is neither an analytical model"),
+        (["fit", "TABLE", "-o", "TMP/LONG"], "File name too long"),
     ],
-    ids=["missing-file", "unknown-model", "bad-table", "no-jobs", "unknown-capacity"],
+    ids=["missing-file", "unknown-model", "bad-table", "no-jobs", "unknown-capacity", "long-name", "long-model",
+         "long-output"],
 )
 def test_user_mistakes_exit_2_with_one_line(table, tmp_path, args, message):
     bad = tmp_path / "bad.npz"
     np.savez(bad, wi=[[0, 0, 1.0]], wo=[[0, 0, 1.0]], f_r=[[-1.0, 0, 0]])
-    args = [str(table) if a == "TABLE" else str(bad) if a == "BAD" else a for a in args]
+    long = "é" * 300  # 600 bytes: over any file system's 255 for one name
+    args = [str(table) if a == "TABLE" else str(bad) if a == "BAD" else long if a == "LONG" else
+            a.replace("TMP", str(tmp_path)).replace("LONG", long) for a in args]
     out = neuenh_here(*args)
     assert out.returncode == 2
     assert message in out.stderr and "Traceback" not in out.stderr
