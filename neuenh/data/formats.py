@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .draws import DRAWN_KINDS
 from .errors import DataError
 from .merl import looks_like_merl
 from .nbrdf import is_nbrdf_keys
-from .draws import DRAWN_KINDS
 from .rgl import is_tensor_file
 from .table import looks_like_csv_table
 
