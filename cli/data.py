@@ -390,9 +390,9 @@ def run_slice(args) -> int:
     if args.params is not None and not args.model:
         raise DataCommandError("--params needs --model: the model the report is a fit of")
     if args.model:
-        from neuenh.pretrained import load_model
+        from neuenh.pretrained import load_for_fitting
 
-        model, trained = load_model(args.model, "--model")
+        model, trained, encoder = load_for_fitting(args.model, "--model")
         fitted = read_fit_report(args.params, model) if args.params is not None else None
     material = load_measured(args.file, name=args.material)
     if isinstance(material, TableMaterial):
@@ -419,11 +419,9 @@ def run_slice(args) -> int:
         else:
             from neuenh.data.samples import sample_materials
             from neuenh.fit import FitOptions, fit_materials
-            from neuenh.pretrained import load_encoder
-
             samples = sample_materials([material], args.fit_samples, args.seed)
             result = fit_materials(model, samples, FitOptions(epochs=args.epochs).protocol_for(model),
-                                   seed=args.seed, trained=trained, encoder=load_encoder(args.model))
+                                   seed=args.seed, trained=trained, encoder=encoder)
             record = result.materials.as_params(0)
             report.update({"fit_loss": result.losses[0], "fit_seconds": round(result.wall_s, 3),
                            "fit_samples": args.fit_samples})

@@ -110,12 +110,13 @@ def is_nbrdf_file(model_arg: str) -> bool:
 def published_networks(path: Path, wanted: set[str]) -> dict:
     """Name -> ``NBRDFNetwork`` of the file's networks (``wanted`` ones, or all), in the file's order;
     a name it does not hold is a ValueError naming the file (``neuenh.data.nbrdf``)."""
-    from neuenh.data.nbrdf import nbrdf_material, nbrdf_names
+    from neuenh.data.nbrdf import load_nbrdf, nbrdf_material
     from neuenh.study.nbrdf_fit import NBRDFNetwork
 
-    held = nbrdf_names(path)
-    names = [n for n in held if not wanted or n in wanted] + sorted(wanted - set(held))  # the last: its error
-    return {name: NBRDFNetwork.from_published(nbrdf_material(path, name).weights) for name in names}
+    held = load_nbrdf(path)  # the file read once
+    for name in sorted(wanted - set(held)):
+        nbrdf_material(path, name)  # raises the reader's error: the file and the names it holds
+    return {name: NBRDFNetwork.from_published(m.weights) for name, m in held.items() if not wanted or name in wanted}
 
 
 def by_own_model(folder: Path, model, materials: dict[str, MaterialParams]) -> list[tuple[Path, object, dict]]:

@@ -101,7 +101,7 @@ def run(args) -> int:
 
     from neuenh.checkpoint import Bundle
     from neuenh.fit import FitOptions, fit_in_processes
-    from neuenh.pretrained import load_encoder, load_model
+    from neuenh.pretrained import load_for_fitting
     from neuenh.study.heldout import heldout_log_l1, predict_f_r, write_predictions
 
     if args.threads:
@@ -117,11 +117,10 @@ def run(args) -> int:
         output_folder(args.output)
     options = FitOptions(method=args.method, capacity=args.capacity, epochs=args.epochs,
                          lbfgs_iterations=args.lbfgs_iterations, starts=args.starts)
-    model, trained = load_model(args.model, "--model")
+    model, trained, encoder = load_for_fitting(args.model, "--model")
     samples, test = _measurements(args, drawn)
     if len(set(samples.names)) != len(samples.names):
         raise ValueError(f"two measurements share a material name: {samples.names}")
-    encoder = load_encoder(args.model)
     result = fit_in_processes(model, samples, options.protocol_for(model), args.jobs, trained=trained,
                               encoder=encoder)
     report = result.report(model, samples)

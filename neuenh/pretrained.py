@@ -71,25 +71,25 @@ def load_model(spec: str, what: str = "model") -> tuple[BRDFModel, MaterialTable
     a bundle folder if ``spec`` is one, else a shipped model, else an analytical model. The
     training materials give new fits a starting latent code (``neuenh.fit``). ``what`` names
     ``spec`` in the error (e.g. the command-line flag)."""
+    model, trained, _ = load_for_fitting(spec, what)
+    return model, trained
+
+
+def load_for_fitting(spec: str, what: str = "model") -> tuple[BRDFModel, MaterialTable | None,
+                                                               MaterialEncoder | None]:
+    """``load_model``'s model and training materials, and the bundle's encoder (``neuenh.encoder``:
+    one more start of its latent fits; None without one or for an analytical model): everything a fit
+    starts from, from one read of the bundle."""
     from .checkpoint import Bundle
 
     path = bundle_path(spec)
     if path is not None:
         bundle = Bundle.load(path)
-        return bundle.model, bundle.materials
+        return bundle.model, bundle.materials, bundle.encoder
     if spec in available_models():
-        return get_model(spec), None
+        return get_model(spec), None, None
     raise ValueError(f"{what} {spec!r} is neither an analytical model ({', '.join(available_models())}), "
                      f"a shipped model ({', '.join(shipped_models()) or 'none found'}) nor a bundle folder")
-
-
-def load_encoder(spec: str) -> MaterialEncoder | None:
-    """The encoder of the bundle or shipped model ``spec`` names (``neuenh.encoder``: one more start
-    of its latent fits), None for one without or for an analytical model."""
-    from .checkpoint import Bundle
-
-    path = bundle_path(spec)
-    return Bundle.load(path).encoder if path is not None else None
 
 
 def rungs(spec: str) -> list[Rung]:

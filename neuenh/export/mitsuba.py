@@ -264,8 +264,8 @@ def _mlp(xp: DrJitOps, module: tuple[list, list, float], inputs: list):
 
 
 # -- the plugin -------------------------------------------------------------------------------------------
-def _read(path: Path) -> dict:
-    """An exported material file's JSON, of either kind (``FORMAT``, ``NBRDF_FORMAT``)."""
+def _read(path: Path, kind: str | None = None) -> dict:
+    """An exported material file's JSON: of ``kind`` (``FORMAT``, ``NBRDF_FORMAT``) or, None, of either."""
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
@@ -273,17 +273,18 @@ def _read(path: Path) -> dict:
     if not isinstance(data, dict) or data.get("format") not in (FORMAT, NBRDF_FORMAT):
         what = data.get("format") if isinstance(data, dict) else None
         raise ValueError(f"{path}: not a neuenh Mitsuba material (format {what!r})")
+    if kind is not None and data["format"] != kind:
+        raise ValueError(f"{path}: " + ("an NBRDF network's material (load_nbrdf reads it), not a model's" if kind == FORMAT
+                                        else "a model's material (load_material reads it), not an NBRDF network's"))
     return data
 
 
-def load_material(path: str | Path):
-    """(model, params) of an exported ``NAME.json`` (``write``)."""
+def load_material(path: str | Path, data: dict | None = None):
+    """(model, params) of an exported ``NAME.json`` (``write``); ``data``: its JSON, read already."""
     from ..checkpoint import Bundle
 
     path = Path(path)
-    data = _read(path)
-    if data["format"] != FORMAT:
-        raise ValueError(f"{path}: an NBRDF network's material (load_nbrdf reads it), not a model's")
+    data = data if data is not None else _read(path, FORMAT)
     try:
         params = MaterialParams.from_json(data)
     except ValueError as exc:
@@ -292,15 +293,13 @@ def load_material(path: str | Path):
     return bundle.model, params
 
 
-def load_nbrdf(path: str | Path):
+def load_nbrdf(path: str | Path, data: dict | None = None):
     """(the network, (alpha, p_spec) of its sampling lobe) of an NBRDF material's ``NAME.json``
-    (``write_nbrdf``)."""
+    (``write_nbrdf``); ``data``: its JSON, read already."""
     from ..study.nbrdf_fit import NBRDFNetwork
 
     path = Path(path)
-    data = _read(path)
-    if data["format"] != NBRDF_FORMAT:
-        raise ValueError(f"{path}: a model's material (load_material reads it), not an NBRDF network's")
+    data = data if data is not None else _read(path, NBRDF_FORMAT)
     try:
         lobe = data["sampling"]
         return NBRDFNetwork.from_state(data["weights"]), (float(lobe["alpha"]), float(lobe["p_spec"]))
@@ -319,11 +318,12 @@ def _plugin_class():
             super().__init__(props)
             # relative to the scene file, as Mitsuba resolves every file a scene names
             self.filename = str(mi.file_resolver().resolve(str(props["filename"])))
-            if _read(Path(self.filename))["format"] == NBRDF_FORMAT:
-                net, (ax, self.p_spec) = load_nbrdf(self.filename)
+            data = _read(Path(self.filename))  # either kind of material, read once
+            if data["format"] == NBRDF_FORMAT:
+                net, (ax, self.p_spec) = load_nbrdf(self.filename, data)
                 self.material, ay, self.frame = DrJitNBRDF(net), ax, None
             else:
-                model, params = load_material(self.filename)
+                model, params = load_material(self.filename, data)
                 special = model.specialize(params)
                 self.material = DrJitMaterial(special)
                 values = {k: v.reshape(-1).tolist() for k, v in params.values.items()}

@@ -140,7 +140,7 @@ def build_ladder(entries: Sequence[Any], where: str = "ladder") -> list[Rung]:
     folder: its final model) or ``nbrdf``, ``{model: MODEL, capacity: C}`` (that model fitted at
     capacity C), or ``{rungs: MODEL}`` (every rung of a searched model). Every problem is a
     ValueError naming the entry."""
-    from ..pretrained import load_encoder, load_model, rungs
+    from ..pretrained import load_for_fitting, rungs
 
     out: list[Rung] = []
     for i, entry in enumerate(entries):
@@ -150,12 +150,12 @@ def build_ladder(entries: Sequence[Any], where: str = "ladder") -> list[Rung]:
                 out.append(NBRDFRung())
             elif isinstance(entry, (str, ModelEntry)):
                 capacity = getattr(entry, "capacity", None)
-                model, trained = load_model(name, f"{where}.{i}")
+                model, trained, encoder = load_for_fitting(name, f"{where}.{i}")
                 latent = trained.mean_latent() if trained is not None else None
                 label, key = (name, name) if capacity is None else \
                     (f"{name} ({capacity} capacity)", f"{name}:{capacity}")
                 out.append(GraphRung(label, key, model, latent, source=name, capacity=capacity,
-                                     encoder=load_encoder(name)))
+                                     encoder=encoder))
             else:
                 for r in rungs(name):
                     label = f"{name} r{r.round}" if r.round >= 0 else name

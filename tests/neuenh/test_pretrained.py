@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from neuenh.checkpoint import Bundle
-from neuenh.pretrained import load_encoder, load_model, shipped_models
+from neuenh.pretrained import load_for_fitting, load_model, shipped_models
 
 REPO_MODELS = Path(__file__).resolve().parents[2] / "models"
 
@@ -61,7 +61,7 @@ def test_the_shipped_enhanced_ggx_is_small_enhanced_and_trained_without_rgl():
     # encoder (72,938 float32 weights, 293 kB)
     assert size < 600_000
     assert len(trained) == 260 and not any("rgb" in name for name in trained.names)  # never RGL
-    encoder = load_encoder("enhanced-ggx")  # amortised starts, learned from the same sources: never RGL
+    _, _, encoder = load_for_fitting("enhanced-ggx")  # amortised starts, learned from the same sources: never RGL
     assert encoder is not None and encoder.record["trained_on"] > 200
     assert {s["source"] for s in encoder.record["sources"]} == {"nbrdf", "synthetic_ggx", "synthetic_zoo"}
     ladder = rungs("enhanced-ggx")
