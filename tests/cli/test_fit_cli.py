@@ -88,17 +88,33 @@ def test_fit_with_the_shipped_enhanced_ggx_out_of_the_box(table, tmp_path):
     there, an order of magnitude below plain GGX's error on the visible RGL materials (~0.03). Not
     "as low as plain GGX": its start imitates the analytical model of the same graph (the search's
     alternative terms kept, 60 Adam epochs), not plain GGX's L-BFGS fit (~4e-4 here; the latent fit
-    ~2.6e-3 on AMD EPYC). The shipped encoder's prediction is one of its starts, and the bundle the
-    fit writes keeps the encoder for the next fit."""
-    from neuenh.checkpoint import Bundle
-
-    out = neuenh_here("fit", "--model", "enhanced-ggx", table, "--epochs", "60", "--json", "-o", tmp_path / "fitted")
+    ~2.6e-3 on AMD EPYC)."""
+    out = neuenh_here("fit", "--model", "enhanced-ggx", table, "--epochs", "60", "--json")
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     assert report["state"] != "0" * 11 and len(report["materials"][0]["latent"]) == 27
     assert report["materials"][0]["loss"] < 0.01
-    assert report["protocol"]["encoder_start"] is True
+
+
+def test_a_bundle_with_an_encoder_starts_fits_from_it_too_and_keeps_it(table, tmp_path):
+    """``neuenh fit --model BUNDLE`` with an encoder (``neuenh encoder train`` writes one): its
+    prediction is one of the latent fit's starts, and the bundle the fit writes keeps the encoder
+    for the next fit; the shipped model has none (docs/BENCHMARKS.md, "The encoder as a start")."""
+    from neuenh.checkpoint import Bundle
+    from neuenh.encoder import EncoderConfig, MaterialEncoder
+    from neuenh.models import get_model
+
+    model = get_model("ggx", state="00010000000", seed=1)
+    encoder = MaterialEncoder(model.specs, model.used_specs().names, model.latent_dim,
+                              EncoderConfig(width=8, depth=1, heads=1, head_hidden=8))
+    Bundle(model, encoder=encoder).save(tmp_path / "with-encoder")
+    out = neuenh_here("fit", "--model", tmp_path / "with-encoder", table, "--epochs", "6", "--json",
+                      "-o", tmp_path / "fitted")
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["protocol"]["encoder_start"] is True
     assert Bundle.load(tmp_path / "fitted").encoder is not None
+    shipped = neuenh_here("fit", "--model", "enhanced-ggx", table, "--epochs", "6", "--json")
+    assert json.loads(shipped.stdout)["protocol"]["encoder_start"] is False
 
 
 @pytest.mark.parametrize(
