@@ -25,21 +25,33 @@ def candidates_bound(spec: JobSpec) -> int:
 
 
 def outside_data_roots(spec: JobSpec, settings: Settings) -> list[str]:
-    """Files a spec's sources would read that lie outside the configured data roots (after
-    resolving ``..`` and symbolic links), so a caller cannot make the service read any file."""
+    """Files a spec's sources would read that the service must not read (``path_problem``), so a
+    caller cannot make the service read any file."""
+    return [problem for i, source in enumerate(spec.data) for path in source_paths(source)
+            if (problem := path_problem(f"data.{i}", path, settings)) is not None]
+
+
+def path_problem(where: str, path: str, settings: Settings) -> str | None:
+    """Why a request must not name ``path`` (at ``where``), or None: it lies outside the configured
+    data roots (after resolving ``..`` and symbolic links), or it is a name no file system holds or
+    the service cannot read (a NUL byte, a name too long, a loop of links, a file where a folder
+    should be, no permission) — found at submission, not as a traceback of the job or plan that reads
+    it. A file that does not exist yet is not refused here: reading it names it."""
     roots = [root.resolve() for root in settings.data_roots]
-    allowed = ", ".join(map(str, roots)) or "none configured"
-    problems = []
-    for i, source in enumerate(spec.data):
-        for path in source_paths(source):
-            try:
-                resolved = Path(path).resolve()
-            except (ValueError, OSError) as exc:  # a NUL byte, a name too long, a symlink loop
-                problems.append(f"data.{i}: {path!r} is not a usable path ({exc})")
-                continue
-            if not any(resolved.is_relative_to(root) for root in roots):
-                problems.append(f"data.{i}: {path} is outside the data roots ({allowed}; NEUENH_DATA_ROOTS)")
-    return problems
+    try:
+        resolved = Path(path).resolve()
+    except (ValueError, OSError, RuntimeError) as exc:  # RuntimeError: Python 3.11's "Symlink loop"
+        return f"{where}: {path!r} is not a usable path ({getattr(exc, 'strerror', None) or exc})"
+    if not any(resolved.is_relative_to(root) for root in roots):
+        allowed = ", ".join(map(str, roots)) or "none configured"
+        return f"{where}: {path} is outside the data roots ({allowed}; NEUENH_DATA_ROOTS)"
+    try:  # only inside the roots: what stat says of other files is none of the caller's business
+        resolved.stat()
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        return f"{where}: {path!r} is not a usable path ({exc.strerror or exc})"
+    return None
 
 
 def source_paths(source) -> list[str]:

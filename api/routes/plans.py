@@ -32,7 +32,7 @@ from ..deps import (ArtifactStoreDep, Authorized, ChangeablePlan, FitLockDep, Pl
                     PrincipalDep, SettingsDep, SubmitterDep, VisiblePlan, fit_slot)
 from ..downloads import file_response
 from ..errors import COMMON, DAMAGED, documented
-from ..limits import plan_problems
+from ..limits import path_problem, plan_problems
 from ..schemas import PlanList, PlanPublic
 from ..settings import Settings
 from ..uploads import PLAN_UPLOADS, Received, discard, receive, uploaded_kind
@@ -236,11 +236,9 @@ def _exists(path: str) -> bool:
 
 
 def _outside_data_roots(spec, settings: Settings, uploaded: set[str] = frozenset()) -> list[str]:
-    """Files and folders the scene would read outside the data roots (after resolving ``..`` and links).
-    Ladder entries that are not paths (model names) read nothing of the user's; ``uploaded`` files
+    """Why the scene must not name the files and folders it would read (``limits.path_problem``: outside
+    the data roots, or not a usable path). Ladder entries that are not paths (model names) read nothing of the user's; ``uploaded`` files
     were put where they are by the service."""
-    roots = [root.resolve() for root in settings.data_roots]
-    allowed = ", ".join(map(str, roots)) or "none configured"
     paths = [(f"materials.{i}", e.path if isinstance(e, FileEntry) else e.capture)
              for i, e in enumerate(spec.materials) if isinstance(e, (FileEntry, CaptureEntry))]
     paths += [(f"ladder.{i}", ladder_source(e)) for i, e in enumerate(spec.ladder)]
@@ -250,11 +248,6 @@ def _outside_data_roots(spec, settings: Settings, uploaded: set[str] = frozenset
             continue
         if where.startswith("ladder") and "/" not in path and not _exists(path):
             continue  # a model's name (or no usable name at all: building the ladder says so)
-        try:
-            resolved = Path(path).resolve()
-        except (ValueError, OSError) as exc:
-            problems.append(f"{where}: {path!r} is not a usable path ({exc})")
-            continue
-        if not any(resolved.is_relative_to(root) for root in roots):
-            problems.append(f"{where}: {path} is outside the data roots ({allowed}; NEUENH_DATA_ROOTS)")
+        if (problem := path_problem(where, path, settings)) is not None:
+            problems.append(problem)
     return problems

@@ -266,6 +266,28 @@ def test_file_sources_are_confined_to_the_data_roots(tmp_path, path):
     assert outside_data_roots(inside, Settings(data_dir=tmp_path)) != []  # no roots: refused
 
 
+@pytest.mark.parametrize("name,reasons", [("x" * 300 + ".bsdf", ["File name too long"]),
+                                          ("a.bsdf/b.bsdf", ["Not a directory"]),
+                                          # Python 3.11 raises "Symlink loop", later ones ELOOP's message
+                                          ("loop/b.bsdf", ["Symlink loop", "Too many levels of symbolic links"])],
+                         ids=["too-long", "under-a-file", "link-loop"])
+def test_names_no_file_system_holds_are_refused_at_submission_inside_the_roots(tmp_path, name, reasons):
+    """They used to be accepted, then fail the job with an OSError traceback in the service's log."""
+    from neuenh_service.api.limits import outside_data_roots
+    from neuenh_service.api.settings import Settings
+    from neuenh_service.orchestrator.spec import parse_spec
+
+    root = tmp_path / "root"
+    root.mkdir()
+    (root / "a.bsdf").write_bytes(b"")
+    (root / "loop").symlink_to(root / "loop")
+    settings = Settings(data_dir=tmp_path, data_roots=[root])
+    spec = parse_spec({"data": [{"source": "rgl", "paths": [str(root / name), str(root / "missing.bsdf")]}]})
+    [problem] = outside_data_roots(spec, settings)  # a missing file is named when the job reads it
+    assert problem.startswith("data.0: ") and "is not a usable path" in problem, problem
+    assert any(reason in problem for reason in reasons), problem
+
+
 @pytest.mark.parametrize("host,token,ok", [("127.0.0.1", None, True), ("0.0.0.0", None, False),
                                             ("0.0.0.0", "s3cret", True), ("::1", None, True)])
 def test_no_token_no_network_listening(host, token, ok):

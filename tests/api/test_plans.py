@@ -71,7 +71,9 @@ def test_a_plan_interrupted_by_a_restart_plans_only_the_rest(live_server, tables
     (lambda t: {"ladder": [{"model": "/tmp", "capacity": "auto"}]}, "ladder.0: /tmp is outside the data roots"),
     (lambda t: {"ladder": []}, "ladder: List should have at least 1 item"),
     (lambda t: {"tolerance": {"metric": "ssim"}}, "exactly one of 'relative'"),
-], ids=["material-outside", "bundle-outside", "model-bundle-outside", "empty-ladder", "no-tolerance"])
+    (lambda t: {"materials": [{"path": str(t / ("x" * 300 + ".npz"))}]}, "is not a usable path (File name too long)"),
+], ids=["material-outside", "bundle-outside", "model-bundle-outside", "empty-ladder", "no-tolerance",
+        "material-name-too-long"])
 def test_bad_scenes_are_refused_before_anything_is_stored(live_server, tables, change, message):
     server = live_server(data_roots=[tables])
     with server.client() as c:
