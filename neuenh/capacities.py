@@ -11,7 +11,7 @@ from __future__ import annotations
 # ``original`` (every position at its original term: the model the search started from, e.g. plain GGX).
 ANALYTICAL_CAPACITIES = {"analytical": True, "original": False}
 # Capacities that keep the modules: the latent code alone, then per-material corrections of their weights.
-MODULE_CAPACITIES = ("latent", "last-layer", "low-rank", "full")
+MODULE_CAPACITIES = ("latent", "last-layer", "low-rank", "rank-8", "full")
 CAPACITY_NAMES = (*ANALYTICAL_CAPACITIES, *MODULE_CAPACITIES)
 # What a user may ask for: one capacity, or ``auto`` (chosen per material by validation on its own samples).
 CAPACITY_CHOICES = ("auto", *CAPACITY_NAMES)

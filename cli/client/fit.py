@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 from pathlib import Path
 
+from neuenh.capacities import CAPACITY_NAMES
 from neuenh.data.table import TableError, check_table, looks_like_table
 
 from ..draws import add_draw_arguments, check_draw_arguments, draw, is_measured
@@ -27,7 +28,7 @@ def add_parser(commands: Commands) -> None:
                    help="fast (default): the capacity's fit; paper: RMSProp lr 1e-3, 1000 epochs")
     p.add_argument("--capacity", default="latent",
                    help="a model with modules: latent (default), auto (chosen per material by cross-validation), "
-                        "original, analytical, last-layer, low-rank or full")
+                        + ", ".join(c for c in CAPACITY_NAMES if c != "latent"))
     p.add_argument("--epochs", type=int, help="Adam or RMSProp epochs (default: the protocol's own)")
     p.add_argument("--lbfgs-iterations", type=int, help="a plain model's L-BFGS iterations per phase")
     add_draw_arguments(p)

@@ -282,6 +282,24 @@ def test_plain_lbfgs_beats_the_paper_protocol_at_the_same_budget(clean_ggx):
     assert fast.loss < 0.5 * paper.loss
 
 
+def _corrected(out: int, inp: int, rank: int | None) -> int:
+    """Free parameters of one layer's correction: a dense delta and bias, or ``U V`` factors and a bias."""
+    return out * inp + out if rank is None else out * rank + rank * inp + out
+
+
+@pytest.mark.parametrize("capacity, ranks", [("last-layer", None), ("low-rank", 2), ("rank-8", 8), ("full", "dense")])
+def test_parameters_per_material_at_a_capacity_follow_from_the_layer_shapes(enhanced, capacity, ranks):
+    """What the report and every count show: the analytical and latent parameters, then each corrected
+    layer's, counted here from the modules' weight shapes alone."""
+    count = enhanced.n_material_params()
+    for module in enhanced.neural.values():
+        shapes = [tuple(layer.weight.shape) for layer in module.layers]
+        count += _corrected(*shapes[-1], None)  # the last layer is dense at every capacity with corrections
+        if ranks is not None:
+            count += sum(_corrected(*shape, None if ranks == "dense" else ranks) for shape in shapes[:-1])
+    assert Adaptive().n_params(enhanced, (capacity, 1e-3))[0] == count
+
+
 def test_options_name_one_protocol_with_its_own_budget():
     plain, enhanced = get_model("ggx"), get_model("ggx", state=PAPER_STATE, seed=0)
     assert FitOptions(lbfgs_iterations=40).protocol_for(plain) == PlainLBFGS(iterations=40)
