@@ -77,10 +77,13 @@ def run(args) -> int:
     else:
         from neuenh.pretrained import load_model
 
-        if Path(args.model).suffix == ".json" and not args.params and _is_file(args.model):
-            raise ValueError(f"MODEL {args.model} is a file, not a model; a fit report (neuenh fit --json) goes with "
-                             f"the model it fitted: neuenh export MODEL --params {args.model}")
-        model, trained = load_model(args.model, "MODEL")
+        try:
+            model, trained = load_model(args.model, "MODEL")
+        except ValueError as exc:
+            if Path(args.model).suffix != ".json" or args.params:
+                raise
+            raise ValueError(f"{exc}; a fit report (neuenh fit --json) goes with the model it fitted: "
+                             f"neuenh export MODEL --params {args.model}") from None
         materials = read_fit_report(args.params, model) if args.params else bundle_materials(trained, args.model)
         groups = by_own_model(args.output, model, materials)
     every = {m for _, _, materials in groups for m in materials} | set(networks)
@@ -107,13 +110,6 @@ def is_nbrdf_file(model_arg: str) -> bool:
     try:
         return Path(model_arg).is_file() and detect_format(model_arg) == "nbrdf"
     except (DataError, OSError, ValueError):  # not data, or no usable path: load_model says what a MODEL may be
-        return False
-
-
-def _is_file(name: str) -> bool:
-    try:
-        return Path(name).is_file()
-    except (OSError, ValueError):  # a name no file system holds is no file (Path.is_file lets ENAMETOOLONG through)
         return False
 
 

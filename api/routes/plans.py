@@ -237,8 +237,8 @@ def _exists(path: str) -> bool:
 
 def _outside_data_roots(spec, settings: Settings, uploaded: set[str] = frozenset()) -> list[str]:
     """Why the scene must not name the files and folders it would read (``limits.path_problem``: outside
-    the data roots, or not a usable path). Ladder entries that are not paths (model names) read nothing of the user's; ``uploaded`` files
-    were put where they are by the service."""
+    the data roots, or not a usable path). Ladder entries that are not paths (model names) read nothing
+    of the user's; ``uploaded`` files were put where they are by the service."""
     paths = [(f"materials.{i}", e.path if isinstance(e, FileEntry) else e.capture)
              for i, e in enumerate(spec.materials) if isinstance(e, (FileEntry, CaptureEntry))]
     paths += [(f"ladder.{i}", ladder_source(e)) for i, e in enumerate(spec.ladder)]

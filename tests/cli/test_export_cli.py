@@ -82,7 +82,7 @@ def test_bad_inputs_are_one_line_errors(fitted, tmp_path):
                    "no material 'gold'; there are: brushed steel")
     one_line_error(neuenh_here("export", "ggx", "--format", "glsl", "-o", tmp_path), "ggx holds no materials")
     one_line_error(neuenh_here("export", report, "--format", "glsl", "-o", tmp_path),
-                   "is a file, not a model", f"neuenh export MODEL --params {report}")
+                   "nor a bundle folder; a fit report", f"neuenh export MODEL --params {report}")
     (tmp_path / "junk.json").write_text("{")
     one_line_error(neuenh_here("export", "ggx", "--params", tmp_path / "junk.json", "--format", "glsl",
                                "-o", tmp_path), "not a fit report")
