@@ -272,7 +272,8 @@ def test_file_sources_are_confined_to_the_data_roots(tmp_path, path):
                                           ("loop/b.bsdf", ["Symlink loop", "Too many levels of symbolic links"])],
                          ids=["too-long", "under-a-file", "link-loop"])
 def test_names_no_file_system_holds_are_refused_at_submission_inside_the_roots(tmp_path, name, reasons):
-    """They used to be accepted, then fail the job with an OSError traceback in the service's log."""
+    """They used to be accepted, then fail the job with an OSError traceback in the service's log (a link loop:
+    Python 3.11's RuntimeError, a 500)."""
     from neuenh_service.api.limits import outside_data_roots
     from neuenh_service.api.settings import Settings
     from neuenh_service.orchestrator.spec import parse_spec
