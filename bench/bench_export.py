@@ -89,7 +89,6 @@ def fitted_materials(material: str, rgl: Path) -> dict[str, Case]:
     with torch.no_grad():
         heldout = float(log_l1(net(test.wi, test.wo), test.f_r, test.wi).double().mean())
 
-
     def write_network(folder: Path) -> Path:
         export_nbrdf({"m": net}, "mitsuba", folder)
         return folder / "m.xml"

@@ -108,8 +108,8 @@ def is_nbrdf_file(model_arg: str) -> bool:
     from neuenh.data.formats import detect_format
 
     try:
-        return Path(model_arg).is_file() and detect_format(model_arg) == "nbrdf"
-    except (DataError, OSError, ValueError):  # not data, or no usable path: load_model says what a MODEL may be
+        return detect_format(model_arg) == "nbrdf"
+    except (DataError, OSError):  # no such file, a folder, not data: load_model says what a MODEL may be
         return False
 
 

@@ -66,17 +66,15 @@ def detect_format(path: str | os.PathLike) -> str:
     """The kind of data at ``path`` (see the module doc)."""
     path = Path(path)
     try:
-        is_folder, exists, is_file = path.is_dir(), path.exists(), path.is_file()
+        is_folder, is_file = path.is_dir(), path.is_file()
     except (OSError, ValueError) as exc:  # a name too long, a NUL: pathlib lets those through
         raise DataError(f"{path}: not a usable path ({getattr(exc, 'strerror', None) or exc})") from None
     if is_folder:
         if (path / CAPTURE_JSON).is_file():
             return "capture"
         raise DataError(f"{path}: not a regular file (a folder, and without the {CAPTURE_JSON} of a capture)")
-    if not exists:
-        raise DataError(f"{path}: no such file")
-    if not is_file:
-        raise DataError(f"{path}: not a regular file")
+    if not is_file:  # asked only now: a usable name, neither a folder nor a regular file
+        raise DataError(f"{path}: not a regular file" if path.exists() else f"{path}: no such file")
     head = read_head(path)
     if head[:4] == EXR_MAGIC:
         return "exr"
