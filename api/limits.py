@@ -176,7 +176,7 @@ def check_limits(spec: JobSpec, settings: Settings, cluster: ClusterInfo | None 
     if cluster is not None and not settings.autoscaling:
         problems += unsatisfiable(spec, cluster)
     if problems:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "job spec over limits: " + "; ".join(problems))
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "job spec refused: " + "; ".join(problems))
 
 
 # Bytes a measured file holds once read, per byte of the file (measured: an RGL material holds 2.8x

@@ -18,6 +18,8 @@ import signal
 from multiprocessing.connection import Connection
 from pathlib import Path
 
+from neuenh.allocator import keep_freed_memory
+
 from .settings import Settings
 
 NICENESS = 10  # the API's event loop and the job threads go first when the CPUs are busy
@@ -37,6 +39,7 @@ def run_plan(settings: Settings, base: Path, plan_id: str, progress: Connection)
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(settings.plan_cpus)
+    keep_freed_memory()  # a plan's fits reuse their freed activations (neuenh.allocator)
     plans, artifacts = SQLitePlanStore(settings.data_dir / "jobs.sqlite"), artifact_store(settings)
     try:
         PlanRunner(plans, artifacts, base=base, max_materials=settings.max_materials,

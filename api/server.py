@@ -10,6 +10,7 @@ import logging
 import socket
 from typing import Callable
 
+from neuenh.allocator import keep_freed_memory
 from neuenh_service.storage import SQLiteJobStore
 
 from .settings import Settings, check_listen_address
@@ -28,6 +29,7 @@ def serve(settings: Settings, announce: Callable[[str], None] = _print_now) -> N
     # every check before the app is imported: a mistake is one line in a fraction of a second, not
     # after importing torch (~2-3 s of CPU)
     check_listen_address(settings)
+    keep_freed_memory()  # the service's own fits (/fit) reuse their freed activations (neuenh.allocator)
     TokenTable(settings)  # a bad tokens file is one line now, not a startup traceback
     if settings.data_dir.exists() and not settings.data_dir.is_dir():
         raise ValueError(f"data directory {settings.data_dir} (--data-dir, NEUENH_DATA_DIR) exists and is not a folder")

@@ -11,6 +11,7 @@ import importlib
 import os
 import sys
 
+from neuenh.allocator import keep_freed_memory
 from neuenh_service.storage import StorageError
 
 # Command -> its line in `neuenh --help`. Its arguments come from ``cli.<command>.configure``, imported
@@ -48,6 +49,7 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = build_parser(argv).parse_args(argv)
+    keep_freed_memory()  # fits and training reuse their freed activations (neuenh.allocator)
     try:
         return args.run(args)
     except (ValueError, FileNotFoundError) as exc:

@@ -26,6 +26,7 @@ import ray
 from ray.autoscaler.sdk import request_resources
 from ray.exceptions import RayError
 
+from neuenh.allocator import keep_freed_memory
 from neuenh.train import TrainConfig
 
 from neuenh.data.samples import TrainingData
@@ -41,6 +42,7 @@ def _train_candidate(parent: bytes, data: TrainingData, task: CandidateTask, con
     import torch
 
     torch.set_num_threads(threads)
+    keep_freed_memory()  # training and fit scores reuse their freed activations (neuenh.allocator)
     node = ray.get_runtime_context().get_node_id()
     return run_candidate(parent, data, task, config, node=node)
 

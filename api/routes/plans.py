@@ -139,7 +139,7 @@ def _with_uploads(data: dict, received: list[Received]) -> tuple[dict, set[str]]
 def _check_limits(spec: SceneSpec, settings: Settings) -> None:
     problems = plan_problems(spec, settings, Path.cwd())
     if problems:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "scene over limits: " + "; ".join(problems))
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, "scene refused: " + "; ".join(problems))
 
 
 def _queue(spec: SceneSpec, uploaded: set[str], response: Response, plans, plan_queue, settings: Settings,

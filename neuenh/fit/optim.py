@@ -2,8 +2,7 @@
 
 * ``adam_rows`` — Adam (Kingma & Ba 2015, Alg. 1; PyTorch's constants) with a cosine learning
   rate from ``lr`` to ``lr * final_ratio``, full batch or minibatches along the slots, optionally
-  narrowing competing starts to each group's best (successive halving; Jamieson & Talwalkar 2016)
-  and keeping, per row, the parameters where its validation loss was lowest (early stopping).
+  narrowing competing starts to each group's best (successive halving; Jamieson & Talwalkar 2016).
 * ``lbfgs_rows`` — row-wise L-BFGS (``neuenh.lbfgs``) on a Charbonnier surrogate of the loss, each
   phase with a smaller eps (``SURROGATE_EPS``).
 """
@@ -11,7 +10,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Sequence
 
 import torch
@@ -47,74 +46,46 @@ class Adam:
 
 @dataclass
 class AdamResult:
-    x: torch.Tensor  # (rows, dim) the end point, or the best-validation point (``keep_best``)
+    x: torch.Tensor  # (rows, dim) the end points
     rows: torch.Tensor  # (rows,) which input rows these are (narrowing drops some)
     train: torch.Tensor  # (rows,) mean fit loss at ``x`` (exact, full layout)
     val: torch.Tensor  # (rows,) mean validation loss at ``x`` (NaN: none)
     epochs: int
-    val_history: list[torch.Tensor] = field(default_factory=list)  # per epoch (rows,), when recorded
 
 
 def adam_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, run: Adam, *,
               free: torch.Tensor | None = None, prior_strength: torch.Tensor | None = None,
-              groups: torch.Tensor | None = None, narrow_at: float = 0.25, keep_best: bool = False,
-              record_val: bool = False, seed: int = 0) -> AdamResult:
+              groups: torch.Tensor | None = None, narrow_at: float = 0.25, seed: int = 0) -> AdamResult:
     """Adam over every row of ``x`` (rows, dim) on ``layout`` (module doc).
 
     ``free`` (dim,) or (rows, dim) bool: the columns that move (default all). ``groups`` (rows,): rows with the
     same id are starts of one problem; after ``narrow_at`` of the epochs each group keeps its row of
-    lowest fit loss (with its moments) and the others are dropped. ``keep_best``: each row returns
-    the parameters at which its validation loss was lowest (rows without validation slots: the
-    end point). ``record_val``: keep every epoch's validation losses (``val_history``)."""
+    lowest fit loss (with its moments) and the others are dropped."""
     x = x.detach().float().clone()
     rows = torch.arange(len(x))
     moment1, moment2 = torch.zeros_like(x), torch.zeros_like(x)
     narrow = int(narrow_at * run.epochs) if groups is not None else -1
     generator = torch.Generator().manual_seed(seed)
-    best_val = torch.full((len(x),), math.inf, dtype=torch.float64)
-    best_x = x.clone()
-    history: list[torch.Tensor] = []
     step = 0
     for epoch in range(run.epochs):
         if epoch == narrow:
             keep = _best_of_groups(kernel, x, layout, groups, prior_strength)
             x, moment1, moment2, rows = x[keep], moment1[keep], moment2[keep], rows[keep]
-            best_val, best_x = best_val[keep], best_x[keep]
             layout = layout.select(keep)
             prior_strength = None if prior_strength is None else prior_strength[keep]
             free = free[keep] if free is not None and free.ndim == 2 else free
             groups = None
         rate = run.lr * (run.final_ratio + (1 - run.final_ratio) * 0.5 * (1 + math.cos(math.pi * epoch / run.epochs)))
-        val_sum = torch.zeros(len(x), dtype=torch.float64)
-        x_start = x
         for batch in layout.minibatches(run.batch_slots or layout.slots, generator):
             losses = kernel(x, batch, prior_strength=prior_strength)
-            if keep_best or record_val:
-                val_sum += torch.nan_to_num(losses.val) * batch.val.sum(1).double()
             grad = losses.grad if free is None else losses.grad * free
             step += 1
             moment1.mul_(ADAM_BETAS[0]).add_(grad, alpha=1 - ADAM_BETAS[0])
             moment2.mul_(ADAM_BETAS[1]).addcmul_(grad, grad, value=1 - ADAM_BETAS[1])
             denom = (moment2 / (1 - ADAM_BETAS[1] ** step)).sqrt_().add_(ADAM_EPS)
             x = x - (rate / (1 - ADAM_BETAS[0] ** step)) * moment1 / denom
-        if keep_best or record_val:
-            # the validation loss of the epoch's points before their steps (a minibatch's own)
-            weight = layout.val.sum(1).double()
-            val = torch.where(weight > 0, val_sum / weight.clamp_min(1e-12), torch.nan)
-            if record_val:
-                history.append(val)
-            if keep_best:
-                better = val < best_val
-                best_val = torch.where(better, val, best_val)
-                best_x = torch.where(better[:, None], x_start, best_x)
     final = kernel(x, layout, grad=False, prior_strength=prior_strength)
-    if keep_best:
-        has_val = layout.val.sum(1) > 0
-        better = has_val & (final.val < best_val)
-        best_x = torch.where(better[:, None] | ~has_val[:, None], x, best_x)
-        x = best_x
-        final = kernel(x, layout, grad=False, prior_strength=prior_strength)
-    return AdamResult(x, rows, final.train, final.val, run.epochs, history)
+    return AdamResult(x, rows, final.train, final.val, run.epochs)
 
 
 def _best_of_groups(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, groups: torch.Tensor,

@@ -6,7 +6,8 @@ material and costs several times beside other work, since idle OpenMP threads sp
 fit's small parallel regions (docs/BENCHMARKS.md, "Fit threads"). So a studio's hundreds of
 materials go to ``jobs`` processes of one thread each instead: the materials split into ``jobs``
 consecutive shares of (nearly) equal counts, each share fitted by ``fit_materials`` in a process of
-its own (started fresh: ``spawn``), the results joined in the materials' order.
+its own (started fresh: ``spawn``; one torch thread, freed memory kept: ``neuenh.allocator``), the
+results joined in the materials' order.
 
 Each material's record and loss are exactly what ``fit_materials`` of its share alone gives in one
 thread (``shares`` says which): a fit's float rounding depends on the rows stacked beside a
@@ -23,12 +24,19 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import torch
 
+from ..allocator import keep_freed_memory
 from ..data.samples import Samples
 from ..encoder import MaterialEncoder
 from ..materials import MaterialTable
 from ..model import BRDFModel
 from .protocols import FitProtocol
 from .result import FitResult
+
+
+def _start_worker() -> None:
+    """A fit process: one torch thread, and freed activations kept for the next step (``neuenh.allocator``)."""
+    torch.set_num_threads(1)
+    keep_freed_memory()
 
 
 def shares(materials: int, jobs: int) -> list[list[int]]:
@@ -51,8 +59,7 @@ def fit_in_processes(model: BRDFModel, samples: Samples, protocol: FitProtocol, 
     if len(groups) <= 1:  # nothing to split: this process fits it, as fit_materials does
         return protocol.fit(model, samples, trained=trained, encoder=encoder, seed=seed)
     context = multiprocessing.get_context("spawn")  # no forked copy of this process's threads and locks
-    with ProcessPoolExecutor(len(groups), mp_context=context, initializer=torch.set_num_threads,
-                             initargs=(1,)) as pool:
+    with ProcessPoolExecutor(len(groups), mp_context=context, initializer=_start_worker) as pool:
         futures = [pool.submit(protocol.fit, model, samples.select(group), trained=trained, encoder=encoder,
                                seed=seed) for group in groups]
         results = [future.result() for future in futures]
