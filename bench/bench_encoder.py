@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
 import torch  # noqa: E402
 
-from bench.harness import machine, machine_line, wait_quiet  # noqa: E402
+from bench.harness import fitting_process, machine, machine_line, wait_quiet  # noqa: E402
 from bench.report import publish  # noqa: E402
 from neuenh.files import atomic_write  # noqa: E402
 
@@ -171,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     bundle = Bundle.load(path)
     if bundle.encoder is None:
         parser.error(f"--model {args.model}: the bundle has no encoder (neuenh encoder train)")
-    torch.set_num_threads(1)
+    fitting_process()
     wait_quiet(args.max_wait, 0.3)
     env = machine()
     held = heldout_materials(bundle.encoder.record)[: args.limit]

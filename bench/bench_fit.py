@@ -25,9 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
-import torch  # noqa: E402
-
-from bench.harness import absent, machine, machine_line, output_arguments, run_at_revision, wait_quiet, write_json  # noqa: E402
+from bench.harness import absent, fitting_process, machine, machine_line, output_arguments, run_at_revision, wait_quiet, write_json  # noqa: E402
 from bench.report import publish  # noqa: E402
 
 SECTION = "## Fitting speed (issue 13)"
@@ -107,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if Path(args.model).is_dir():
         args.model = str(Path(args.model).resolve())  # the older checkout runs elsewhere
-    torch.set_num_threads(1)
+    fitting_process()
     wait_quiet(args.max_wait, 0.3)
     env = machine()
     before = run_before(args.before_rev, args) if args.before_rev else None

@@ -31,9 +31,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
-import torch  # noqa: E402
-
-from bench.harness import machine, machine_line, run_at_revision, wait_quiet, write_json  # noqa: E402
+from bench.harness import fitting_process, machine, machine_line, run_at_revision, wait_quiet, write_json  # noqa: E402
 from bench.report import publish  # noqa: E402
 
 SECTION = "## Fit protocols against NBRDF (issues 23, 24)"
@@ -154,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if Path(args.model).is_dir():
         args.model = str(Path(args.model).resolve())  # the older checkout runs elsewhere
-    torch.set_num_threads(1)
+    fitting_process()
     wait_quiet(args.max_wait, 0.3)
     env = machine()
     before = run_before(args.before_rev, args) if args.before_rev else None

@@ -31,7 +31,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
-from bench.harness import machine, machine_line, write_json  # noqa: E402
+from bench.harness import fitting_process, machine, machine_line, write_json  # noqa: E402
 from bench.report import publish  # noqa: E402
 from neuenh.study.registry import ENHANCED, ENHANCED_ADAPTIVE  # noqa: E402
 
@@ -55,13 +55,12 @@ def measure(model: str, path: Path, protocol: str, n: int, contenders: tuple[str
     """One unit in a worker process: the curve's points, or None when it would start after ``stop_at``."""
     if stop_at is not None and time.time() > stop_at:
         return None
-    import torch
 
     from neuenh.data.measured import load_measured
     from neuenh.study.efficiency import measure_curve
     from neuenh.study.report import StudySettings, build_contenders
 
-    torch.set_num_threads(1)
+    fitting_process()
     settings = StudySettings(rgl=path.parent, model=model, baselines=ROOT / "models" / "baselines", out=ROOT,
                              command="")
     points = measure_curve(load_measured(path), build_contenders(settings, contenders), (n,), (protocol,),

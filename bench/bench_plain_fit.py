@@ -25,9 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
-import torch  # noqa: E402
-
-from bench.harness import absent, machine, machine_line, output_arguments, run_at_revision, wait_quiet, write_json  # noqa: E402
+from bench.harness import absent, fitting_process, machine, machine_line, output_arguments, run_at_revision, wait_quiet, write_json  # noqa: E402
 from bench.report import publish  # noqa: E402
 
 SECTION = "## Plain fits against NBRDF and before (issue 24)"
@@ -109,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if absent(args.rgl, "the RGL materials of ../shared"):
         return 0
-    torch.set_num_threads(1)
+    fitting_process()
     wait_quiet(args.max_wait, 0.3)
     if args.before:
         write_json(args.json, run(args.rgl, with_nbrdf=False))

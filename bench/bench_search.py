@@ -28,6 +28,7 @@ import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from bench.harness import fitting_process  # noqa: E402
 from bench.report import publish  # noqa: E402
 from neuenh.data.sources import materialise  # noqa: E402
 from neuenh_service.orchestrator.runner import Orchestrator, train_plain_baseline  # noqa: E402
@@ -83,7 +84,7 @@ def main() -> int:
     tmp = Path(tempfile.mkdtemp(prefix="bench-search-"))
     one_round = quickstart(max_rounds=1)
 
-    torch.set_num_threads(1)  # the in-process executor gets what one Ray worker gets
+    fitting_process()  # the in-process executor gets what one Ray worker gets
     inline = round_stats(run_job(one_round, InlineExecutor(), tmp / "inline"), 1)
     print("inline round", inline, flush=True)
     ray1 = with_ray(1, lambda ex: round_stats(run_job(one_round, ex, tmp / "ray1"), 1))

@@ -54,7 +54,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
-from bench.harness import machine, machine_line  # noqa: E402
+from bench.harness import fitting_process, machine, machine_line  # noqa: E402
 from bench.report import publish  # noqa: E402
 from neuenh.files import atomic_write  # noqa: E402
 
@@ -153,9 +153,7 @@ _MODELS: list = []
 def _init(labels: list[str], *chosen) -> None:
     """A worker's models: ``contenders(*chosen)`` in the order of the parent's ``labels`` (a search
     may commit another round between the parent's listing and the worker's)."""
-    import torch
-
-    torch.set_num_threads(1)
+    fitting_process()
     by_label = {c[0]: c for c in contenders(*chosen)}
     _MODELS[:] = [by_label[label] for label in labels]
 

@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
 import torch  # noqa: E402
 
-from bench.harness import Timer, fmt_rate, machine, machine_line, wait_quiet  # noqa: E402
+from bench.harness import Timer, fitting_process, fmt_rate, machine, machine_line, wait_quiet  # noqa: E402
 from bench.report import publish  # noqa: E402
 
 SECTION = "## Speed of the enhanced model (issue 13)"
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     command = "python bench/bench_speed.py" + (" --compile" if args.compile else "") \
         + (f" --write {args.write}" if args.write else "")
-    torch.set_num_threads(1)
+    fitting_process()
     wait_quiet(args.max_wait, args.max_background)
     env = machine()
     batch_cases, small_cases, flops = cases()

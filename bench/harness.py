@@ -6,6 +6,7 @@ and describe the machine a number was measured on.
 * ``wait_quiet`` waits (bounded) until the rest of the machine is idle;
 * ``Timer.measure`` times several cases interleaved, repeat by repeat in rotating order, and
   reports the median of the undisturbed repeats: ratios measured this way hold on a shared machine;
+* ``fitting_process()`` makes this process fit as ``neuenh fit``'s do;
 * ``machine()`` is the machine, torch and git revision a section records.
 """
 
@@ -63,6 +64,17 @@ class Background:
     def stop(self) -> float:
         wall = max(time.perf_counter() - self.t, 1e-9)
         return max(0.0, (self._busy() - self.busy) - (self._own() - self.own)) / wall
+
+
+def fitting_process() -> None:
+    """This process as the ``neuenh`` command and the service's workers run fits and training: one torch
+    thread, freed memory kept for the next step (``neuenh.allocator``)."""
+    import torch
+
+    from neuenh.allocator import keep_freed_memory
+
+    torch.set_num_threads(1)
+    keep_freed_memory()
 
 
 def wait_quiet(max_wait: float, threshold: float, seconds: int = 3) -> float:
