@@ -6,8 +6,8 @@ some 200 MB). glibc's malloc, where torch's CPU tensors come from, serves a bloc
 threshold with fresh pages, and hands free memory at the top of its heap back to the system once it
 exceeds the trim threshold (both start at 128 KiB; the threshold follows the largest freed mapping,
 the trim threshold twice it). So a step whose working set is larger than that gets new pages every
-time, and the kernel zeroes each on first touch: a quarter to a third of a fit's time
-(docs/BENCHMARKS.md, "The C allocator's page faults"). ``keep_freed_memory`` serves blocks up to
+time, and the kernel zeroes each on first touch: a quarter of such a step's time, an eighth of an
+adaptive fit of 10,000 samples (docs/BENCHMARKS.md, "The C allocator's page faults"). ``keep_freed_memory`` serves blocks up to
 glibc's largest mmap threshold from the heap and keeps up to ``retain_bytes`` of freed memory.
 
 It is a process-wide setting, so nothing here makes it on import: the programs that fit and train —
