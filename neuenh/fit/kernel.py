@@ -211,7 +211,10 @@ class _RowModule(nn.Module):
 
     def _rest(self, x: torch.Tensor) -> torch.Tensor:
         for i in range(1, len(self.shared.layers)):
-            x = self._layer(i, nn.functional.leaky_relu(x, self.negative_slope, inplace=True))
+            # not in place: x is often a reshaped view of a batched product, and autograd takes an in-place
+            # op on a view back through a zeroed copy of the whole product (a correction step 8 % slower;
+            # docs/BENCHMARKS.md, "The C allocator's page faults")
+            x = self._layer(i, nn.functional.leaky_relu(x, self.negative_slope))
         return x
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
