@@ -52,7 +52,7 @@ from ..materials import MaterialTable
 from ..model import BRDFModel
 from .kernel import LayerCorrection, RowKernel, RowSpace, frozen
 from .layout import fold_masks
-from .optim import Adam, adam_rows, evaluate_rows
+from .optim import Adam, AdamResult, adam_rows, evaluate_rows
 from .protocols import FitProtocol, LatentAdam, PlainLBFGS, Rows, _check, paper_start
 from .result import FitResult, analytical_model
 
@@ -281,8 +281,9 @@ class Adaptive(FitProtocol):
             if corrected:
                 r = problems.materials
                 entries = [g for g in corrected for _ in range(r)]
-                kernel, x = self._corrections(model, problems.layout(torch.arange(r).repeat(len(corrected))),
-                                              x_latent.repeat(len(corrected), 1), entries, seed)
+                kernel, fitted = self._corrections(model, problems.layout(torch.arange(r).repeat(len(corrected))),
+                                                   x_latent.repeat(len(corrected), 1), entries, seed)
+                x = fitted.x
                 loss, per_sample = score(kernel, x)
                 for g, entry in enumerate(corrected):
                     keep(entry, (loss[g * m : (g + 1) * m], per_sample[g * m : (g + 1) * m]))
@@ -329,12 +330,11 @@ class Adaptive(FitProtocol):
             entries = [chosen[i] for i in corrected]
             problems = rows.as_problems(index, rows.valid[index])
             layout = problems.layout(torch.arange(len(corrected)))
-            kernel, x = self._corrections(model, layout, [starts[i] for i in corrected], entries, seed)
-            train = evaluate_rows(kernel, x, layout).train
+            kernel, fitted = self._corrections(model, layout, [starts[i] for i in corrected], entries, seed)
             for n, (i, (capacity, prior)) in enumerate(zip(corrected, entries)):
                 space = RowSpace(model, CAPACITIES[capacity](model))
-                out[i] = Fitted(capacity, prior, model, space, x[n, _columns(kernel.space, space.corrections)],
-                                float(train[n]))
+                out[i] = Fitted(capacity, prior, model, space, fitted.x[n, _columns(kernel.space, space.corrections)],
+                                float(fitted.train[n]))
         return out
 
     def _analytical(self, model: BRDFModel, capacity: str, problems: Rows, seed: int,
@@ -354,11 +354,11 @@ class Adaptive(FitProtocol):
         return latent.fit_rows(model, problems, start_rows, trained, seed)
 
     def _corrections(self, model: BRDFModel, layout, starts: torch.Tensor | list[torch.Tensor],
-                     entries: list[tuple[str, float]], seed: int) -> tuple[RowKernel, torch.Tensor]:
+                     entries: list[tuple[str, float]], seed: int) -> tuple[RowKernel, AdamResult]:
         """Row ``n`` of ``layout`` at capacity and prior ``entries[n]``, all in one Adam run in the
         union of their corrections (a row's other corrections stay zero), from ``starts[n]``: a
         latent fit (base dim; its corrections start at zero deltas) or a row of its own capacity's
-        ``RowSpace``. Returns the union's kernel and the fitted rows (rows, its dim)."""
+        ``RowSpace``. Returns the union's kernel and the run: its rows (rows, its dim) and their fit losses."""
         union: list[LayerCorrection] = []
         for capacity in dict.fromkeys(c for c, _ in entries):
             union += [c for c in CAPACITIES[capacity](model) if c not in union]
@@ -372,7 +372,7 @@ class Adaptive(FitProtocol):
         kernel = RowKernel(model, space)
         result = adam_rows(kernel, x0, layout, Adam(self.correction_epochs, self.correction_lr), free=free,
                            prior_strength=torch.tensor([p for _, p in entries], dtype=torch.float32))
-        return kernel, result.x
+        return kernel, result
 
 
 def _columns(space: RowSpace, corrections: list[LayerCorrection] | tuple[LayerCorrection, ...]) -> torch.Tensor:

@@ -49,8 +49,6 @@ class AdamResult:
     x: torch.Tensor  # (rows, dim) the end points
     rows: torch.Tensor  # (rows,) which input rows these are (narrowing drops some)
     train: torch.Tensor  # (rows,) mean fit loss at ``x`` (exact, full layout)
-    val: torch.Tensor  # (rows,) mean validation loss at ``x`` (NaN: none)
-    epochs: int
 
 
 def adam_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, run: Adam, *,
@@ -85,7 +83,7 @@ def adam_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, run: Adam, 
             denom = (moment2 / (1 - ADAM_BETAS[1] ** step)).sqrt_().add_(ADAM_EPS)
             x = x - (rate / (1 - ADAM_BETAS[0] ** step)) * moment1 / denom
     final = kernel(x, layout, grad=False, prior_strength=prior_strength)
-    return AdamResult(x, rows, final.train, final.val, run.epochs)
+    return AdamResult(x, rows, final.train)
 
 
 def _best_of_groups(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, groups: torch.Tensor,
