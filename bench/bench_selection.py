@@ -15,9 +15,10 @@ samples, the log-L1 measured on others — on materials none of them trained on,
 =============  =====================================  ===========================================
 phase          materials                              fit (``FitScoreConfig``), sampling
 =============  =====================================  ===========================================
-``score``      held out from the training sources:    the search's budget (examples/reference-fit.yaml:
-               ``--zoo`` synthetic zoo (seed          800 fit / 2,000 test samples, 80 epochs), a
-               ``--seed`` + 5), ``--ggx`` noisy GGX   quarter of the pairs near the mirror (as trained)
+``score``      held out from the training sources:    the search's budget (examples/reference-fit.yaml's
+               ``--zoo`` synthetic zoo (seed          ``search.fit_score``, read from it: 800 fit / 2,000
+               ``--seed`` + 5), ``--ggx`` noisy GGX   test samples, 300 epochs), a quarter of the pairs
+                                                      near the mirror (as trained)
                (``--seed`` + 4, noise 0.1)
 ``user``       the same held-out materials            the user's fit (``neuenh fit``'s default 300
                                                       epochs) to 3,000 samples, 1,000 tested, half
@@ -77,7 +78,24 @@ class Protocol:
         return self.fit_samples + self.test_samples
 
 
-SEARCH = Protocol(0.25, 800, 2_000, 80)  # examples/reference-fit.yaml's search.fit_score
+
+
+def search_protocol(spec_path: Path = ROOT / "examples" / "reference-fit.yaml") -> Protocol:
+    """The fit score's budget of the fit-scored reference search and its sources' share of pairs
+    near the mirror, read from its spec so that the ``score`` phases measure what the search selects
+    by (a copy of it here kept 80 epochs after the spec moved to 300)."""
+    from neuenh_service.orchestrator.spec import load_spec
+
+    spec = load_spec(spec_path)
+    shares = {source.near_mirror for source in spec.data}
+    if len(shares) != 1:
+        raise SystemExit(f"{spec_path}: its sources draw {sorted(shares)} of their pairs near the mirror; "
+                         "the score phases need one share")
+    budget = spec.search.fit_score
+    return Protocol(shares.pop(), budget.fit_samples, budget.test_samples, budget.epochs)
+
+
+SEARCH = search_protocol()
 USER = Protocol(0.5, 3_000, 1_000, 300)  # issue 23: 3,000 fitted, half near the mirror, 1,000 held out; neuenh fit
 PHASES = {  # phase -> (groups, protocol, seed offset of the synthetic draws)
     "score": (("zoo", "ggx"), SEARCH, 0),
@@ -344,6 +362,7 @@ def main() -> int:
     if args.search and not (Path(args.search) / "jobs.sqlite").is_file():
         parser.error(f"--search {args.search}: no jobs.sqlite there (a `neuenh search --data-dir` folder)")
     config = {"model": args.model, "extras": extras, "zoo": args.zoo, "ggx": args.ggx, "seed": args.seed,
+              "score_budget": [SEARCH.fit_samples, SEARCH.test_samples, SEARCH.epochs],  # a changed spec: units anew
               **({"search": str(Path(args.search).resolve())} if args.search else {}),
               **({"rungs": args.rungs} if args.rungs != "all" else {})}
     env = machine()
