@@ -78,8 +78,6 @@ class Protocol:
         return self.fit_samples + self.test_samples
 
 
-
-
 def search_protocol(spec_path: Path = ROOT / "examples" / "reference-fit.yaml") -> Protocol:
     """The fit score's budget of the fit-scored reference search and its sources' share of pairs
     near the mirror, read from its spec so that the ``score`` phases measure what the search selects
