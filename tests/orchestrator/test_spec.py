@@ -87,6 +87,27 @@ def test_the_fit_scored_reference_spec_holds_out_every_kind_and_fits_as_users_do
     assert spec.search.fit_score.epochs == LatentAdam().epochs
 
 
+def test_the_curriculum_spec_grows_the_shipped_state_on_the_reference_data():
+    """examples/reference-curriculum.yaml (stop 54): from the shipped model's analytical choices it can
+    reach only the shipped state and its two halves, on examples/reference.yaml's data and schedule."""
+    import itertools
+    import json
+
+    from neuenh.pretrained import bundle_path
+    from neuenh.search import initial_state
+
+    spec, reference = load_spec("examples/reference-curriculum.yaml"), load_spec("examples/reference.yaml")
+    constraints, m = spec.constraints(), spec.digits()
+    reachable = itertools.product(*(constraints.digits_at(i, m) for i in range(len(spec.positions()))))
+    states = {"".join(map(str, s)) for s in reachable}
+    assert states == {"40700000000", "40730000000", "40700003000", "40730003000"}
+    assert "".join(map(str, initial_state(len(spec.positions()), m, constraints))) == "40700000000"
+    assert json.loads((bundle_path("enhanced-ggx") / "model.json").read_text())["state"] == "40730003000"
+    assert spec.data == reference.data and spec.module == reference.module and spec.train == reference.train
+    assert (spec.search.epochs_per_round, spec.search.warmup_epochs, spec.search.polish_epochs) == (
+        reference.search.epochs_per_round, reference.search.warmup_epochs, reference.search.polish_epochs)
+
+
 def test_the_paper_scale_spec_is_valid_and_has_the_papers_sizes():
     """examples/paper.yaml (issue 18) is for clusters with GPUs: validated here, not run."""
     from neuenh.train import TrainConfig
