@@ -91,18 +91,16 @@ def test_the_curriculum_spec_grows_the_shipped_state_on_the_reference_data():
     """examples/reference-curriculum.yaml (stop 54): from the shipped model's analytical choices it can
     reach only the shipped state and its two halves, on examples/reference.yaml's data and schedule."""
     import itertools
-    import json
 
-    from neuenh.pretrained import bundle_path
+    from neuenh.pretrained import load_model
     from neuenh.search import initial_state
 
     spec, reference = load_spec("examples/reference-curriculum.yaml"), load_spec("examples/reference.yaml")
-    constraints, m = spec.constraints(), spec.digits()
-    reachable = itertools.product(*(constraints.digits_at(i, m) for i in range(len(spec.positions()))))
-    states = {"".join(map(str, s)) for s in reachable}
+    constraints, m, n = spec.constraints(), spec.digits(), len(spec.positions())
+    states = {"".join(map(str, s)) for s in itertools.product(*(constraints.digits_at(i, m) for i in range(n)))}
+    assert load_model("enhanced-ggx")[0].state == "40730003000"
     assert states == {"40700000000", "40730000000", "40700003000", "40730003000"}
-    assert "".join(map(str, initial_state(len(spec.positions()), m, constraints))) == "40700000000"
-    assert json.loads((bundle_path("enhanced-ggx") / "model.json").read_text())["state"] == "40730003000"
+    assert "".join(map(str, initial_state(n, m, constraints))) == "40700000000"
     assert spec.data == reference.data and spec.module == reference.module and spec.train == reference.train
     assert (spec.search.epochs_per_round, spec.search.warmup_epochs, spec.search.polish_epochs) == (
         reference.search.epochs_per_round, reference.search.warmup_epochs, reference.search.polish_epochs)
