@@ -9,8 +9,10 @@ are relative to the current directory; RGL sources are refused) minus ``--holdou
 out to measure it (``neuenh.encoder_training``). The bundle is then saved with ``encoder.safetensors``
 (every file atomically, ``model.json`` last) — in place, or with ``-o DIR`` as a new bundle there; its
 ``model.json`` records the training and the held-out errors. A bundle that has an encoder gets a new
-one. A shipped model named by its name (``enhanced-ggx``) is part of the installation: it needs ``-o``
-(its folder's path, given as BUNDLE, is rewritten in place, as for any folder).
+one. Its latent fits (``neuenh fit --capacity latent``) start from the encoder's prediction too; the
+adaptive fit, ``neuenh fit``'s default, takes no start from it (``neuenh.fit.capacity.Adaptive``). A
+shipped model named by its name (``enhanced-ggx``) is part of the installation: it needs ``-o`` (its
+folder's path, given as BUNDLE, is rewritten in place, as for any folder).
 """
 
 from __future__ import annotations

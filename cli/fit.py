@@ -6,16 +6,17 @@
 
 Each table is one material (``.npz`` with ``wi``, ``wo``, ``f_r``, or CSV; see neuenh.data.table). The
 module weights of a bundle stay frozen; only per-material parameters are optimised (neuenh.fit). A
-model with modules fits each material at the capacity ``--capacity`` names: ``latent`` (default),
-its latent code and analytical parameters; ``auto`` chooses per material, by validation on a
-held-out third of its own measurements, between the model the search started from (``original``,
-e.g. plain GGX), the analytical model of the same graph (``analytical``: modules back to their
-terms, the search's alternative terms kept), the latent code, and per-material corrections of module
-weights (last layer, low rank), then fits the chosen one to
-all of them (about twice the time of ``latent``). The capacity and the material's parameter count are
-reported. ``-o DIR`` writes a bundle of the model with the fitted materials, each with its capacity:
-``neuenh export`` and ``neuenh render`` evaluate a material fitted at the ``original`` or ``analytical``
-capacity with that analytical model, and its row holds no latent code for later fits and encoders.
+model with modules fits each material at the capacity ``--capacity`` names: ``auto`` (default)
+chooses per material, by validation on a held-out third of its own measurements, between the model
+the search started from (``original``, e.g. plain GGX), the analytical model of the same graph
+(``analytical``: modules back to their terms, the search's alternative terms kept), the latent code,
+and per-material corrections of module weights (last layer, low rank), then fits the chosen one to
+all of them; ``latent``, the latent code and analytical parameters alone, takes about half the time
+and fits less closely (docs/BENCHMARKS.md, "Stop 55: `auto` the users' default"). The capacity and
+the material's parameter count are reported. ``-o DIR`` writes a bundle of the model with the fitted
+materials, each with its capacity: ``neuenh export`` and ``neuenh render`` evaluate a material fitted
+at the ``original`` or ``analytical`` capacity with that analytical model, and its row holds no latent
+code for later fits and encoders.
 
 A measurement may also be a measured file (an RGL ``.bsdf``, a MERL ``.binary``, told by content):
 ``--samples`` pairs are drawn from it (default 3,000), ``--near-mirror`` of them with the half vector
@@ -42,7 +43,7 @@ import json
 import time
 from pathlib import Path
 
-from neuenh.capacities import CAPACITY_CHOICES
+from neuenh.capacities import CAPACITY_CHOICES, USER_CAPACITY
 from neuenh.models import available_models
 from neuenh.pretrained import shipped_models
 
@@ -68,9 +69,10 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", choices=("fast", "paper"), default="fast",
                    help="fast (default): a plain model by L-BFGS, a model with modules at --capacity; paper: "
                         "RMSProp lr 1e-3, 1000 epochs, latent capacity")
-    p.add_argument("--capacity", default="latent", metavar="{" + ",".join(CAPACITY_CHOICES) + "}",
-                   help="a model with modules: latent (default); auto chooses per material on a validation split; "
-                        "or fit exactly one capacity")
+    p.add_argument("--capacity", default=USER_CAPACITY, metavar="{" + ",".join(CAPACITY_CHOICES) + "}",
+                   help=f"a model with modules: {USER_CAPACITY} (default) chooses per material on a validation "
+                        "split; latent fits its latent code and analytical parameters alone (about half the "
+                        "time); or fit exactly one capacity")
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs of the first-order fits (Adam, RMSProp; default each protocol's own); a plain "
                         "model's L-BFGS iterations per phase unless --lbfgs-iterations")

@@ -29,8 +29,9 @@ class FitOptions:
     ``epochs``/``lbfgs_iterations``: budgets (module doc), None for each protocol's own."""
 
     method: str = "fast"
-    # not "auto": it costs about twice the latent fit (three times at a few hundred samples), and scene
-    # plans, the report and the service's fits would all pay that (docs/BENCHMARKS.md, issue 23)
+    # the library's default, not the users' ("auto", ``neuenh.capacities.USER_CAPACITY``): the fits inside
+    # the product name their capacity (a search's fit score, a scene's rungs, the report's contenders) or
+    # are quick looks (``neuenh data slice``), and the adaptive fit costs about twice the latent one
     capacity: str = "latent"
     epochs: int | None = None
     lbfgs_iterations: int | None = None

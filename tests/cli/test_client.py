@@ -419,6 +419,37 @@ def test_fit_measurements_with_a_jobs_model(server, submitted, ggx_table, as_jso
         assert re.match(r"\s+steel: log-L1 \d+\.\d{5}\s", material)
 
 
+def _neuenh_fit_default() -> str:
+    from neuenh_service.cli.main import build_parser
+
+    return build_parser(["fit"]).parse_args(["fit", "m.npz"]).capacity
+
+
+def _client_fit_default() -> str:
+    from neuenh_service.cli.client import build_parser
+
+    return build_parser().parse_args(["fit", "JOB", "m.npz"]).capacity
+
+
+def _service_fit_default() -> str:
+    from neuenh_service.api.app import create_app
+    from neuenh_service.api.settings import Settings
+
+    schemas = create_app(Settings()).openapi()["components"]["schemas"]
+    (form,) = [schema for name, schema in schemas.items() if name.startswith("Body_fit_job")]
+    return form["properties"]["capacity"]["default"]
+
+
+@pytest.mark.parametrize("default_of", [_neuenh_fit_default, _client_fit_default, _service_fit_default],
+                         ids=["neuenh fit", "neuenh-client fit", "POST /v1/jobs/{id}/fit"])
+def test_a_users_fit_chooses_the_capacity_per_material_unless_told(default_of):
+    """The three ways a user fits a material fit it the same way when not told: ``auto``
+    (``neuenh.capacities.USER_CAPACITY``), each material's capacity validated on its own samples."""
+    from neuenh.capacities import USER_CAPACITY
+
+    assert default_of() == USER_CAPACITY == "auto"
+
+
 def test_fit_a_measured_file_drawn_here_as_neuenh_fit_draws_it(server, submitted, tmp_path):
     """A MERL file is drawn by the client (``cli.draws``: ``--samples`` pairs, half near the mirror) and
     fitted on the service as the table of those pairs, under the file's name."""
