@@ -17,11 +17,9 @@ CAPACITY_NAMES = (*ANALYTICAL_CAPACITIES, *MODULE_CAPACITIES)
 CAPACITY_CHOICES = ("auto", *CAPACITY_NAMES)
 
 # The capacity a user's fit takes when not told: ``neuenh fit``, ``POST /v1/jobs/{id}/fit`` and
-# ``neuenh-client fit`` (issue 23: "auto the default"). On the visible RGL 8 it lowers the median held-out
-# log-L1 from the latent fit's 0.0182 to 0.0113 (uniform 10,000; NBRDF 0.0125) and from 0.0492 to 0.0316
-# (mirror 3,000; NBRDF 0.0336), and at 100 samples it is the one that stays below plain GGX (0.0306 against
-# 0.0354; latent 0.0427), at about twice the latent fit's time (docs/BENCHMARKS.md, "Stop 55: `auto` the
-# users' default").
+# ``neuenh-client fit`` (issue 23: "auto the default"). Closer to the measurements than ``latent`` on the
+# training sources and the visible RGL materials, at about twice its time: the figures are in
+# docs/BENCHMARKS.md, "Stop 55: `auto` the users' default".
 USER_CAPACITY = "auto"
 
 __all__ = ["ANALYTICAL_CAPACITIES", "CAPACITY_CHOICES", "CAPACITY_NAMES", "MODULE_CAPACITIES", "USER_CAPACITY"]
