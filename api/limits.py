@@ -9,6 +9,7 @@ from typing import Any
 
 from fastapi import HTTPException, status
 
+from neuenh.files import existing
 from neuenh.scene import SceneSpec
 from neuenh_service.orchestrator.executor import ClusterInfo, Resources
 from neuenh_service.orchestrator.spec import JobSpec
@@ -201,14 +202,8 @@ def scene_materials(spec: SceneSpec) -> int:
 def scene_file_bytes(spec: SceneSpec, base: Path) -> int:
     """The sizes of the measured files a scene reads (each entry its own: one file named twice is
     read twice); files that do not exist count nothing (the plan fails on them)."""
-    total = 0
-    for entry in spec.materials:
-        path = getattr(entry, "path", None)
-        try:
-            total += (base / path).stat().st_size if path else 0
-        except (OSError, ValueError):
-            pass
-    return total
+    paths = [base / entry.path for entry in spec.materials if getattr(entry, "path", None)]
+    return sum(status.st_size for status in map(existing, paths) if status is not None)
 
 
 def plan_problems(spec: SceneSpec, settings: Settings, base: Path) -> list[str]:

@@ -121,30 +121,32 @@ def search_rounds(data_dir: str) -> list[tuple[int, object]]:
 
 def contenders(model: str, extras: dict[str, str], search: str | None = None,
                rung_choice: str = "all") -> list[tuple[str, float, object, object]]:
-    """(label, val loss, model, its training materials' mean latent as a table or None) of every rung
-    of ``model`` (the last only for ``rung_choice`` "final"), every extra bundle, every committed
-    round of ``search`` and plain GGX."""
+    """(label, val loss, model, its training materials or None) of every rung of ``model`` (the last
+    only for ``rung_choice`` "final"), every extra bundle, every committed round of ``search`` and
+    plain GGX. A fit starts from the training materials as ``neuenh fit`` and the search's fit score
+    do (their mean code and the codes that fit a material best): a bundle's own for the model itself,
+    an extra bundle and a search round; an earlier rung, whose search kept only their mean, that mean.
+    (Until stop 56 every contender had the mean alone: the runs recorded before fitted from fewer starts.)"""
     from neuenh.checkpoint import Bundle
     from neuenh.materials import MaterialTable
     from neuenh.models import get_model
     from neuenh.pretrained import load_model, rungs
 
-    def trained(m, latent):
+    def mean_only(m, latent):
         return None if latent is None or not m.uses_latent else MaterialTable(
             m.specs, ["mean"], m.latent_dim, latent=latent.reshape(1, -1).float())
 
-    def mean_latent(table):
-        return table.latent.detach().mean(0) if table is not None and len(table) else None
-
-    shipped = rungs(model)[-1:] if rung_choice == "final" else rungs(model)
-    out = [(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, trained(r.model, r.latent_mean)) for r in shipped]
+    every = rungs(model)
+    _, own = load_model(model)
+    out = [(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, own if r is every[-1] else mean_only(r.model, r.latent_mean))
+           for r in (every[-1:] if rung_choice == "final" else every)]
     for name, path in extras.items():
         m, table = load_model(path)
         val = float(Bundle.load(path).metrics.get("val_loss", float("nan")))
-        out.append((f"{name}:{m.state}", val, m, trained(m, mean_latent(table))))
+        out.append((f"{name}:{m.state}", val, m, table))
     for k, bundle in search_rounds(search) if search else ():
         val = float(bundle.metrics.get("val_loss", float("nan")))
-        out.append((f"search@{k}:{bundle.model.state}", val, bundle.model, trained(bundle.model, mean_latent(bundle.materials))))
+        out.append((f"search@{k}:{bundle.model.state}", val, bundle.model, bundle.materials))
     out.append(("ggx", float("nan"), get_model("ggx"), None))
     return out
 
@@ -361,6 +363,7 @@ def main() -> int:
         parser.error(f"--search {args.search}: no jobs.sqlite there (a `neuenh search --data-dir` folder)")
     config = {"model": args.model, "extras": extras, "zoo": args.zoo, "ggx": args.ggx, "seed": args.seed,
               "score_budget": [SEARCH.fit_samples, SEARCH.test_samples, SEARCH.epochs],  # a changed spec: units anew
+              "starts": "training materials",  # not resumed from a file of the mean-only starts (``contenders``)
               **({"search": str(Path(args.search).resolve())} if args.search else {}),
               **({"rungs": args.rungs} if args.rungs != "all" else {})}
     env = machine()

@@ -44,7 +44,7 @@ import json
 import time
 from pathlib import Path
 
-from neuenh.capacities import CAPACITY_CHOICES, USER_CAPACITY
+from neuenh.capacities import CAPACITY_CHOICES, CAPACITY_HELP, USER_CAPACITY
 from neuenh.models import available_models
 from neuenh.pretrained import shipped_models
 
@@ -71,9 +71,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="fast (default): a plain model by L-BFGS, a model with modules at --capacity; paper: "
                         "RMSProp lr 1e-3, 1000 epochs, latent capacity")
     p.add_argument("--capacity", default=USER_CAPACITY, metavar="{" + ",".join(CAPACITY_CHOICES) + "}",
-                   help=f"a model with modules: {USER_CAPACITY} (default) chooses per material on a validation "
-                        "split; latent fits its latent code and analytical parameters alone (about half the "
-                        "time); or fit exactly one capacity")
+                   help=CAPACITY_HELP)
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs of the first-order fits (Adam, RMSProp; default each protocol's own); a plain "
                         "model's L-BFGS iterations per phase unless --lbfgs-iterations")

@@ -22,4 +22,10 @@ CAPACITY_CHOICES = ("auto", *CAPACITY_NAMES)
 # docs/BENCHMARKS.md, "Stop 55: `auto` the users' default".
 USER_CAPACITY = "auto"
 
-__all__ = ["ANALYTICAL_CAPACITIES", "CAPACITY_CHOICES", "CAPACITY_NAMES", "MODULE_CAPACITIES", "USER_CAPACITY"]
+# The one description of the choice, for ``neuenh fit``, ``neuenh-client fit`` and the ``/fit`` form.
+CAPACITY_HELP = (f"a model with modules: {USER_CAPACITY} (default) chooses per material by validation on its own "
+                 "samples, at about twice the time of latent; latent fits the latent code and analytical "
+                 "parameters alone; or exactly one of " + ", ".join(c for c in CAPACITY_NAMES if c != "latent"))
+
+__all__ = ["ANALYTICAL_CAPACITIES", "CAPACITY_CHOICES", "CAPACITY_HELP", "CAPACITY_NAMES", "MODULE_CAPACITIES",
+           "USER_CAPACITY"]

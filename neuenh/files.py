@@ -13,6 +13,9 @@ the target's suffix, so writers that choose the format by it (``savefig``, ``np.
 not from a glob such as ``*.json``: a writer killed mid-write leaves it behind, so a reader of a folder
 skips what ``is_temporary`` names.
 ``atomic_write_digest`` does the same and returns the SHA-256 of exactly what was written.
+
+``existing(path)``: the file's status, or None for a name that names nothing — including one no file
+system can hold (too long, a NUL), for which ``Path.exists`` and ``Path.stat`` raise instead.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from typing import Callable
 
 Data = bytes | bytearray | memoryview | str | Callable[[Path], object]
 
-__all__ = ["atomic_write", "atomic_write_digest", "is_temporary"]
+__all__ = ["atomic_write", "atomic_write_digest", "existing", "is_temporary"]
 
 _TEMPORARY = ".tmp"  # the suffix a temporary file's name carries before the target's own
 
@@ -42,6 +45,14 @@ def atomic_write_digest(path: str | os.PathLike, data: Data, *, mode: int | None
     """``atomic_write``, returning the SHA-256 (hex) of the bytes written, read back from the
     temporary file before the rename (so it is this writer's, whatever another writer does next)."""
     return _write(Path(path), data, mode, None, digest=True)
+
+
+def existing(path: str | os.PathLike) -> os.stat_result | None:
+    """``path``'s status (symbolic links followed), or None when it names nothing (module doc)."""
+    try:
+        return Path(path).stat()
+    except (OSError, ValueError):  # ENOENT, ENAMETOOLONG, ENOTDIR, ...; ValueError: an embedded NUL
+        return None
 
 
 def is_temporary(path: str | os.PathLike) -> bool:

@@ -13,9 +13,11 @@ Naming the models (``shipped_models``, ``bundle_path``) reads folders only; load
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from .files import existing
 from .models import available_models, get_model
 
 if TYPE_CHECKING:
@@ -58,12 +60,8 @@ def shipped_models() -> dict[str, Path]:
 def bundle_path(spec: str) -> Path | None:
     """The bundle folder ``spec`` names: itself if it is a folder, else a shipped model's, else None
     (a name no file system can hold, too long or with a NUL, is no folder)."""
-    path = Path(spec)
-    try:
-        is_folder = path.is_dir()
-    except (OSError, ValueError):  # ENAMETOOLONG and the like: Path.is_dir() lets them through
-        is_folder = False
-    return path if is_folder else shipped_models().get(spec)
+    status = existing(spec)
+    return Path(spec) if status is not None and stat.S_ISDIR(status.st_mode) else shipped_models().get(spec)
 
 
 def load_model(spec: str, what: str = "model") -> tuple[BRDFModel, MaterialTable | None]:

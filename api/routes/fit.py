@@ -20,12 +20,12 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, File, Form, HTTPException, Request, UploadFile, status
 
-from neuenh.capacities import USER_CAPACITY
+from neuenh.capacities import CAPACITY_HELP, USER_CAPACITY
 from neuenh.checkpoint import Bundle
 from neuenh.data.draws import DRAW_NEAR_MIRROR, DRAW_SAMPLES
 from neuenh.data.samples import Samples
 from neuenh.data.table import read_table
-from neuenh.fit import CAPACITIES, FitOptions, fit_materials
+from neuenh.fit import FitOptions, fit_materials
 from neuenh.study.heldout import draw_measured
 
 from ..deps import ArtifactStoreDep, Authorized, ChangeableJob, FitLockDep, JobStoreDep, SettingsDep, fit_slot
@@ -45,9 +45,7 @@ def fit_job(
     request: Request, job: ChangeableJob, jobs: JobStoreDep, artifacts: ArtifactStoreDep, settings: SettingsDep, fit_lock: FitLockDep,
     files: Annotated[list[UploadFile], File(description=f"one file per material: {UPLOADABLE}")],
     method: Annotated[Literal["fast", "paper"], Form()] = "fast",
-    capacity: Annotated[str, Form(description=f"a model with modules: {USER_CAPACITY} (default: chosen per "
-                                              "material by validation on its own samples; about twice the time of "
-                                              "latent) or one of " + ", ".join(CAPACITIES))] = USER_CAPACITY,
+    capacity: Annotated[str, Form(description=CAPACITY_HELP)] = USER_CAPACITY,
     epochs: Annotated[int, Form(ge=0, description="Adam or RMSProp epochs (a plain model's fast fit: L-BFGS "
                                                   "iterations per phase); 0: the protocol's own (latent 300, "
                                                   "paper 1000, plain 300)")] = 0,

@@ -21,6 +21,7 @@ from fastapi import APIRouter, Body, File, Form, Header, HTTPException, Response
 
 from neuenh.data.measured import load_measured
 from neuenh.data.table import load_table
+from neuenh.files import existing
 from neuenh.scene import SceneError, SceneSpec, parse_scene
 from neuenh.scene.spec import CaptureEntry, FileEntry, ladder_source, scene_data
 from neuenh_service.orchestrator.plans import CONTENT_TYPES, PLAN_FILES, plan_file_key
@@ -226,15 +227,6 @@ def _files(plan: PlanRecord, artifacts: ArtifactStore) -> list[str]:
     return [name for name in PLAN_FILES if artifacts.exists(plan_file_key(plan.id, name))]
 
 
-def _exists(path: str) -> bool:
-    """Whether a file or folder of that name exists; a name no file system holds (too long, a NUL) does not
-    (``Path.exists`` raises for those)."""
-    try:
-        return Path(path).exists()
-    except (OSError, ValueError):
-        return False
-
-
 def _outside_data_roots(spec, settings: Settings, uploaded: set[str] = frozenset()) -> list[str]:
     """Why the scene must not name the files and folders it would read (``limits.path_problem``: outside
     the data roots, or not a usable path). Ladder entries that are not paths (model names) read nothing
@@ -246,7 +238,7 @@ def _outside_data_roots(spec, settings: Settings, uploaded: set[str] = frozenset
     for where, path in paths:
         if path in uploaded:
             continue
-        if where.startswith("ladder") and "/" not in path and not _exists(path):
+        if where.startswith("ladder") and "/" not in path and existing(path) is None:
             continue  # a model's name (or no usable name at all: building the ladder says so)
         if (problem := path_problem(where, path, settings)) is not None:
             problems.append(problem)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import io
 from pathlib import Path
 
-from neuenh.capacities import CAPACITY_NAMES, USER_CAPACITY
+from neuenh.capacities import CAPACITY_HELP, USER_CAPACITY
 from neuenh.data.table import TableError, check_table, looks_like_table
 
 from ..draws import add_draw_arguments, check_draw_arguments, draw, is_measured
@@ -26,10 +26,7 @@ def add_parser(commands: Commands) -> None:
                         "file (RGL .bsdf, MERL .binary) drawn here")
     p.add_argument("--method", choices=("fast", "paper"), default="fast",
                    help="fast (default): the capacity's fit; paper: RMSProp lr 1e-3, 1000 epochs")
-    p.add_argument("--capacity", default=USER_CAPACITY,
-                   help=f"a model with modules: {USER_CAPACITY} (default: chosen per material by validation on its "
-                        "own samples), latent (its latent code and analytical parameters alone, about half the "
-                        "time), " + ", ".join(c for c in CAPACITY_NAMES if c != "latent"))
+    p.add_argument("--capacity", default=USER_CAPACITY, help=CAPACITY_HELP)
     p.add_argument("--epochs", type=int, help="Adam or RMSProp epochs (default: the protocol's own)")
     p.add_argument("--lbfgs-iterations", type=int, help="a plain model's L-BFGS iterations per phase")
     add_draw_arguments(p)

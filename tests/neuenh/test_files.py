@@ -1,4 +1,5 @@
-"""``neuenh.files.atomic_write``: whole files or none, unique temporaries, permissions, digests.
+"""``neuenh.files.atomic_write``: whole files or none, unique temporaries, permissions, digests; and
+``existing``: a name's status, or None for one that names nothing, however it fails.
 
 Concurrent writers of one path each leave a whole file (the last rename wins) and no temporary; a
 failing writer leaves the old content and no temporary; the mode is applied; the data reaches the
@@ -9,12 +10,13 @@ from __future__ import annotations
 
 import hashlib
 import os
+import stat
 import threading
 from pathlib import Path
 
 import pytest
 
-from neuenh.files import atomic_write, atomic_write_digest, is_temporary
+from neuenh.files import atomic_write, atomic_write_digest, existing, is_temporary
 
 
 def test_bytes_text_and_a_writer_function(tmp_path):
@@ -102,3 +104,17 @@ def test_a_temporary_file_is_told_from_the_file_it_becomes(tmp_path, name):
     seen = []
     atomic_write(tmp_path / name, lambda tmp: (seen.append(tmp), tmp.write_text("x")))
     assert is_temporary(seen[0]) and not is_temporary(tmp_path / name)
+
+
+@pytest.mark.parametrize("name, kind", [
+    ("a.bin", "file"), ("folder", "folder"), ("missing.bin", None), ("a.bin/below", None),  # ENOTDIR
+    ("x" * 300 + ".npz", None), ("nul\x00.npz", None)])  # ENAMETOOLONG, and ValueError from the NUL
+def test_existing_is_a_status_or_none_for_any_name(tmp_path, name, kind):
+    (tmp_path / "a.bin").write_bytes(b"abc")
+    (tmp_path / "folder").mkdir()
+    status = existing(str(tmp_path / name))
+    assert (status is None) == (kind is None)
+    if kind == "file":
+        assert status.st_size == 3
+    if kind == "folder":
+        assert stat.S_ISDIR(status.st_mode)

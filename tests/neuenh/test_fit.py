@@ -589,6 +589,26 @@ def test_adaptive_never_ends_worse_held_out_than_the_analytical_fit(enhanced):
             assert mine <= theirs * 1.02
 
 
+def test_an_adaptive_fit_over_its_cap_chooses_on_a_seeded_draw_and_fits_all_the_samples(enhanced, two_zoo_materials):
+    """``validation_cap``: the validation losses are those of ``Samples.at_most``'s draw (the uncapped
+    fit of that draw scores the same candidates the same), the chosen candidate is then fitted to every
+    sample (its loss is measured on all of them); under the cap the fit is the uncapped one."""
+    samples = two_zoo_materials  # 600 samples of each material
+    budget = dict(latent_epochs=6, correction_epochs=4, lbfgs_iterations=5, priors=(1e-2,), folds=2,
+                  capacities=("analytical", "latent", "last-layer"))
+    capped = Adaptive(**budget, validation_cap=150).fit(enhanced, samples, seed=1)
+    drawn = Adaptive(**budget, validation_cap=None).fit(enhanced, samples.at_most(150, seed=1), seed=1)
+    assert [d["cv"] for d in capped.details] == [d["cv"] for d in drawn.details]
+    assert [capped.capacity(i) for i in range(2)] == [drawn.capacity(i) for i in range(2)]
+    assert capped.losses_on(enhanced, samples) == pytest.approx(capped.losses, rel=1e-4)  # all 600 samples
+    assert capped.losses != drawn.losses_on(enhanced, samples)  # fitted to more than the draw
+    uncapped = Adaptive(**budget, validation_cap=None).fit(enhanced, samples, seed=1)
+    assert Adaptive(**budget, validation_cap=600).fit(enhanced, samples, seed=1).losses == uncapped.losses
+    assert capped.losses != uncapped.losses and Adaptive().validation_cap == 20_000
+    with pytest.raises(ValueError, match="invalid adaptive protocol"):
+        Adaptive(validation_cap=2)
+
+
 def test_a_candidates_validation_loss_is_its_fit_of_the_other_samples_scored_on_the_held_out_fold(enhanced):
     """The analytical candidate's validation loss against an independent path: the held-out fold's
     samples taken out of the table by hand, ``PlainLBFGS`` fitted to the rest as a material of its
