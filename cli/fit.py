@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -50,6 +51,7 @@ from neuenh.pretrained import shipped_models
 
 from .draws import add_draw_arguments, check_draw_arguments, draw, is_measured
 from .outputs import output_folder
+from .progress import StepBar
 from .tables import fit_report
 
 
@@ -122,8 +124,15 @@ def run(args) -> int:
     samples, test = _measurements(args, drawn)
     if len(set(samples.names)) != len(samples.names):
         raise ValueError(f"two measurements share a material name: {samples.names}")
-    result = fit_in_processes(model, samples, options.protocol_for(model), args.jobs, trained=trained,
-                              encoder=encoder)
+    protocol = options.protocol_for(model)
+    bar = StepBar(sys.stderr, quiet_unless_live=True)  # a person at a terminal sees the fit run; a pipe sees nothing
+    what = f"materials fitted: {args.model}, {protocol.name} fit, {len(samples):,} samples"
+    bar(what, 0, len(samples.names))
+    try:
+        result = fit_in_processes(model, samples, protocol, args.jobs, trained=trained, encoder=encoder,
+                                  progress=lambda done, total: bar(what, done, total))
+    finally:
+        bar.done()  # an error's line starts on a line of its own
     report = result.report(model, samples)
     metrics: dict = {"fit_loss": result.losses}
     if test is not None:

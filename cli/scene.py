@@ -15,13 +15,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from neuenh.files import atomic_write, is_temporary
 
 from .outputs import output_folder
+from .progress import StepBar
 from .tables import help_description, plan_totals
 
 if TYPE_CHECKING:  # neuenh.scene imports torch (~1.5 s): `neuenh scene --help` need not pay it
@@ -50,7 +50,7 @@ def run(args) -> int:
 
     output_folder(args.output)
     spec, base = load_scene(args.scene)
-    progress = Progress(sys.stderr)
+    progress = StepBar(sys.stderr)
     kept = args.output / "materials"
     done = _read_done(kept)
     if done:
@@ -95,22 +95,3 @@ def _read_done(folder: Path) -> dict[str, MaterialPlan]:
     return out
 
 
-class Progress:
-    """A live bar on a terminal, a line per step otherwise."""
-
-    def __init__(self, stream):
-        self.stream, self.live, self.start = stream, stream.isatty(), time.monotonic()
-
-    def __call__(self, what: str, done: int, total: int) -> None:
-        width = 24
-        filled = int(width * done / max(total, 1))
-        text = f"[{'#' * filled}{'.' * (width - filled)}] {done}/{total} {time.monotonic() - self.start:5.0f} s  {what}"
-        self.stream.write(("\r\033[K" + text[:110]) if self.live else text + "\n")
-        self.stream.flush()
-
-    def note(self, text: str) -> None:
-        self.stream.write(text + "\n")
-
-    def done(self) -> None:
-        if self.live:
-            self.stream.write("\n")

@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import multiprocessing
 import time
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import numpy as np
 import torch
@@ -49,20 +50,31 @@ def shares(materials: int, jobs: int) -> list[list[int]]:
 
 def fit_in_processes(model: BRDFModel, samples: Samples, protocol: FitProtocol, jobs: int, *,
                      trained: MaterialTable | None = None, encoder: MaterialEncoder | None = None,
-                     seed: int = 0) -> FitResult:
+                     seed: int = 0, progress: Callable[[int, int], None] | None = None) -> FitResult:
     """``fit_materials(model, samples, protocol, trained=trained, encoder=encoder, seed=seed)`` with
     the materials split over ``jobs`` processes of one torch thread each (module doc); a single share
     (``jobs`` 1, or one material) is ``fit_materials`` here. ``wall_s`` is the whole fit's;
-    ``protocol`` records the processes."""
+    ``protocol`` records the processes. ``progress(done, total)``: materials fitted so far, called
+    as each share finishes."""
     start = time.perf_counter()
-    groups = shares(len(samples.names), jobs)
+    total = len(samples.names)
+    groups = shares(total, jobs)
     if len(groups) <= 1:  # nothing to split: this process fits it, as fit_materials does
-        return protocol.fit(model, samples, trained=trained, encoder=encoder, seed=seed)
+        result = protocol.fit(model, samples, trained=trained, encoder=encoder, seed=seed)
+        if progress is not None:
+            progress(total, total)
+        return result
     context = multiprocessing.get_context("spawn")  # no forked copy of this process's threads and locks
     with ProcessPoolExecutor(len(groups), mp_context=context, initializer=_start_worker) as pool:
-        futures = [pool.submit(protocol.fit, model, samples.select(group), trained=trained, encoder=encoder,
-                               seed=seed) for group in groups]
-        results = [future.result() for future in futures]
+        futures = {pool.submit(protocol.fit, model, samples.select(group), trained=trained, encoder=encoder,
+                               seed=seed): len(group) for group in groups}
+        done = 0
+        for future in as_completed(futures):
+            future.result()  # a share's error stops the fit at once
+            done += futures[future]
+            if progress is not None:
+                progress(done, total)
+        results = [future.result() for future in futures]  # in the materials' order
     return FitResult(MaterialTable.concat([r.materials for r in results]), [x for r in results for x in r.losses],
                      time.perf_counter() - start, {**results[0].protocol, "processes": len(groups)},
                      [d for r in results for d in r.details])

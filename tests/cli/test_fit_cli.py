@@ -2,6 +2,11 @@
 ``tests/cli_runs.py``): exit codes, JSON, one-line errors."""
 
 import json
+import os
+import pty
+import subprocess
+import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +30,7 @@ def table(tmp_path_factory):
 def test_fit_prints_json_and_writes_a_bundle(table, tmp_path):
     out = neuenh("fit", "--model", "ggx", table, "--epochs", "60", "--json", "-o", tmp_path / "b")
     assert out.returncode == 0, out.stderr
+    assert out.stderr == "", "progress on a pipe: it is for a person at a terminal (test_jobs_fit_...)"
     report = json.loads(out.stdout)
     (material,) = report["materials"]
     assert material["name"] == "steel" and material["loss"] < 0.05
@@ -159,9 +165,12 @@ def test_jobs_fit_the_materials_in_processes_each_as_its_share_alone(tmp_path):
 
     tables = [write_table(tmp_path / f"{m.name}.npz", *m.samples(300, seed=i))
               for i, m in enumerate(synthetic_ggx(3, seed=5))]
-    out = neuenh("fit", "--model", "enhanced-ggx", *tables, "--capacity", "last-layer", "--epochs", "8",
-                 "--jobs", "2", "--json")
-    assert out.returncode == 0, out.stderr
+    out, terminal = with_stderr_on_a_terminal("fit", "--model", "enhanced-ggx", *tables, "--capacity", "last-layer",
+                                              "--epochs", "8", "--jobs", "2", "--json")
+    assert out.returncode == 0, terminal
+    # the bar on the terminal: none done, then each share as it finishes (shares of 2 and 1), then a newline
+    assert "] 0/3 " in terminal and "] 3/3 " in terminal and terminal.endswith("\n"), terminal
+    assert ("] 2/3 " in terminal) != ("] 1/3 " in terminal), terminal
     report = json.loads(out.stdout)
     assert torch.get_num_threads() == 1, "the suite runs one torch thread (tests/conftest.py)"
     (model, trained), samples = load_model("enhanced-ggx"), Samples.concat([read_table(t) for t in tables])
@@ -173,6 +182,36 @@ def test_jobs_fit_the_materials_in_processes_each_as_its_share_alone(tmp_path):
     assert [m["name"] for m in report["materials"]] == [t.stem for t in tables]
     assert all(m["capacity"] == "last-layer" and m["corrections"] for m in report["materials"])
     assert report["materials"] == expected and report["protocol"]["processes"] == 2
+
+
+def with_stderr_on_a_terminal(*args) -> tuple[subprocess.CompletedProcess, str]:
+    """``neuenh ARGS`` in a fresh process whose stderr is a pseudo-terminal (stdout a pipe), and what
+    the terminal received, its line ends as written."""
+    master, slave = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "neuenh_service.cli.main", *map(str, args)], stdout=subprocess.PIPE,
+                            stderr=slave, text=True)
+    os.close(slave)
+    received: list[bytes] = []
+
+    def read() -> None:
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:  # EIO: the process closed the terminal's last handle
+                return
+            if not chunk:
+                return
+            received.append(chunk)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        stdout, _ = proc.communicate(timeout=180)
+        reader.join(timeout=10)
+    finally:
+        os.close(master)
+    terminal = b"".join(received).decode().replace("\r\n", "\n")  # the terminal's own CR LF for each LF
+    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, terminal), terminal
 
 
 def test_usage_error_from_argparse_exits_2():
