@@ -11,9 +11,10 @@ chooses per material, by validation on a held-out third of its own measurements,
 the search started from (``original``, e.g. plain GGX), the analytical model of the same graph
 (``analytical``: modules back to their terms, the search's alternative terms kept), the latent code,
 and per-material corrections of module weights (last layer, low rank), then fits the chosen one to
-all of them; ``latent``, the latent code and analytical parameters alone, takes about half the time
-(a tenth beyond 20,000 samples, of which it reads a random 20,000) and fits less closely
-(docs/BENCHMARKS.md, "Stop 55: `auto` the users' default"). The capacity and
+all of them (beyond 20,000 samples it chooses on a random 20,000); ``latent``, the latent code and
+analytical parameters alone, takes about half the time (beyond 20,000 samples it fits a random
+20,000) and fits less closely (docs/BENCHMARKS.md, "Stop 55: `auto` the users' default" and "The
+adaptive fit of many samples chooses on 20,000 of them"). The capacity and
 the material's parameter count are reported. ``-o DIR`` writes a bundle of the model with the fitted
 materials, each with its capacity: ``neuenh export`` and ``neuenh render`` evaluate a material fitted
 at the ``original`` or ``analytical`` capacity with that analytical model, and its row holds no latent

@@ -2,6 +2,7 @@
 
 ``neuenh``: in a fresh process, as a user runs it — each command's own tests run it so at least once,
 and wherever the process is what is checked (its imports, its children, a kill, a resume).
+``neuenh_on_a_terminal``: ``neuenh`` with its stderr on a pseudo-terminal (what a person watching sees).
 ``neuenh_here``: ``cli.main.main`` in this process, wherever what is checked is the command's exit
 code, output and files: the same code from the parsed arguments on, without a fresh interpreter's
 imports (torch: ~2.5 s of CPU, which the suite, CPU-bound on two cores, pays in wall time).
@@ -13,8 +14,10 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import pty
 import subprocess
 import sys
+import threading
 import unittest.mock
 
 
@@ -22,6 +25,31 @@ def neuenh(*args, timeout: float = 180, **kw) -> subprocess.CompletedProcess:
     """``python -m neuenh_service.cli.main ARGS`` in a fresh process; ``kw`` go to ``subprocess.run`` (cwd, env)."""
     return subprocess.run([sys.executable, "-m", "neuenh_service.cli.main", *map(str, args)], capture_output=True, text=True,
                           timeout=timeout, **kw)
+
+
+def neuenh_on_a_terminal(*args, timeout: float = 180) -> subprocess.CompletedProcess:
+    """``neuenh ARGS`` as ``neuenh`` runs it, but with stderr on a pseudo-terminal (stdout a pipe): its
+    ``stderr`` is what the terminal received, line ends as the command wrote them."""
+    master, slave = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "neuenh_service.cli.main", *map(str, args)], stdout=subprocess.PIPE,
+                            stderr=slave, text=True)
+    os.close(slave)
+    received: list[bytes] = []
+
+    def read() -> None:  # until EIO (the process closed the terminal's last handle) or the end
+        with contextlib.suppress(OSError):
+            while chunk := os.read(master, 4096):
+                received.append(chunk)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        stdout, _ = proc.communicate(timeout=timeout)
+        reader.join(timeout=10)
+    finally:
+        os.close(master)
+    terminal = b"".join(received).decode().replace("\r\n", "\n")  # the terminal's own CR LF for each LF
+    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, terminal)
 
 
 def neuenh_here(*args) -> subprocess.CompletedProcess:

@@ -2,11 +2,6 @@
 ``tests/cli_runs.py``): exit codes, JSON, one-line errors."""
 
 import json
-import os
-import pty
-import subprocess
-import sys
-import threading
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +11,7 @@ import torch
 from neuenh.checkpoint import Bundle
 from neuenh.data.synthetic import synthetic_ggx
 from neuenh.data.table import write_table
-from cli_runs import neuenh, neuenh_here
+from cli_runs import neuenh, neuenh_here, neuenh_on_a_terminal
 from ggx_states import PAPER_STATE
 
 
@@ -165,9 +160,10 @@ def test_jobs_fit_the_materials_in_processes_each_as_its_share_alone(tmp_path):
 
     tables = [write_table(tmp_path / f"{m.name}.npz", *m.samples(300, seed=i))
               for i, m in enumerate(synthetic_ggx(3, seed=5))]
-    out, terminal = with_stderr_on_a_terminal("fit", "--model", "enhanced-ggx", *tables, "--capacity", "last-layer",
-                                              "--epochs", "8", "--jobs", "2", "--json")
-    assert out.returncode == 0, terminal
+    out = neuenh_on_a_terminal("fit", "--model", "enhanced-ggx", *tables, "--capacity", "last-layer", "--epochs", "8",
+                               "--jobs", "2", "--json")
+    assert out.returncode == 0, out.stderr
+    terminal = out.stderr
     # the bar on the terminal: none done, then each share as it finishes (shares of 2 and 1), then a newline
     assert "] 0/3 " in terminal and "] 3/3 " in terminal and terminal.endswith("\n"), terminal
     assert ("] 2/3 " in terminal) != ("] 1/3 " in terminal), terminal
@@ -182,36 +178,6 @@ def test_jobs_fit_the_materials_in_processes_each_as_its_share_alone(tmp_path):
     assert [m["name"] for m in report["materials"]] == [t.stem for t in tables]
     assert all(m["capacity"] == "last-layer" and m["corrections"] for m in report["materials"])
     assert report["materials"] == expected and report["protocol"]["processes"] == 2
-
-
-def with_stderr_on_a_terminal(*args) -> tuple[subprocess.CompletedProcess, str]:
-    """``neuenh ARGS`` in a fresh process whose stderr is a pseudo-terminal (stdout a pipe), and what
-    the terminal received, its line ends as written."""
-    master, slave = pty.openpty()
-    proc = subprocess.Popen([sys.executable, "-m", "neuenh_service.cli.main", *map(str, args)], stdout=subprocess.PIPE,
-                            stderr=slave, text=True)
-    os.close(slave)
-    received: list[bytes] = []
-
-    def read() -> None:
-        while True:
-            try:
-                chunk = os.read(master, 4096)
-            except OSError:  # EIO: the process closed the terminal's last handle
-                return
-            if not chunk:
-                return
-            received.append(chunk)
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    try:
-        stdout, _ = proc.communicate(timeout=180)
-        reader.join(timeout=10)
-    finally:
-        os.close(master)
-    terminal = b"".join(received).decode().replace("\r\n", "\n")  # the terminal's own CR LF for each LF
-    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, terminal), terminal
 
 
 def test_usage_error_from_argparse_exits_2():
