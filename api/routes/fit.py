@@ -9,7 +9,7 @@ near the mirror direction, seeded by ``seed`` — the draw ``neuenh fit`` and ``
 job's last committed bundle, so a running job can be tried before it ends. Fits run one at a time
 (they share the service's CPUs with the candidates being trained): a request that finds another one
 running gets 429 with ``Retry-After`` instead of holding a worker thread while it waits. One fit's
-work — measurements x epochs — is bounded by ``NEUENH_MAX_FIT_WORK``.
+work — measurements x epochs, ``FitProtocol.work`` — is bounded by ``NEUENH_MAX_FIT_WORK``.
 """
 
 from __future__ import annotations
@@ -80,13 +80,13 @@ def fit_job(
     with fit_slot(fit_lock):  # reading uploads costs memory like a fit: one at a time too (else 429)
         measurements, drawn = _read_uploads(files, settings.max_samples, samples, near_mirror, seed)
         protocol = options.protocol_for(model)
-        fitted = protocol.fitted_samples(measurements)
-        work = fitted * protocol.budget_epochs
+        work = protocol.work(measurements)
         if work > settings.max_fit_work:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                f"files: {fitted} measurements fitted x {protocol.budget_epochs} epochs of the "
-                                f"{protocol.name} fit = {work} exceed this service's limit of {settings.max_fit_work} per fit "
-                                "(NEUENH_MAX_FIT_WORK); send fewer rows or ask fewer epochs")
+                                f"files: the {protocol.name} fit of {len(measurements):,} measurements at "
+                                f"{protocol.budget_epochs} epochs is {work:,} measurement-epochs, over this service's "
+                                f"limit of {settings.max_fit_work:,} per fit (NEUENH_MAX_FIT_WORK); send fewer rows "
+                                "or ask fewer epochs")
         result = fit_materials(model, measurements, protocol, trained=bundle.materials, encoder=bundle.encoder)
     request.app.state.metrics.fits.inc()
     draw = DrawPublic(samples=samples, near_mirror=near_mirror, seed=seed, materials=drawn) if drawn else None

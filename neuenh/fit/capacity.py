@@ -49,12 +49,21 @@ from typing import Callable, ClassVar
 import torch
 
 from ..capacities import ANALYTICAL_CAPACITIES
+from ..data.samples import Samples
 from ..materials import MaterialTable
 from ..model import BRDFModel
 from .kernel import LayerCorrection, RowKernel, RowSpace, frozen
 from .layout import fold_masks
 from .optim import Adam, AdamResult, adam_rows, evaluate_rows
-from .protocols import FitProtocol, LatentAdam, PlainLBFGS, Rows, _check, paper_start
+from .protocols import (
+    FitProtocol,
+    LatentAdam,
+    PlainLBFGS,
+    Rows,
+    _check,
+    capped_count,
+    paper_start,
+)
 from .result import FitResult, analytical_model
 
 
@@ -196,8 +205,17 @@ class Adaptive(FitProtocol):
             raise ValueError(f"invalid adaptive protocol {self}")
 
     @property
-    def budget_epochs(self) -> int:  # the latent fit of every held-out fold and of all the samples
-        return (1 if len(self.grid) == 1 else self.validation_folds + 1) * self.latent_epochs
+    def budget_epochs(self) -> int:
+        return self.latent_epochs
+
+    def work(self, samples: Samples) -> int:
+        """The latent epochs of each validation fold over at most ``validation_cap`` of each
+        material's samples, then of the fit to all of them (a single candidate: that fit alone). The
+        candidates with corrections are not counted apart: their Adam epochs over the same samples are
+        half as many, and a 10,000-sample fit takes ~2.1x a latent fit's time (docs/RESULTS.md), which
+        the two latent passes stand for."""
+        validation = 0 if len(self.grid) == 1 else self.validation_folds * capped_count(samples, self.validation_cap)
+        return (validation + len(samples)) * self.latent_epochs
 
     @property
     def grid(self) -> list[tuple[str, float | None]]:

@@ -71,17 +71,22 @@ class FitProtocol(ABC):
         """The protocol's name and budget, as plain data (fit reports, provenance)."""
         return {"name": self.name, **dataclasses.asdict(self)}
 
-    def fitted_samples(self, samples: Samples) -> int:
-        """How many of ``samples`` the fit reads: what ``budget_epochs`` counts epochs over."""
-        return len(samples)
-
     @property
     @abstractmethod
     def budget_epochs(self) -> int:
-        """The fit's budget as epochs over each material's samples, counted as the protocol counts
-        them (RMSProp or Adam epochs, L-BFGS iterations per phase; an adaptive fit, its latent
-        epochs on every fold and on all the samples): what a service's work limit multiplies by the
-        rows uploaded."""
+        """The fit's budget as epochs over a material's samples, counted as the protocol counts
+        them (RMSProp or Adam epochs, L-BFGS iterations per phase; an adaptive fit, its latent epochs)."""
+
+    def work(self, samples: Samples) -> int:
+        """The fit's work in measurement-epochs: each measurement it reads times the epochs it reads
+        it, what a service's limit on one fit bounds (``NEUENH_MAX_FIT_WORK``). Here every sample
+        for ``budget_epochs``; protocols that read fewer, or read some twice, say so."""
+        return len(samples) * self.budget_epochs
+
+
+def capped_count(samples: Samples, cap: int | None) -> int:
+    """How many of ``samples`` a fit reads when it reads at most ``cap`` of each material's (None: all)."""
+    return len(samples) if cap is None else int(samples.counts().clamp(max=cap).sum())
 
 
 def _check(model: BRDFModel, samples: Samples, start: MaterialTable | None) -> None:
@@ -298,10 +303,8 @@ class LatentAdam(FitProtocol):
     def budget_epochs(self) -> int:
         return self.epochs
 
-    def fitted_samples(self, samples: Samples) -> int:
-        if self.sample_cap is None:
-            return len(samples)
-        return int(samples.counts().clamp(max=self.sample_cap).sum())
+    def work(self, samples: Samples) -> int:  # at most sample_cap of each material's samples
+        return capped_count(samples, self.sample_cap) * self.epochs
 
     def fit(self, model, samples, *, start=None, trained=None, encoder=None, seed=0) -> FitResult:
         _check(model, samples, start)

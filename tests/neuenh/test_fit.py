@@ -309,16 +309,30 @@ def test_options_name_one_protocol_with_its_own_budget():
     assert isinstance(adaptive, Adaptive) and {"original", "analytical"} <= set(adaptive.capacities)
     assert FitOptions(capacity="last-layer").protocol_for(enhanced).capacities == ("last-layer",)
     assert PaperRMSProp() == PaperRMSProp(epochs=1000, lr=1e-3)
-    # the budget a service's work limit counts: each protocol's own epochs, an adaptive fit's on every
-    # held-out fold too (one by default, a single validation split), a single candidate's once
     assert (PlainLBFGS(iterations=7).budget_epochs, LatentAdam(epochs=9).budget_epochs,
-            Adaptive(folds=3, latent_epochs=10).budget_epochs,
-            Adaptive(folds=3, validation_folds=3, latent_epochs=10).budget_epochs,
-            Adaptive(capacities=("latent",), latent_epochs=10).budget_epochs) == (7, 9, 20, 40, 10)
+            Adaptive(latent_epochs=10).budget_epochs) == (7, 9, 10)
     for bad, match in (({"method": "newton"}, "fit method"), ({"capacity": "huge"}, "capacity"),
                        ({"epochs": 0}, "epochs"), ({"starts": "random"}, "starts")):
         with pytest.raises(ValueError, match=match):
             FitOptions(**bad)
+
+
+# Each protocol's work for two materials of 300 and 100 samples (400 in all): the measurements it
+# reads times the epochs it reads them, counted by hand from the protocol's documented structure.
+@pytest.mark.parametrize("protocol, work", [
+    (PlainLBFGS(iterations=7), 400 * 7),
+    (PaperRMSProp(epochs=5), 400 * 5),
+    (LatentAdam(epochs=9, sample_cap=None), 400 * 9),
+    (LatentAdam(epochs=9, sample_cap=150), (150 + 100) * 9),  # at most 150 of each material's
+    (Adaptive(latent_epochs=10), (400 + 400) * 10),  # one validation fold, then the fit of all
+    (Adaptive(latent_epochs=10, validation_folds=3), (3 * 400 + 400) * 10),
+    (Adaptive(latent_epochs=10, validation_cap=150), ((150 + 100) + 400) * 10),  # chooses on at most 150
+    (Adaptive(latent_epochs=10, capacities=("latent",)), 400 * 10),  # a single candidate: no validation
+])
+def test_a_protocols_work_is_the_measurements_it_reads_times_its_epochs(protocol, work):
+    """``FitProtocol.work``, what a service's limit on one fit bounds (``NEUENH_MAX_FIT_WORK``)."""
+    samples = Samples.concat([sample_materials(synthetic_ggx(1, seed=s), n, seed=s) for s, n in ((1, 300), (2, 100))])
+    assert samples.counts().tolist() == [300, 100] and protocol.work(samples) == work
 
 
 def test_latent_fit_keeps_each_materials_best_start(two_zoo_materials, enhanced):
@@ -344,9 +358,6 @@ def test_a_latent_fit_over_its_cap_fits_a_seeded_draw_of_each_materials_samples(
     assert LatentAdam(epochs=9, sample_cap=600).fit(enhanced, samples, seed=2).losses == uncapped.losses
     assert capped.losses != uncapped.losses
     assert capped.protocol["sample_cap"] == 200 and LatentAdam().sample_cap == 20_000
-    # what a service's work limit counts: the samples each protocol reads
-    assert [p.fitted_samples(samples) for p in (LatentAdam(sample_cap=200), LatentAdam(sample_cap=None),
-                                                 LatentAdam(sample_cap=601), PlainLBFGS())] == [400, 1200, 1200, 1200]
     with pytest.raises(ValueError, match="invalid latent protocol"):
         LatentAdam(sample_cap=0)
 
