@@ -125,20 +125,15 @@ def contenders(model: str, extras: dict[str, str], search: str | None = None,
     only for ``rung_choice`` "final"), every extra bundle, every committed round of ``search`` and
     plain GGX. A fit starts from the training materials as ``neuenh fit`` and the search's fit score
     do (their mean code and the codes that fit a material best): a bundle's own for the model itself,
-    an extra bundle and a search round; an earlier rung, whose search kept only their mean, that mean.
+    an extra bundle and a search round; a rung, its round's (``Rung.trained``: their mean alone for the
+    earlier rungs of a bundle written before stop 57).
     (Until stop 56 every contender had the mean alone: the runs recorded before fitted from fewer starts.)"""
     from neuenh.checkpoint import Bundle
-    from neuenh.materials import MaterialTable
     from neuenh.models import get_model
     from neuenh.pretrained import load_model, rungs
 
-    def mean_only(m, latent):
-        return None if latent is None or not m.uses_latent else MaterialTable(
-            m.specs, ["mean"], m.latent_dim, latent=latent.reshape(1, -1).float())
-
     every = rungs(model)
-    _, own = load_model(model)
-    out = [(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, own if r is every[-1] else mean_only(r.model, r.latent_mean))
+    out = [(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, r.trained())
            for r in (every[-1:] if rung_choice == "final" else every)]
     for name, path in extras.items():
         m, table = load_model(path)

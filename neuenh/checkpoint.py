@@ -11,9 +11,10 @@ A bundle directory holds
   each material's fit capacity, when recorded) in its metadata. Optional: a shipped model may carry none.
 * ``rungs.safetensors``: optional, the *rungs* of the search that made the model — every committed
   round's winner (the latest round of each state), cheaper models on the way to this one — their
-  module weights (keys ``<k>.<position>.layers.<i>.weight``) and their training materials' mean
-  latent code (``<k>.latent_mean``, a start for new fits); ``model.json`` lists them
-  (round, state, validation loss, weights, parameters per material).
+  module weights (keys ``<k>.<position>.layers.<i>.weight``) and their training materials' latent
+  codes (``<k>.latent_codes``, where new fits start; bundles written before stop 57 kept their mean
+  alone, ``<k>.latent_mean``, read as one code); ``model.json`` lists them (round, state, validation
+  loss, weights, parameters per material).
 * ``encoder.safetensors``: optional, the model's *encoder* (``neuenh.encoder.MaterialEncoder``):
   measurements of a material -> its parameters, the start of its fit; ``model.json``'s ``encoder``
   holds its description and training record. A bundle without one fits from the usual starts.
@@ -58,13 +59,23 @@ class BundleError(ValueError):
 @dataclass(frozen=True, eq=False)
 class Rung:
     """One committed round's winner of the search that made a bundle: a model of the same family,
-    usually cheaper. ``model``'s module weights are that round's; ``latent_mean`` is its training
-    materials' mean latent code (None when no module reads the latent)."""
+    usually cheaper. ``model``'s module weights are that round's; ``latent_codes`` (k, latent_dim)
+    its training materials' latent codes (``MaterialTable.latent_codes``; None when no module reads
+    the latent): what a fit with this rung starts from, as a bundle's materials are for its model."""
 
     round: int
     val_loss: float
     model: BRDFModel
-    latent_mean: torch.Tensor | None = None
+    latent_codes: torch.Tensor | None = None
+
+    def trained(self) -> MaterialTable | None:
+        """``latent_codes`` as a fit's ``trained`` table (``neuenh.fit``: their mean and the codes that
+        fit a material best start its fit), or None."""
+        if self.latent_codes is None or not self.model.uses_latent:
+            return None
+        codes = self.latent_codes.float()
+        return MaterialTable(self.model.specs, [f"code {i}" for i in range(len(codes))], self.model.latent_dim,
+                             latent=codes)
 
     @property
     def state(self) -> str:
@@ -78,8 +89,7 @@ class Rung:
     @classmethod
     def of(cls, round_index: int, val_loss: float, bundle: "Bundle") -> "Rung":
         """The rung of a round's committed bundle."""
-        latent = bundle.materials.mean_latent() if bundle.model.uses_latent and bundle.materials is not None else None
-        return cls(round_index, float(val_loss), copy.deepcopy(bundle.model), latent)
+        return cls(round_index, float(val_loss), copy.deepcopy(bundle.model), training_codes(bundle))
 
 
 @dataclass
@@ -249,9 +259,14 @@ class Bundle:
                 raise BundleError(f"{what}: {exc}") from None
             prefix = f"{k}."
             own = {n[len(prefix):]: v for n, v in (rung_tensors or {}).items() if n.startswith(prefix)}
-            latent = own.pop("latent_mean", None)
+            codes = own.pop("latent_codes", None)
+            if "latent_mean" in own:  # written before stop 57: the codes' mean alone
+                codes = own.pop("latent_mean").reshape(1, -1)
             _load_weights(rung_model, own, what)
-            rungs.append(Rung(int(entry["round"]), float(entry["val_loss"]), rung_model, latent))
+            if codes is not None and (codes.ndim != 2 or codes.shape[1] != rung_model.latent_dim):
+                raise BundleError(f"{what}: latent codes of shape {tuple(codes.shape)}, expected (k, "
+                                  f"{rung_model.latent_dim})")
+            rungs.append(Rung(int(entry["round"]), float(entry["val_loss"]), rung_model, codes))
         table = None
         if materials is not None:
             tensors, material_meta = materials
@@ -299,9 +314,17 @@ def _rung_tensors(rungs: list[Rung]) -> dict[str, torch.Tensor]:
     out = {}
     for k, rung in enumerate(rungs):
         out.update({f"{k}.{name}": v for name, v in _weights(rung.model).items()})
-        if rung.latent_mean is not None:
-            out[f"{k}.latent_mean"] = rung.latent_mean.detach().float().contiguous()
+        if rung.latent_codes is not None:
+            out[f"{k}.latent_codes"] = rung.latent_codes.detach().float().contiguous()
     return out
+
+
+def training_codes(bundle: Bundle) -> torch.Tensor | None:
+    """(k, latent_dim) the latent codes of ``bundle``'s training materials, or None when its model
+    reads no latent or it holds no materials."""
+    if not bundle.model.uses_latent or bundle.materials is None or not bundle.materials.coded():
+        return None
+    return bundle.materials.latent_codes().clone()
 
 
 def _read_safetensors(path: Path) -> dict[str, torch.Tensor]:

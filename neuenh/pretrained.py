@@ -12,6 +12,7 @@ Naming the models (``shipped_models``, ``bundle_path``) reads folders only; load
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import stat
 from pathlib import Path
@@ -92,16 +93,22 @@ def load_for_fitting(spec: str, what: str = "model") -> tuple[BRDFModel, Materia
 
 def rungs(spec: str) -> list[Rung]:
     """The rungs of a shipped model or bundle folder: every committed round's winner of the search
-    that made it (the latest round of each state), first committed first, the model itself last.
-    A bundle saved without its search's rungs has one: itself (round -1, its recorded val loss)."""
-    from .checkpoint import Bundle, Rung
+    that made it (the latest round of each state), first committed first, the model itself last,
+    each with the training codes its fits start from (``Rung.trained``). A bundle saved without its
+    search's rungs has one: itself (round -1, its recorded val loss)."""
+    from .checkpoint import Bundle, Rung, training_codes
 
     path = bundle_path(spec)
     if path is None:
         raise ValueError(f"{spec!r} is neither a shipped model ({', '.join(shipped_models()) or 'none found'}) "
                          "nor a bundle folder")
     bundle = Bundle.load(path)
-    if bundle.rungs:
-        return bundle.rungs
-    latent = bundle.materials.mean_latent() if bundle.model.uses_latent and bundle.materials else None
-    return [Rung(-1, float(bundle.metrics.get("val_loss", float("nan"))), bundle.model, latent)]
+    own = training_codes(bundle)
+    if not bundle.rungs:
+        return [Rung(-1, float(bundle.metrics.get("val_loss", float("nan"))), bundle.model, own)]
+    last = bundle.rungs[-1]
+    if last.state == bundle.model.state and own is not None:
+        # The model itself: its fits start from the bundle's own training codes, as ``neuenh fit``'s do
+        # (the same codes in a bundle written since stop 57; before, its rungs kept their mean alone).
+        return [*bundle.rungs[:-1], dataclasses.replace(last, latent_codes=own)]
+    return bundle.rungs

@@ -83,22 +83,17 @@ class Rung(ABC):
 class GraphRung(Rung):
     """``model`` fitted by ``fit_materials``. Its fits start where ``neuenh fit``'s start: from
     ``trained``, the model's training materials (their mean code, and the training codes that fit a
-    material best: ``LatentAdam``), or, for a rung of a search that kept only their mean
-    (``Rung.latent_mean``), from that mean alone."""
+    material best: ``LatentAdam``); a search's rung, from that round's (``checkpoint.Rung.trained``:
+    only their mean for the earlier rungs of a bundle written before stop 57)."""
 
-    def __init__(self, label: str, key: str, model: BRDFModel, latent_mean: torch.Tensor | None = None,
+    def __init__(self, label: str, key: str, model: BRDFModel, trained: MaterialTable | None = None,
                  source: str | None = None, round_index: int | None = None, val_loss: float | None = None,
-                 capacity: str | None = None, encoder: MaterialEncoder | None = None,
-                 trained: MaterialTable | None = None):
+                 capacity: str | None = None, encoder: MaterialEncoder | None = None):
         self.label, self.key, self.model, self.encoder = label, key, model, encoder  # encoder: one more start
         self.capacity = capacity  # the fit's capacity (FitOptions.capacity); None: the scene's
         self.model_name, self.state, self.shared_weights = model.name, model.state, model.n_weights()
         self.source, self.round = source, round_index  # the shipped model or bundle it is a rung of
-        self.val_loss, self.latent_mean = val_loss, latent_mean  # the search's, carried into plans' bundles
-        self.trained = trained
-        if trained is None and latent_mean is not None and model.uses_latent:
-            self.trained = MaterialTable(model.specs, ["mean"], model.latent_dim,
-                                         latent=latent_mean.reshape(1, -1).float())
+        self.val_loss, self.trained = val_loss, trained  # the search's, carried into plans' bundles
 
     def fit(self, samples: Samples, options: FitOptions, seed: int) -> list[FittedRung]:
         model = self.model
@@ -157,19 +152,14 @@ def build_ladder(entries: Sequence[Any], where: str = "ladder") -> list[Rung]:
             elif isinstance(entry, (str, ModelEntry)):
                 capacity = getattr(entry, "capacity", None)
                 model, trained, encoder = load_for_fitting(name, f"{where}.{i}")
-                latent = trained.mean_latent() if trained is not None else None
                 label, key = (name, name) if capacity is None else \
                     (f"{name} ({capacity} capacity)", f"{name}:{capacity}")
-                out.append(GraphRung(label, key, model, latent, source=name, capacity=capacity,
-                                     encoder=encoder, trained=trained))
+                out.append(GraphRung(label, key, model, trained, source=name, capacity=capacity, encoder=encoder))
             else:
-                searched = rungs(name)
-                _, trained, _ = load_for_fitting(name, f"{where}.{i}")
-                for r in searched:  # the last is the model itself: its fits start as the model's own do
+                for r in rungs(name):
                     label = f"{name} r{r.round}" if r.round >= 0 else name
                     out.append(GraphRung(f"{label} {r.model.describe()}", f"{name}@{r.round}:{r.state}", r.model,
-                                         r.latent_mean, source=name, round_index=r.round, val_loss=r.val_loss,
-                                         trained=trained if r is searched[-1] else None))
+                                         r.trained(), source=name, round_index=r.round, val_loss=r.val_loss))
         except ValueError as exc:
             message = str(exc)
             raise ValueError(message if message.startswith(f"{where}.{i}") else f"{where}.{i}: {message}") from None

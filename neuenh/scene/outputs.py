@@ -58,7 +58,8 @@ def _bundles(plan: Plan, folder: Path) -> list[Path]:
         top = max(rungs, key=lambda r: (r.shared_weights, r.round if r.round is not None else -1))
         bundle = Bundle(top.model, provenance={"scene_plan": {"scene": plan.scene.name, "source": source}},
                         rungs=[Rung(r.round if r.round is not None else -1,
-                                    r.val_loss if r.val_loss is not None else float("nan"), r.model, r.latent_mean)
+                                    r.val_loss if r.val_loss is not None else float("nan"), r.model,
+                                    None if r.trained is None else r.trained.latent_codes())
                                for r in rungs])
         written.append(bundle.save(folder / safe_name(source)))
     return written

@@ -1,3 +1,4 @@
+import hashlib
 import json
 import os
 
@@ -119,8 +120,33 @@ def test_saved_files_are_readable_by_colleagues(bundle, tmp_path):
         assert stat.S_IMODE((tmp_path / name).stat().st_mode) & 0o044 == 0o044, name
 
 
+def test_a_rung_written_before_stop_57_keeps_its_mean_code_as_its_one_training_code(tmp_path):
+    """Bundles of earlier versions stored each rung's training codes' mean (``<k>.latent_mean``): read
+    as one code, so a fit with that rung starts from the mean as it did; a malformed one is refused."""
+    from safetensors.torch import load_file, save_file
+
+    from neuenh.checkpoint import Rung
+
+    base = Bundle.initial("ggx", ["a", "b"])
+    one = base.model.enhance("00000100000", seed=1)
+    folder = Bundle(one, base.materials, rungs=[Rung.of(0, 0.03, Bundle(one, base.materials))]).save(tmp_path / "m")
+    tensors = load_file(folder / "rungs.safetensors")
+    codes = tensors.pop("0.latent_codes")
+    for mean, accepted in ((codes.mean(0) + 1.0, True), (torch.zeros(5), False)):
+        save_file({**tensors, "0.latent_mean": mean}, folder / "rungs.safetensors")
+        meta = json.loads((folder / "model.json").read_text())
+        meta["digests"]["rungs.safetensors"] = hashlib.sha256((folder / "rungs.safetensors").read_bytes()).hexdigest()
+        (folder / "model.json").write_text(json.dumps(meta))
+        if accepted:
+            [rung] = Bundle.load(folder).rungs
+            assert torch.equal(rung.latent_codes, mean.reshape(1, 27)) and torch.equal(rung.trained().mean_latent(), mean)
+        else:
+            with pytest.raises(BundleError, match=r"rung 0: latent codes of shape \(1, 5\), expected \(k, 27\)"):
+                Bundle.load(folder)
+
+
 def test_rungs_travel_with_the_bundle_on_disk_and_on_the_wire(tmp_path):
-    """A bundle's rungs keep their states, weights, losses and mean latent; a tampered rungs file is
+    """A bundle's rungs keep their states, weights, losses and training codes; a tampered rungs file is
     refused by name."""
     from neuenh.checkpoint import Rung
 
@@ -136,8 +162,9 @@ def test_rungs_travel_with_the_bundle_on_disk_and_on_the_wire(tmp_path):
         assert [(r.round, r.state, r.val_loss) for r in back.rungs] == [(0, "00000000000", 0.05),
                                                                        (1, "00000100000", 0.03),
                                                                        (3, "00001100100", 0.02)]
-        assert back.rungs[0].latent_mean is None  # no module reads the latent there
-        assert torch.allclose(back.rungs[1].latent_mean, torch.full((27,), (0.5 + 2.0 + 0.5) / 3))
+        assert back.rungs[0].latent_codes is None and back.rungs[0].trained() is None  # no module reads the latent
+        assert torch.equal(back.rungs[1].latent_codes, torch.tensor([0.5, 2.0, 0.5]).repeat_interleave(27).reshape(3, 27))
+        assert torch.equal(back.rungs[1].trained().latent_codes(), back.rungs[1].latent_codes)
         for got, want in zip(back.rungs, rungs):
             for (k, v), (k2, v2) in zip(got.model.neural.state_dict().items(), want.model.neural.state_dict().items()):
                 assert k == k2 and torch.equal(v, v2)

@@ -75,10 +75,17 @@ def test_rungs_of_a_model_are_its_search_winners_or_itself(tmp_path, monkeypatch
     bundle.save(tmp_path / "bare")
     [itself] = rungs(str(tmp_path / "bare"))
     assert (itself.round, itself.state, itself.val_loss) == (-1, "00000100000", 0.02)
-    assert torch.allclose(itself.latent_mean, torch.full((27,), 0.5))
+    assert torch.equal(itself.latent_codes, torch.full((2, 27), 0.5))  # the training materials' codes
     bundle.rungs = [Rung.of(0, 0.04, plain), Rung.of(2, 0.02, bundle)]
     bundle.save(tmp_path / "laddered")
     monkeypatch.setenv("NEUENH_MODELS_DIR", str(tmp_path))
     assert [(r.round, r.state) for r in rungs("laddered")] == [(0, "00000000000"), (2, "00000100000")]
+    # The model itself, last, starts its fits from the bundle's own training codes even where its rung
+    # kept fewer (a bundle written before stop 57 kept their mean alone).
+    with torch.no_grad():
+        bundle.materials.latent[1] = 2.0
+    bundle.rungs = [Rung.of(0, 0.04, plain), Rung(2, 0.02, bundle.model, bundle.materials.mean_latent()[None])]
+    bundle.save(tmp_path / "mean-only")
+    assert torch.equal(rungs("mean-only")[-1].latent_codes, bundle.materials.latent_codes())
     with pytest.raises(ValueError, match="neither a shipped model"):
         rungs("ggx")

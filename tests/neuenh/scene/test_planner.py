@@ -107,10 +107,10 @@ def test_a_model_at_a_capacity_of_its_own_is_a_rung_and_an_analytical_capacity_s
     assert "**1 of 1 materials stay analytical." in (tmp_path / "plan" / "plan.md").read_text()
 
 
-def test_a_ladders_model_and_its_last_rung_start_their_fits_where_neuenh_fit_does(tmp_path, tables):
-    """A named model, and the last rung of ``{rungs: M}`` (the model itself), fit with the bundle's
-    training materials (their mean and the codes that fit a material best: ``LatentAdam``'s starts), the
-    same fit as ``neuenh fit``; an earlier rung, whose search kept only its mean code, from that mean."""
+def test_a_ladders_model_and_its_rungs_start_their_fits_where_neuenh_fit_does(tmp_path, tables):
+    """A named model and every rung of ``{rungs: M}`` fit with their training materials' codes (their
+    mean and the codes that fit a material best: ``LatentAdam``'s starts), the model itself as ``neuenh
+    fit`` does; an earlier rung of a bundle written before stop 57, which kept only their mean, from that mean."""
     import torch
 
     from neuenh.checkpoint import Bundle, Rung
@@ -123,10 +123,11 @@ def test_a_ladders_model_and_its_last_rung_start_their_fits_where_neuenh_fit_doe
     bundle.model = bundle.model.enhance("00000100000", seed=1)
     with torch.no_grad():  # codes far apart, so that the best of them is not their mean
         bundle.materials.latent.copy_(torch.rand(bundle.materials.latent.shape, generator=torch.Generator().manual_seed(0)))
-    bundle.rungs = [Rung.of(0, 0.03, bundle), Rung.of(1, 0.02, bundle)]
+    mean_only = Rung(0, 0.04, bundle.model, bundle.materials.mean_latent()[None])
+    bundle.rungs = [mean_only, Rung.of(1, 0.03, bundle), Rung.of(2, 0.02, bundle)]
     bundle.save(tmp_path / "searched")
     spec = parse_scene(scene(tables, ladder=[str(tmp_path / "searched"), {"rungs": str(tmp_path / "searched")}]))
-    named, earlier, last = build_ladder(spec.ladder)
+    named, *laddered = build_ladder(spec.ladder)
     samples = load_table(tables / "retro.npz").samples
     options = FitOptions(capacity="latent", epochs=8)
     model, trained = bundle.model, Bundle.load(tmp_path / "searched").materials
@@ -134,9 +135,8 @@ def test_a_ladders_model_and_its_last_rung_start_their_fits_where_neuenh_fit_doe
     as_neuenh_fit, from_the_mean = (fit_materials(model, samples, options.protocol_for(model), seed=0, trained=t).losses
                                     for t in (trained, mean))
     assert as_neuenh_fit != from_the_mean, "the training codes made no difference: the test cannot tell the starts apart"
-    assert [f.fit_loss for f in named.fit(samples, options, 0)] == as_neuenh_fit
-    assert [f.fit_loss for f in last.fit(samples, options, 0)] == as_neuenh_fit
-    assert [f.fit_loss for f in earlier.fit(samples, options, 0)] == from_the_mean
+    assert [[f.fit_loss for f in rung.fit(samples, options, 0)] for rung in (named, *laddered)] == \
+        [as_neuenh_fit, from_the_mean, as_neuenh_fit, as_neuenh_fit]
 
 
 @pytest.mark.parametrize("changes, message", [
