@@ -82,11 +82,15 @@ def fit_job(
         protocol = options.protocol_for(model)
         work = protocol.work(measurements)
         if work > settings.max_fit_work:
+            # The adaptive fit's validation reads the rows once more: the latent capacity alone may fit.
+            latent = options.replace(capacity="latent").protocol_for(model).work(measurements) \
+                if protocol.name == "adaptive" else None
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                                 f"files: the {protocol.name} fit of {len(measurements):,} measurements at "
                                 f"{protocol.budget_epochs} epochs is {work:,} measurement-epochs, over this service's "
-                                f"limit of {settings.max_fit_work:,} per fit (NEUENH_MAX_FIT_WORK); send fewer rows "
-                                "or ask fewer epochs")
+                                f"limit of {settings.max_fit_work:,} per fit (NEUENH_MAX_FIT_WORK); send fewer rows, "
+                                "ask fewer epochs" + (f" or capacity latent ({latent:,}: no validation)"
+                                                      if latent is not None and latent <= settings.max_fit_work else ""))
         result = fit_materials(model, measurements, protocol, trained=bundle.materials, encoder=bundle.encoder)
     request.app.state.metrics.fits.inc()
     draw = DrawPublic(samples=samples, near_mirror=near_mirror, seed=seed, materials=drawn) if drawn else None

@@ -178,9 +178,14 @@ def test_a_busy_fit_slot_answers_429_and_health_never_waits(server, tmp_path):
     with client(server) as c:
         assert c.post(f"/jobs/{server.alices_job['id']}/fit", data={"epochs": "5"}, **files).status_code == 200
         heavy = c.post(f"/jobs/{server.alices_job['id']}/fit", data={"epochs": "5001"}, **files)  # 200 x 5001 > 1e6
-        assert heavy.status_code == 422 and re.search(r"of 200 measurements at 5001 epochs is [\d,]+ measurement-epochs, "
-                                                      r"over this service's limit of 1,000,000 per fit \(NEUENH_MAX_FIT_WORK\)",
+        assert heavy.status_code == 422 and re.search(r"the adaptive fit of 200 measurements at 5001 epochs is 2,000,400 "
+                                                      r"measurement-epochs, over this service's limit of 1,000,000 per fit "
+                                                      r"\(NEUENH_MAX_FIT_WORK\); send fewer rows, ask fewer epochs$",
                                                       heavy.json()["detail"]), heavy.text
+        # (200 + 200) x 3000 over the limit, where the latent capacity's 200 x 3000 is not: the answer says so
+        over = c.post(f"/jobs/{server.alices_job['id']}/fit", data={"epochs": "3000"}, **files)
+        assert over.status_code == 422 and over.json()["detail"].endswith(
+            "ask fewer epochs or capacity latent (600,000: no validation)"), over.text
 
 
 def _unit_rows(n: int, f_r: float = 0.5):
