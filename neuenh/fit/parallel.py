@@ -32,6 +32,7 @@ from ..materials import MaterialTable
 from ..model import BRDFModel
 from .protocols import FitProtocol
 from .result import FitResult
+from .run import fit_materials
 
 
 def _start_worker() -> None:
@@ -59,15 +60,12 @@ def fit_in_processes(model: BRDFModel, samples: Samples, protocol: FitProtocol, 
     start = time.perf_counter()
     total = len(samples.names)
     groups = shares(total, jobs)
-    if len(groups) <= 1:  # nothing to split: this process fits it, as fit_materials does
-        result = protocol.fit(model, samples, trained=trained, encoder=encoder, seed=seed)
-        if progress is not None:
-            progress(total, total)
-        return result
+    if len(groups) <= 1:  # nothing to split: this process fits it
+        return fit_materials(model, samples, protocol, trained=trained, encoder=encoder, seed=seed, progress=progress)
     context = multiprocessing.get_context("spawn")  # no forked copy of this process's threads and locks
     with ProcessPoolExecutor(len(groups), mp_context=context, initializer=_start_worker) as pool:
-        futures = {pool.submit(protocol.fit, model, samples.select(group), trained=trained, encoder=encoder,
-                               seed=seed): len(group) for group in groups}
+        futures = {pool.submit(fit_materials, model, samples.select(group), protocol, trained=trained,
+                               encoder=encoder, seed=seed): len(group) for group in groups}
         done = 0
         for future in as_completed(futures):
             future.result()  # a share's error stops the fit at once
@@ -75,6 +73,4 @@ def fit_in_processes(model: BRDFModel, samples: Samples, protocol: FitProtocol, 
             if progress is not None:
                 progress(done, total)
         results = [future.result() for future in futures]  # in the materials' order
-    return FitResult(MaterialTable.concat([r.materials for r in results]), [x for r in results for x in r.losses],
-                     time.perf_counter() - start, {**results[0].protocol, "processes": len(groups)},
-                     [d for r in results for d in r.details])
+    return FitResult.joined(results, time.perf_counter() - start, processes=len(groups))

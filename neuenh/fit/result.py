@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 
@@ -28,6 +30,14 @@ class FitResult:
     protocol: dict
     details: list[dict] = field(default_factory=list)
     trace: list[tuple[float, float]] = field(default_factory=list)  # (seconds, mean loss), when traced
+
+    @classmethod
+    def joined(cls, parts: Sequence["FitResult"], wall_s: float, **protocol: Any) -> "FitResult":
+        """The fits of consecutive groups of materials as one fit of them all, in order (records,
+        losses, details; no trace), taking ``wall_s``; its ``protocol`` the first part's with
+        ``protocol``'s entries added (e.g. how the materials were split)."""
+        return cls(MaterialTable.concat([r.materials for r in parts]), [x for r in parts for x in r.losses], wall_s,
+                   {**parts[0].protocol, **protocol}, [d for r in parts for d in r.details])
 
     def capacity(self, i: int) -> str:
         """Material ``i``'s capacity (``fit.capacity``): ``latent`` unless the fit recorded another."""

@@ -20,6 +20,7 @@ from neuenh.fit.kernel import LayerCorrection, RowKernel, RowSpace
 from neuenh.fit.layout import compacted, fold_masks, layout_rows, padded
 from neuenh.fit.optim import Adam, adam_rows, evaluate_rows, lbfgs_rows
 from neuenh.fit.parallel import fit_in_processes, shares
+from neuenh.fit.run import blocks
 from neuenh.fit.protocols import Rows
 from neuenh.materials import MaterialTable
 from neuenh.models import get_model
@@ -680,3 +681,35 @@ def test_one_job_is_fit_materials_itself(two_zoo_materials):
     assert "processes" not in single.protocol
     assert fit_in_processes(model, two_zoo_materials.select([1]), protocol, 4).losses == \
         fit_materials(model, two_zoo_materials.select([1]), protocol).losses
+
+
+@pytest.mark.parametrize("counts, block_samples, want", [
+    ([3, 3, 3], 6, [[0, 1], [2]]),
+    ([10, 1, 1], 5, [[0], [1, 2]]),  # a material over the block is a block of its own
+    ([2, 9, 2], 9, [[0], [1], [2]]),
+    ([1, 1, 1, 1], 100, [[0, 1, 2, 3]]),
+])
+def test_blocks_are_consecutive_runs_of_at_most_the_block_samples(counts, block_samples, want):
+    assert blocks(counts, block_samples) == want
+
+
+def test_a_fit_in_blocks_is_each_blocks_own_fit_joined_in_order(enhanced):
+    """``fit_materials`` fits consecutive blocks of at most ``block_samples`` samples, each as the
+    protocol fits those materials alone (their part of ``start`` too), and joins them in order; a fit
+    of one block is the protocol's fit itself."""
+    samples = sample_materials(synthetic_zoo(3, seed=8), 150, seed=2)
+    protocol = LatentAdam(epochs=5)
+    start = protocol.fit(enhanced, samples).materials
+    for given in (None, start):
+        done = []
+        blocked = fit_materials(enhanced, samples, protocol, start=given, block_samples=300,
+                                progress=lambda n, total: done.append((n, total)))
+        parts = [protocol.fit(enhanced, samples.select(b), start=None if given is None else given.subset(b))
+                 for b in ([0, 1], [2])]
+        assert blocked.losses == parts[0].losses + parts[1].losses and blocked.protocol["blocks"] == 2
+        assert torch.equal(blocked.materials.latent, torch.cat([p.materials.latent for p in parts]))
+        assert blocked.materials.names == samples.names and done == [(2, 3), (3, 3)]
+    whole = fit_materials(enhanced, samples, protocol)
+    assert whole.losses == protocol.fit(enhanced, samples).losses and "blocks" not in whole.protocol
+    with pytest.raises(ValueError, match="block_samples must be at least 1"):
+        fit_materials(enhanced, samples, protocol, block_samples=0)
