@@ -3,6 +3,7 @@ take far fewer new pages once freed memory is kept than under glibc's defaults."
 
 import json
 import platform
+import statistics
 import subprocess
 import sys
 
@@ -52,15 +53,16 @@ def _steps(mode: str) -> dict:
 @pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc",
                     reason="the setting is glibc's malloc's; other C libraries are left alone")
 def test_fit_steps_take_far_fewer_new_pages_once_freed_memory_is_kept():
-    """After the first step (which takes its pages either way): under glibc's defaults the steps
-    take thousands of pages anew (freed activations handed back and taken again), most steps; kept,
-    they reuse them (a few thousand while the heap grows to the largest step, then none). Page
-    faults, not time: a count is the same on a busy machine."""
+    """After the first step (which takes its pages either way): under glibc's defaults most steps
+    take thousands of pages anew (freed activations handed back and taken again); kept, most take
+    none (a few steps still take a few thousand while the heap grows to the largest step, and which
+    ones moves from run to run: steps 2-4 and 8 of 12, say). So the medians over the steps are
+    compared (on an EPYC: default 1,800-6,500, kept 1-5), not the last steps. Page faults, not time:
+    a count is the same on a busy machine."""
     default, kept = _steps("default"), _steps("keep")
     assert kept["kept"] is True
-    assert sum(default["faults"][1:]) > 20_000
-    assert sum(kept["faults"][1:]) * 4 < sum(default["faults"][1:])
-    assert sum(kept["faults"][-4:]) < 2_000
+    assert sum(default["faults"][1:]) > 20_000 and statistics.median(default["faults"][1:]) > 500
+    assert statistics.median(kept["faults"][1:]) < 100
 
 
 @pytest.mark.parametrize("retain_bytes", [-1, 1 << 31])
