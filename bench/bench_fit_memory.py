@@ -95,15 +95,17 @@ def markdown_section(env: dict, waited: float, rows: list[dict], command: str) -
              "| case | materials × samples | capacity | budget | one batch: peak − before, s | blocks: peak − before, s "
              "| blocks | memory ratio | time ratio |",
              "|---|---:|---|---|---:|---:|---:|---:|---:|"]
+    def grown(run: dict) -> int:
+        return run["peak_bytes"] - run["before_bytes"]
+
     for row in rows:
         one, blocked = row["one batch"], row["blocks"]
-        grown = lambda r: r["peak_bytes"] - r["before_bytes"]  # noqa: E731
         lines.append(f"| {row['what']} | {row['materials']} × {row['samples']:,} | {row['capacity']} | "
                      f"{'a few epochs' if row['short'] else 'default'} | {_gib(grown(one))}, {one['seconds']:.1f} | "
                      f"{_gib(grown(blocked))}, {blocked['seconds']:.1f} | {blocked['blocks']} | "
                      f"{grown(blocked) / grown(one):.2f} | {blocked['seconds'] / one['seconds']:.2f} |")
-    per_sample = {row["capacity"]: (row["one batch"]["peak_bytes"] - row["one batch"]["before_bytes"])
-                  / (row["materials"] * row["samples"]) for row in rows if row["what"] == "memory"}
+    per_sample = {row["capacity"]: grown(row["one batch"]) / (row["materials"] * row["samples"])
+                  for row in rows if row["what"] == "memory"}
     lines += ["", "Per sample fitted at once (one batch): " + ", ".join(
         f"{capacity} {value / 1e3:.1f} kB" for capacity, value in per_sample.items()) + ".", ""]
     return lines

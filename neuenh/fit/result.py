@@ -32,7 +32,7 @@ class FitResult:
     trace: list[tuple[float, float]] = field(default_factory=list)  # (seconds, mean loss), when traced
 
     @classmethod
-    def joined(cls, parts: Sequence["FitResult"], wall_s: float, **protocol: Any) -> "FitResult":
+    def joined(cls, parts: Sequence[FitResult], wall_s: float, **protocol: Any) -> FitResult:
         """The fits of consecutive groups of materials as one fit of them all, in order (records,
         losses, details; no trace), taking ``wall_s``; its ``protocol`` the first part's with
         ``protocol``'s entries added (e.g. how the materials were split)."""

@@ -5,12 +5,11 @@ fitted at once: 12 kB a sample for the adaptive fit and 9 kB for the latent one 
 ``enhanced-ggx``), so a studio's two hundred materials of 10,000 samples would not fit in 24 GiB. The
 materials are fitted in consecutive blocks of at most ``block_samples`` samples (a material with more
 is a block of its own) and joined in order: 64 materials of 10,000 samples then take 0.2x the memory
-of one batch, and less time, not more (0.6-0.8x; docs/BENCHMARKS.md, "A fit's memory, bounded by blocks
-of materials"). A block still holds enough rows for the steps'
-fixed cost to be shared (eight materials in one batch take two thirds of their time one at a time),
-and fits of fewer samples are one block: the fit itself. A material's result is its block's fit,
-which — as for ``--jobs``' shares (``parallel``) — may differ from a fit beside other materials by
-float rounding only.
+of one batch, and less time, not more (0.6-0.8x; docs/BENCHMARKS.md, "A fit's memory, bounded by
+blocks of materials"). A block still holds enough rows for the steps' fixed cost to be shared (eight
+materials in one batch take two thirds of their time one at a time), and fits of fewer samples are
+one block: the fit itself. A material's result is its block's fit, which — as for ``--jobs``' shares
+(``parallel``) — may differ from a fit beside other materials by float rounding only.
 """
 
 from __future__ import annotations
