@@ -266,37 +266,79 @@ class RowLosses:
 
 class RowKernel:
     """Losses and gradients of every row of a layout (module doc). ``prior_strength`` (rows,)
-    weighs each row's ``RowSpace.prior``; rows without corrections ignore it."""
+    weighs each row's ``RowSpace.prior``; rows without corrections ignore it.
 
-    def __init__(self, model: BRDFModel, space: RowSpace):
-        self.model, self.space = model, space
+    A layout of more than ``chunk_slots`` slots a row (a material of more samples, fitted whole) is
+    evaluated ``chunk_slots`` slots at a time, each chunk's share of the objective differentiated on
+    its own and the gradients summed: the same objective and gradient up to rounding, in the memory
+    of one chunk (the activations take ~12 kB a sample: docs/BENCHMARKS.md, "A fit's memory, bounded
+    by blocks of materials"). Layouts up to it run in one pass, as always."""
+
+    def __init__(self, model: BRDFModel, space: RowSpace, chunk_slots: int = 100_000):
+        if chunk_slots < 1:
+            raise ValueError(f"chunk_slots must be at least 1, got {chunk_slots}")
+        self.model, self.space, self.chunk_slots = model, space, chunk_slots
         # the rows' dtype follows the model's weights (float32; a float64 copy gives a reference)
         self.dtype = next(iter(model.parameters()), torch.zeros(0)).dtype
 
+    def _fitted(self, x: torch.Tensor, layout: RowLayout, surrogate_eps: float | None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Each slot's loss (rows, slots) and what the fit minimises of it (the loss or its surrogate)."""
+        rows = layout.rows
+        values, latent = self.space.values(x)
+        view = row_view(self.model, rows, self.space.deltas(x))
+        pred = view.forward_indexed(layout.wi, layout.wo, values, latent, layout.grid)
+        residual = log_residual(pred, layout.f_r, layout.wi)
+        per_sample = residual.abs().mean(dim=1).reshape(rows, -1)
+        if surrogate_eps is None:
+            return per_sample, per_sample
+        # Charbonnier (Charbonnier et al. 1994): smooth, within eps of |r| everywhere
+        return per_sample, ((residual * residual + surrogate_eps ** 2).sqrt() - surrogate_eps).mean(dim=1).reshape(rows, -1)
+
     def __call__(self, x: torch.Tensor, layout: RowLayout, *, grad: bool = True,
                  prior_strength: torch.Tensor | None = None, surrogate_eps: float | None = None) -> RowLosses:
-        rows = layout.rows
         x = x.detach().to(self.dtype)
-        with torch.enable_grad() if grad else torch.no_grad():
-            if grad:
-                x.requires_grad_(True)
-            values, latent = self.space.values(x)
-            view = row_view(self.model, rows, self.space.deltas(x))
-            pred = view.forward_indexed(layout.wi, layout.wo, values, latent, layout.grid)
-            residual = log_residual(pred, layout.f_r, layout.wi)
-            per_sample = residual.abs().mean(dim=1).reshape(rows, -1)
-            if surrogate_eps is None:
-                fitted = per_sample
-            else:  # Charbonnier (Charbonnier et al. 1994): smooth, within eps of |r| everywhere
-                fitted = ((residual * residual + surrogate_eps ** 2).sqrt() - surrogate_eps).mean(dim=1).reshape(rows, -1)
-            weight = layout.train.sum(1).clamp_min(1e-12)
-            objective = (fitted * layout.train).sum(1) / weight
-            if prior_strength is not None and self.space.corrections:
-                objective = objective + prior_strength * self.space.prior(x)
-            g = torch.autograd.grad(objective.sum(), x)[0] if grad else None
+        weight = layout.train.sum(1).clamp_min(1e-12)
+        prior = prior_strength is not None and self.space.corrections
+        if layout.slots <= self.chunk_slots:
+            with torch.enable_grad() if grad else torch.no_grad():
+                if grad:
+                    x.requires_grad_(True)
+                per_sample, fitted = self._fitted(x, layout, surrogate_eps)
+                objective = (fitted * layout.train).sum(1) / weight
+                if prior:
+                    objective = objective + prior_strength * self.space.prior(x)
+                g = torch.autograd.grad(objective.sum(), x)[0] if grad else None
+            per_sample, objective = per_sample.detach(), objective.detach()
+        else:
+            objective, g, parts = torch.zeros(layout.rows, dtype=self.dtype), None, []
+            for lo in range(0, layout.slots, self.chunk_slots):
+                part = layout.chunk(lo, min(lo + self.chunk_slots, layout.slots))
+                share, g_share, per_part = self._chunk(x, part, weight, grad, surrogate_eps)
+                objective, parts = objective + share, parts + [per_part]
+                g = g_share if g is None else g + g_share
+            per_sample = torch.cat(parts, 1)
+            if prior:
+                with torch.enable_grad() if grad else torch.no_grad():
+                    leaf = x.clone().requires_grad_(grad)
+                    penalty = prior_strength * self.space.prior(leaf)
+                    if grad:
+                        g = g + torch.autograd.grad(penalty.sum(), leaf)[0]
+                objective = objective + penalty.detach()
         with torch.no_grad():
-            per = per_sample.detach().double()
+            per = per_sample.double()
             train = (per * layout.train).sum(1) / layout.train.sum(1).double().clamp_min(1e-12)
             val_weight = layout.val.sum(1).double()
             val = torch.where(val_weight > 0, (per * layout.val).sum(1) / val_weight.clamp_min(1e-12), torch.nan)
-        return RowLosses(train, val, objective.detach().double(), g, per)
+        return RowLosses(train, val, objective.double(), g, per)
+
+    def _chunk(self, x: torch.Tensor, part: RowLayout, weight: torch.Tensor, grad: bool, surrogate_eps: float | None
+               ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        """One chunk of slots: its share of every row's objective (its train slots' sum over the row's
+        whole ``weight``), that share's gradient, and its slots' losses."""
+        with torch.enable_grad() if grad else torch.no_grad():
+            leaf = x.clone().requires_grad_(grad)
+            per_sample, fitted = self._fitted(leaf, part, surrogate_eps)
+            share = (fitted * part.train).sum(1) / weight
+            g = torch.autograd.grad(share.sum(), leaf)[0] if grad else None
+        return share.detach(), g, per_sample.detach()

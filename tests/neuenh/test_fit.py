@@ -133,6 +133,34 @@ def test_kernel_losses_and_corrections_equal_the_model_with_corrected_weights(en
     assert error <= 1e-3 * reference.abs().max()  # float32 through ~10 layers of a few dozen terms
 
 
+@pytest.mark.parametrize("surrogate_eps", [None, 1e-2])
+def test_a_kernel_over_slot_chunks_has_the_objective_and_gradient_of_one_pass(enhanced, two_zoo_materials,
+                                                                               surrogate_eps):
+    """``chunk_slots``: a layout wider than it is evaluated a chunk at a time, each chunk's share of
+    the objective differentiated apart and the prior once. In float64 (a copy of the model) every
+    output equals one pass's to the rounding of summing ~600 terms in another order (~1e-13)."""
+    double = copy.deepcopy(enhanced).double()
+    corrections = [LayerCorrection(p, i, None if i % 2 else 2) for p in double.neural for i in range(4)]
+    space = RowSpace(double, corrections)
+    samples = two_zoo_materials
+    x = space.from_table(_random_table(double, samples.names, 0), seed=1).double()
+    x[:, space.base_dim:] += 0.05 * torch.randn(x[:, space.base_dim:].shape, generator=torch.Generator().manual_seed(2),
+                                                dtype=torch.float64)
+    wi, wo, f_r, valid = padded(samples)
+    train, val = valid.clone(), torch.zeros_like(valid)
+    train[:, ::5], val[:, ::5] = False, valid[:, ::5]  # a fifth of each row held out
+    layout = layout_rows(wi.double(), wo.double(), f_r.double(), torch.arange(2), train, val)
+    prior = torch.tensor([1e-2, 1e-3], dtype=torch.float64)
+    whole = RowKernel(double, space)(x, layout, prior_strength=prior, surrogate_eps=surrogate_eps)
+    chunked = RowKernel(double, space, chunk_slots=97)(x, layout, prior_strength=prior, surrogate_eps=surrogate_eps)
+    assert layout.slots > 97 * 6
+    for name in ("train", "val", "objective", "grad", "per_sample"):
+        assert torch.allclose(getattr(chunked, name), getattr(whole, name), rtol=1e-11, atol=1e-14), name
+    assert RowKernel(double, space, chunk_slots=97)(x, layout, grad=False).grad is None
+    with pytest.raises(ValueError, match="chunk_slots must be at least 1"):
+        RowKernel(double, space, chunk_slots=0)
+
+
 def test_a_rows_gradient_does_not_depend_on_the_rows_beside_it(enhanced, two_zoo_materials):
     """Row 0 alone and stacked with another row: the same loss and gradient up to the float32
     rounding of the stacked products (bounded by the float32 kernel's distance to float64)."""
