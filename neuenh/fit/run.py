@@ -3,8 +3,8 @@
 A fit stacks its materials as rows of one batch (``layout``), so its memory grows with the samples
 fitted at once: 12 kB a sample for the adaptive fit and 9 kB for the latent one (the shipped
 ``enhanced-ggx``), so a studio's two hundred materials of 10,000 samples would not fit in 24 GiB. The
-materials are fitted in consecutive blocks of at most ``block_samples`` samples (a material with more
-is a block of its own) and joined in order: 64 materials of 10,000 samples then take 0.2x the memory
+materials are fitted in consecutive blocks whose batch holds at most ``block_samples`` samples, each
+material padded to the block's largest (a material with more is a block of its own), and joined in order: 64 materials of 10,000 samples then take 0.2x the memory
 of one batch, and less time, not more (0.6-0.8x; docs/BENCHMARKS.md, "A fit's memory, bounded by
 blocks of materials"). A block still holds enough rows for the steps' fixed cost to be shared (eight
 materials in one batch take two thirds of their time one at a time), and fits of fewer samples are
@@ -36,18 +36,19 @@ def default_protocol(model: BRDFModel) -> FitProtocol:
 
 
 def blocks(counts: list[int], block_samples: int) -> list[list[int]]:
-    """Consecutive runs of material indices whose sample ``counts`` sum to at most ``block_samples``
-    (a material with more alone), none empty."""
+    """Consecutive runs of material indices whose batch — every material padded to the run's largest
+    sample count (``layout.padded``) — holds at most ``block_samples`` slots (a material with more
+    alone), none empty: a few large materials after many small ones do not pad them all to their size."""
     if block_samples < 1:
         raise ValueError(f"block_samples must be at least 1, got {block_samples}")
     out: list[list[int]] = []
-    held = 0
+    widest = 0
     for i, count in enumerate(counts):
-        if not out or held + count > block_samples:
+        if not out or (len(out[-1]) + 1) * max(widest, count) > block_samples:
             out.append([])
-            held = 0
+            widest = 0
         out[-1].append(i)
-        held += count
+        widest = max(widest, count)
     return out
 
 
@@ -56,7 +57,7 @@ def fit_materials(model: BRDFModel, samples: Samples, protocol: FitProtocol | No
                   encoder: MaterialEncoder | None = None, seed: int = 0, block_samples: int = BLOCK_SAMPLES,
                   progress: Callable[[int, int], None] | None = None) -> FitResult:
     """Fit every material of ``samples`` with ``model`` frozen by ``protocol`` (default:
-    ``default_protocol(model)``), in blocks of at most ``block_samples`` samples (module doc);
+    ``default_protocol(model)``), in blocks of at most ``block_samples`` padded samples (``blocks``);
     ``start``, ``trained`` and ``encoder`` as ``FitProtocol.fit`` takes them. ``progress(done, total)``:
     materials fitted so far, after each block."""
     protocol = protocol or default_protocol(model)

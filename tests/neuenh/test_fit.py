@@ -716,8 +716,10 @@ def test_one_job_is_fit_materials_itself(two_zoo_materials):
     ([10, 1, 1], 5, [[0], [1, 2]]),  # a material over the block is a block of its own
     ([2, 9, 2], 9, [[0], [1], [2]]),
     ([1, 1, 1, 1], 100, [[0, 1, 2, 3]]),
+    ([1, 1, 1, 4], 12, [[0, 1, 2], [3]]),  # padded to 4 slots the four would take 16
+    ([4, 1, 1], 12, [[0, 1, 2]]),  # each padded to 4: 12
 ])
-def test_blocks_are_consecutive_runs_of_at_most_the_block_samples(counts, block_samples, want):
+def test_blocks_are_consecutive_runs_whose_padded_batch_holds_at_most_the_block_samples(counts, block_samples, want):
     assert blocks(counts, block_samples) == want
 
 
