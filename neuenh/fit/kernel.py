@@ -271,8 +271,8 @@ class RowKernel:
     A layout of more than ``chunk_slots`` slots a row (a material of more samples, fitted whole) is
     evaluated ``chunk_slots`` slots at a time, each chunk's share of the objective differentiated on
     its own and the gradients summed: the same objective and gradient up to rounding, in the memory
-    of one chunk (the activations take ~12 kB a sample: docs/BENCHMARKS.md, "A fit's memory, bounded
-    by blocks of materials"). Layouts up to it run in one pass, as always."""
+    of one chunk (the activations take kilobytes a sample and row: docs/BENCHMARKS.md, "A fit's memory,
+    bounded by blocks of materials"). Layouts up to it run in one pass, as always."""
 
     def __init__(self, model: BRDFModel, space: RowSpace, chunk_slots: int = 100_000):
         if chunk_slots < 1:
