@@ -76,6 +76,7 @@ bench: $(STAMP)
 	  git show $(ISSUE13_MODEL):models/enhanced-ggx/$$f > build/issue13-model/$$f; done
 	$(PY) bench/bench_fit.py --model build/issue13-model --before-rev 351a26c --write docs/BENCHMARKS.md
 	$(PY) bench/bench_plain_fit.py --before-rev $(PLAIN_FIT_BEFORE) --write docs/BENCHMARKS.md
+	$(PY) bench/bench_fit_memory.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_search.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_api.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_cluster.py --write docs/BENCHMARKS.md
