@@ -12,7 +12,9 @@ process's peak RSS over its RSS before the fit (``VmHWM``, ``VmRSS``) and the fi
 
 1. *Memory*: 64 materials of 10,000 samples, the adaptive (``auto``) and latent fits at budgets cut
    to a few epochs — a step's memory does not depend on how many steps there are.
-2. *Time*: 40 materials of 3,000 samples (two blocks: 33 and 7), the latent fit at its default budget:
+2. *Mixed sizes*: 20 materials of 2,000 samples and one of 60,000 (100,000 samples, but 1.26 M slots
+   once every material is padded to the largest), the adaptive fit at the short budgets.
+3. *Time*: 40 materials of 3,000 samples (two blocks: 33 and 7), the latent fit at its default budget:
    what the blocks cost where one batch still fits in memory.
 """
 
@@ -33,9 +35,10 @@ from bench.report import publish  # noqa: E402
 
 SECTION = "## A fit's memory, bounded by blocks of materials (stop 57)"
 ONE_BATCH = 10**12  # block_samples that holds any fit: every material in one batch
-CASES = [  # (what, materials, samples per material, capacity, short budget)
+CASES = [  # (what, materials, samples per material (a list: one count each), capacity, short budget)
     ("memory", 64, 10_000, "auto", True),
     ("memory", 64, 10_000, "latent", True),
+    ("mixed sizes", 21, [2_000] * 20 + [60_000], "auto", True),
     ("time", 40, 3_000, "latent", False),
 ]
 
@@ -47,18 +50,20 @@ def _status_kib(field: str) -> int:
     raise RuntimeError(f"/proc/self/status has no {field}")
 
 
-def child(materials: int, samples: int, capacity: str, short: bool, block_samples: int) -> dict:
+def child(materials: int, samples: int | list[int], capacity: str, short: bool, block_samples: int) -> dict:
     """One fit in this (fresh) process: its peak RSS over the RSS before it, and its wall time."""
     from bench.harness import fitting_process
 
     fitting_process()
-    from neuenh.data.samples import sample_materials
+    from neuenh.data.samples import Samples, sample_materials
     from neuenh.data.synthetic import synthetic_zoo
     from neuenh.fit import Adaptive, FitOptions, LatentAdam, fit_materials
     from neuenh.pretrained import load_model
 
     model, trained = load_model("enhanced-ggx")
-    data = sample_materials(synthetic_zoo(materials, seed=11), samples, seed=0)
+    counts = samples if isinstance(samples, list) else [samples] * materials
+    zoo = synthetic_zoo(materials, seed=11)
+    data = Samples.concat([sample_materials([zoo[i]], n, seed=i) for i, n in enumerate(counts)])
     if short:
         protocol = (Adaptive(latent_epochs=4, correction_epochs=4, lbfgs_iterations=4) if capacity == "auto"
                     else LatentAdam(epochs=8))
@@ -100,7 +105,9 @@ def markdown_section(env: dict, waited: float, rows: list[dict], command: str) -
 
     for row in rows:
         one, blocked = row["one batch"], row["blocks"]
-        lines.append(f"| {row['what']} | {row['materials']} × {row['samples']:,} | {row['capacity']} | "
+        sizes = (f"{row['materials']} × {row['samples']:,}" if isinstance(row["samples"], int) else
+                 " + ".join(f"{row['samples'].count(n)} × {n:,}" for n in dict.fromkeys(row["samples"])))
+        lines.append(f"| {row['what']} | {sizes} | {row['capacity']} | "
                      f"{'a few epochs' if row['short'] else 'default'} | {_gib(grown(one))}, {one['seconds']:.1f} | "
                      f"{_gib(grown(blocked))}, {blocked['seconds']:.1f} | {blocked['blocks']} | "
                      f"{grown(blocked) / grown(one):.2f} | {blocked['seconds'] / one['seconds']:.2f} |")
