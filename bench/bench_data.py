@@ -33,19 +33,12 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
 import torch  # noqa: E402
 
-from bench.harness import Background, machine, machine_line, wait_quiet  # noqa: E402
+from bench.harness import Background, machine, machine_line, status_bytes, wait_quiet  # noqa: E402
 from bench.report import publish  # noqa: E402
 
 SECTION = "## Measured data (issue 3)"
 RGL_DIR = ROOT.parent / "shared" / "data" / "rgl"
 MATERIAL = "chm_orange_rgb"
-
-
-def _status_kib(field: str) -> int:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith(field + ":"):
-            return int(line.split()[1])
-    raise RuntimeError(f"/proc/self/status has no {field}")
 
 
 # -- 1. RGL throughput -----------------------------------------------------------------------
@@ -98,15 +91,15 @@ def materialise_child(materials: int, samples: int) -> dict:
     """Runs in a fresh interpreter (``--child``) so its peak RSS is this measurement's alone."""
     from neuenh.data.sources import SyntheticZoo, materialise
 
-    baseline = _status_kib("VmRSS")
+    baseline = status_bytes("VmRSS")
     start = time.perf_counter()
     data = materialise([SyntheticZoo(source="synthetic_zoo", materials=materials, samples=samples, seed=0)],
                        0.1, seed=0)
     seconds = time.perf_counter() - start
     return {"materials": materials, "samples_per_material": samples, "samples": len(data.train) + len(data.val),
             "train": len(data.train), "val": len(data.val), "array_bytes": data.nbytes,
-            "baseline_rss_bytes": baseline * 1024, "peak_rss_bytes": _status_kib("VmHWM") * 1024,
-            "final_rss_bytes": _status_kib("VmRSS") * 1024, "seconds": seconds}
+            "baseline_rss_bytes": baseline, "peak_rss_bytes": status_bytes("VmHWM"),
+            "final_rss_bytes": status_bytes("VmRSS"), "seconds": seconds}
 
 
 def materialise_memory(materials: int, samples: int) -> dict:

@@ -43,16 +43,9 @@ CASES = [  # (what, materials, samples per material (a list: one count each), ca
 ]
 
 
-def _status_kib(field: str) -> int:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith(field + ":"):
-            return int(line.split()[1])
-    raise RuntimeError(f"/proc/self/status has no {field}")
-
-
 def child(materials: int, samples: int | list[int], capacity: str, short: bool, block_samples: int) -> dict:
     """One fit in this (fresh) process: its peak RSS over the RSS before it, and its wall time."""
-    from bench.harness import fitting_process
+    from bench.harness import fitting_process, status_bytes
 
     fitting_process()
     from neuenh.data.samples import Samples, sample_materials
@@ -69,11 +62,11 @@ def child(materials: int, samples: int | list[int], capacity: str, short: bool, 
                     else LatentAdam(epochs=8))
     else:
         protocol = FitOptions(capacity=capacity).protocol_for(model)
-    before = _status_kib("VmRSS")
+    before = status_bytes("VmRSS")
     start = time.perf_counter()
     result = fit_materials(model, data, protocol, trained=trained, block_samples=block_samples)
-    return {"seconds": time.perf_counter() - start, "before_bytes": before * 1024,
-            "peak_bytes": _status_kib("VmHWM") * 1024, "blocks": result.protocol.get("blocks", 1),
+    return {"seconds": time.perf_counter() - start, "before_bytes": before,
+            "peak_bytes": status_bytes("VmHWM"), "blocks": result.protocol.get("blocks", 1),
             "loss": result.loss}
 
 

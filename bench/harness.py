@@ -77,6 +77,14 @@ def fitting_process() -> None:
     keep_freed_memory()
 
 
+def status_bytes(field: str) -> int:
+    """A memory figure of this process from ``/proc/self/status`` (``VmRSS``, ``VmHWM``: the peak), in bytes."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) * 1024  # kB
+    raise RuntimeError(f"/proc/self/status has no {field}")
+
+
 def wait_quiet(max_wait: float, threshold: float, seconds: int = 3) -> float:
     """Wait (at most ``max_wait`` s) until the rest of the machine used less than ``threshold``
     cores for ``seconds`` consecutive seconds; returns the waiting time."""

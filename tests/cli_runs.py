@@ -21,18 +21,20 @@ import threading
 import unittest.mock
 
 
+def _command(args) -> list[str]:
+    return [sys.executable, "-m", "neuenh_service.cli.main", *map(str, args)]
+
+
 def neuenh(*args, timeout: float = 180, **kw) -> subprocess.CompletedProcess:
     """``python -m neuenh_service.cli.main ARGS`` in a fresh process; ``kw`` go to ``subprocess.run`` (cwd, env)."""
-    return subprocess.run([sys.executable, "-m", "neuenh_service.cli.main", *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, **kw)
+    return subprocess.run(_command(args), capture_output=True, text=True, timeout=timeout, **kw)
 
 
 def neuenh_on_a_terminal(*args, timeout: float = 180) -> subprocess.CompletedProcess:
     """``neuenh ARGS`` as ``neuenh`` runs it, but with stderr on a pseudo-terminal (stdout a pipe): its
     ``stderr`` is what the terminal received, line ends as the command wrote them."""
     master, slave = pty.openpty()
-    proc = subprocess.Popen([sys.executable, "-m", "neuenh_service.cli.main", *map(str, args)], stdout=subprocess.PIPE,
-                            stderr=slave, text=True)
+    proc = subprocess.Popen(_command(args), stdout=subprocess.PIPE, stderr=slave, text=True)
     os.close(slave)
     received: list[bytes] = []
 

@@ -70,6 +70,10 @@ class Samples:
         return Samples(self.wi[rows], self.wo[rows], self.f_r[rows], new[rows],
                        tuple(self.names[i] for i in materials))
 
+    def count_at_most(self, n: int | None) -> int:
+        """How many rows ``at_most(n, ...)`` keeps (None: every row)."""
+        return len(self) if n is None else int(self.counts().clamp(max=n).sum())
+
     def at_most(self, n: int, seed: int) -> "Samples":
         """At most ``n`` rows of each material: a seeded random ``n`` of a material that has more,
         every row of the others; rows keep their order. ``self`` when no material has more."""

@@ -55,15 +55,7 @@ from ..model import BRDFModel
 from .kernel import LayerCorrection, RowKernel, RowSpace, frozen
 from .layout import fold_masks
 from .optim import Adam, AdamResult, adam_rows, evaluate_rows
-from .protocols import (
-    FitProtocol,
-    LatentAdam,
-    PlainLBFGS,
-    Rows,
-    _check,
-    capped_count,
-    paper_start,
-)
+from .protocols import FitProtocol, LatentAdam, PlainLBFGS, Rows, _check, paper_start
 from .result import FitResult, analytical_model
 
 
@@ -214,7 +206,7 @@ class Adaptive(FitProtocol):
         candidates with corrections are not counted apart: their Adam epochs over the same samples are
         half as many, and a 10,000-sample fit takes ~2.1x a latent fit's time (docs/RESULTS.md), which
         the two latent passes stand for."""
-        validation = 0 if len(self.grid) == 1 else self.validation_folds * capped_count(samples, self.validation_cap)
+        validation = 0 if len(self.grid) == 1 else self.validation_folds * samples.count_at_most(self.validation_cap)
         return (validation + len(samples)) * self.latent_epochs
 
     @property

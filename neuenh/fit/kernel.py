@@ -264,6 +264,10 @@ class RowLosses:
     per_sample: torch.Tensor | None = None  # (rows, slots) float64 each slot's loss (padding's is meaningless)
 
 
+# Slots a row a kernel evaluates at once (``RowKernel``): above it, in chunks of this many.
+CHUNK_SLOTS = 100_000
+
+
 class RowKernel:
     """Losses and gradients of every row of a layout (module doc). ``prior_strength`` (rows,)
     weighs each row's ``RowSpace.prior``; rows without corrections ignore it.
@@ -274,10 +278,8 @@ class RowKernel:
     of one chunk (the activations take kilobytes a sample and row: docs/BENCHMARKS.md, "A fit's memory,
     bounded by blocks of materials"). Layouts up to it run in one pass, as always."""
 
-    def __init__(self, model: BRDFModel, space: RowSpace, chunk_slots: int = 100_000):
-        if chunk_slots < 1:
-            raise ValueError(f"chunk_slots must be at least 1, got {chunk_slots}")
-        self.model, self.space, self.chunk_slots = model, space, chunk_slots
+    def __init__(self, model: BRDFModel, space: RowSpace):
+        self.model, self.space = model, space
         # the rows' dtype follows the model's weights (float32; a float64 copy gives a reference)
         self.dtype = next(iter(model.parameters()), torch.zeros(0)).dtype
 
@@ -296,11 +298,14 @@ class RowKernel:
         return per_sample, ((residual * residual + surrogate_eps ** 2).sqrt() - surrogate_eps).mean(dim=1).reshape(rows, -1)
 
     def __call__(self, x: torch.Tensor, layout: RowLayout, *, grad: bool = True,
-                 prior_strength: torch.Tensor | None = None, surrogate_eps: float | None = None) -> RowLosses:
+                 prior_strength: torch.Tensor | None = None, surrogate_eps: float | None = None,
+                 chunk_slots: int = CHUNK_SLOTS) -> RowLosses:
+        if chunk_slots < 1:
+            raise ValueError(f"chunk_slots must be at least 1, got {chunk_slots}")
         x = x.detach().to(self.dtype)
         weight = layout.train.sum(1).clamp_min(1e-12)
         prior = prior_strength is not None and self.space.corrections
-        if layout.slots <= self.chunk_slots:
+        if layout.slots <= chunk_slots:
             with torch.enable_grad() if grad else torch.no_grad():
                 if grad:
                     x.requires_grad_(True)
@@ -312,10 +317,11 @@ class RowKernel:
             per_sample, objective = per_sample.detach(), objective.detach()
         else:
             objective, g, parts = torch.zeros(layout.rows, dtype=self.dtype), None, []
-            for lo in range(0, layout.slots, self.chunk_slots):
-                part = layout.chunk(lo, min(lo + self.chunk_slots, layout.slots))
-                share, g_share, per_part = self._chunk(x, part, weight, grad, surrogate_eps)
-                objective, parts = objective + share, parts + [per_part]
+            for lo in range(0, layout.slots, chunk_slots):
+                share, g_share, per_part = self._chunk(x, layout.chunk(lo, min(lo + chunk_slots, layout.slots)),
+                                                       weight, grad, surrogate_eps)
+                objective += share
+                parts.append(per_part)
                 g = g_share if g is None else g + g_share
             per_sample = torch.cat(parts, 1)
             if prior:

@@ -124,19 +124,6 @@ def lbfgs_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, max_iter: 
 
 
 def evaluate_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, batch_slots: int = 50_000) -> RowLosses:
-    """Exact losses of every row (no gradient), in slot chunks so memory stays bounded."""
-    if layout.slots <= batch_slots:
-        return kernel(x, layout, grad=False)
-    train_sum = torch.zeros(len(x), dtype=torch.float64)
-    val_sum = torch.zeros(len(x), dtype=torch.float64)
-    per_sample = []
-    for lo in range(0, layout.slots, batch_slots):
-        part = layout.chunk(lo, min(lo + batch_slots, layout.slots))
-        losses = kernel(x, part, grad=False)
-        train_sum += torch.nan_to_num(losses.train) * part.train.sum(1).double()
-        val_sum += torch.nan_to_num(losses.val) * part.val.sum(1).double()
-        per_sample.append(losses.per_sample)
-    train_w, val_w = layout.train.sum(1).double(), layout.val.sum(1).double()
-    train = train_sum / train_w.clamp_min(1e-12)
-    val = torch.where(val_w > 0, val_sum / val_w.clamp_min(1e-12), torch.nan)
-    return RowLosses(train, val, train, None, torch.cat(per_sample, 1))
+    """Exact losses of every row (no gradient), ``batch_slots`` slots at a time so memory stays
+    bounded (the kernel's chunks)."""
+    return kernel(x, layout, grad=False, chunk_slots=batch_slots)

@@ -84,11 +84,6 @@ class FitProtocol(ABC):
         return len(samples) * self.budget_epochs
 
 
-def capped_count(samples: Samples, cap: int | None) -> int:
-    """How many of ``samples`` a fit reads when it reads at most ``cap`` of each material's (None: all)."""
-    return len(samples) if cap is None else int(samples.counts().clamp(max=cap).sum())
-
-
 def _check(model: BRDFModel, samples: Samples, start: MaterialTable | None) -> None:
     if len(samples) == 0:
         raise ValueError("no samples to fit")
@@ -304,7 +299,7 @@ class LatentAdam(FitProtocol):
         return self.epochs
 
     def work(self, samples: Samples) -> int:  # at most sample_cap of each material's samples
-        return capped_count(samples, self.sample_cap) * self.epochs
+        return samples.count_at_most(self.sample_cap) * self.epochs
 
     def fit(self, model, samples, *, start=None, trained=None, encoder=None, seed=0) -> FitResult:
         _check(model, samples, start)

@@ -151,14 +151,15 @@ def test_a_kernel_over_slot_chunks_has_the_objective_and_gradient_of_one_pass(en
     train[:, ::5], val[:, ::5] = False, valid[:, ::5]  # a fifth of each row held out
     layout = layout_rows(wi.double(), wo.double(), f_r.double(), torch.arange(2), train, val)
     prior = torch.tensor([1e-2, 1e-3], dtype=torch.float64)
-    whole = RowKernel(double, space)(x, layout, prior_strength=prior, surrogate_eps=surrogate_eps)
-    chunked = RowKernel(double, space, chunk_slots=97)(x, layout, prior_strength=prior, surrogate_eps=surrogate_eps)
+    kernel = RowKernel(double, space)
+    whole = kernel(x, layout, prior_strength=prior, surrogate_eps=surrogate_eps)
+    chunked = kernel(x, layout, prior_strength=prior, surrogate_eps=surrogate_eps, chunk_slots=97)
     assert layout.slots > 97 * 6
     for name in ("train", "val", "objective", "grad", "per_sample"):
         assert torch.allclose(getattr(chunked, name), getattr(whole, name), rtol=1e-11, atol=1e-14), name
-    assert RowKernel(double, space, chunk_slots=97)(x, layout, grad=False).grad is None
+    assert kernel(x, layout, grad=False, chunk_slots=97).grad is None
     with pytest.raises(ValueError, match="chunk_slots must be at least 1"):
-        RowKernel(double, space, chunk_slots=0)
+        kernel(x, layout, chunk_slots=0)
 
 
 def test_a_rows_gradient_does_not_depend_on_the_rows_beside_it(enhanced, two_zoo_materials):
