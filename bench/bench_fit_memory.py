@@ -7,14 +7,14 @@
 Each case runs ``fit_materials`` with the shipped ``enhanced-ggx`` (its training codes as starts) on
 zoo materials (``synthetic_zoo``, seed 11; the fit's cost per sample does not depend on the material)
 in a fresh process of one torch thread as ``neuenh fit`` runs (``bench.harness.fitting_process``),
-once with the default ``block_samples`` and once with every material in one batch, and records the
+once with the protocol's own ``block_samples`` and once with every material in one batch, and records the
 process's peak RSS over its RSS before the fit (``VmHWM``, ``VmRSS``) and the fit's wall time.
 
 1. *Memory*: 64 materials of 10,000 samples, the adaptive (``auto``) and latent fits at budgets cut
    to a few epochs — a step's memory does not depend on how many steps there are.
 2. *Mixed sizes*: 20 materials of 2,000 samples and one of 60,000 (100,000 samples, but 1.26 M slots
    once every material is padded to the largest), the adaptive fit at the short budgets.
-3. *Time*: 40 materials of 3,000 samples (two blocks: 33 and 7), the latent fit at its default budget:
+3. *Time*: 40 materials of 3,000 samples (blocks of 13, 13, 13 and 1), the latent fit at its default budget:
    what the blocks cost where one batch still fits in memory.
 """
 
@@ -43,7 +43,7 @@ CASES = [  # (what, materials, samples per material (a list: one count each), ca
 ]
 
 
-def child(materials: int, samples: int | list[int], capacity: str, short: bool, block_samples: int) -> dict:
+def child(materials: int, samples: int | list[int], capacity: str, short: bool, block_samples: int | None) -> dict:
     """One fit in this (fresh) process: its peak RSS over the RSS before it, and its wall time."""
     from bench.harness import fitting_process, status_bytes
 
@@ -70,7 +70,7 @@ def child(materials: int, samples: int | list[int], capacity: str, short: bool, 
             "loss": result.loss}
 
 
-def measure(materials: int, samples: int, capacity: str, short: bool, block_samples: int) -> dict:
+def measure(materials: int, samples: int, capacity: str, short: bool, block_samples: int | None) -> dict:
     out = subprocess.run([sys.executable, __file__, "--child", json.dumps([materials, samples, capacity, short,
                                                                            block_samples])],
                          capture_output=True, text=True, check=False, cwd=ROOT)
@@ -84,12 +84,10 @@ def _gib(n: float) -> str:
 
 
 def markdown_section(env: dict, waited: float, rows: list[dict], command: str) -> list[str]:
-    from neuenh.fit.run import BLOCK_SAMPLES
-
     lines = [SECTION, "", f"Command: `{command}`  ", f"Date: {env['date']}  ", machine_line(env) + "  ",
              f"Waited {waited:.0f} s for a quiet machine. Each fit in a fresh process of one torch thread; peak RSS "
-             f"(`VmHWM`) over the RSS before the fit. *blocks*: the default `block_samples` = {BLOCK_SAMPLES:,} "
-             "(`neuenh.fit.run`); *one batch*: every material in one batch, as before stop 57.", "",
+             f"(`VmHWM`) over the RSS before the fit. *blocks*: the protocol's own `block_samples` (`FitProtocol.block_samples`: "
+             "100,000, the latent fit's 40,000); *one batch*: every material in one batch, as before stop 57.", "",
              "| case | materials × samples | capacity | budget | one batch: peak − before, s | blocks: peak − before, s "
              "| blocks | memory ratio | time ratio |",
              "|---|---:|---|---|---:|---:|---:|---:|---:|"]
@@ -119,14 +117,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     output_arguments(parser)
     args = parser.parse_args(argv)
-    from neuenh.fit.run import BLOCK_SAMPLES
-
     waited = wait_quiet(args.max_wait, 0.3)
     env = machine()
     rows = []
     for what, materials, samples, capacity, short in CASES:
         row = {"what": what, "materials": materials, "samples": samples, "capacity": capacity, "short": short}
-        for label, block in (("one batch", ONE_BATCH), ("blocks", BLOCK_SAMPLES)):
+        for label, block in (("one batch", ONE_BATCH), ("blocks", None)):
             row[label] = measure(materials, samples, capacity, short, block)
             print(f"{what} {materials}x{samples} {capacity} {label}: {row[label]}", file=sys.stderr)
         rows.append(row)

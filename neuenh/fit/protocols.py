@@ -61,6 +61,10 @@ class FitProtocol(ABC):
     """How materials are fitted with a frozen model: the contract is the module doc's."""
 
     name: ClassVar[str]
+    # The most samples ``fit_materials`` fits at once with this protocol (``run.blocks``): enough rows to share a
+    # step's fixed cost, few enough to bound its memory (12 kB a sample for the adaptive fit; docs/BENCHMARKS.md,
+    # "A fit's memory, bounded by blocks of materials").
+    block_samples: ClassVar[int] = 100_000
 
     @abstractmethod
     def fit(self, model: BRDFModel, samples: Samples, *, start: MaterialTable | None = None,
@@ -282,6 +286,9 @@ class LatentAdam(FitProtocol):
     samples")."""
 
     name: ClassVar[str] = "latent"
+    # Its fastest block: 0.78-0.80x the time of blocks of 72,000-100,000, where the adaptive fit is fastest
+    # (docs/BENCHMARKS.md, "Blocks and chunks of a fit: measured by hand").
+    block_samples: ClassVar[int] = 40_000
     epochs: int = 300
     lr: float = 0.05
     starts: str = "analytical"

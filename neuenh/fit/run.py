@@ -3,12 +3,13 @@
 A fit stacks its materials as rows of one batch (``layout``), so its memory grows with the samples
 fitted at once: 12 kB a sample for the adaptive fit and 9 kB for the latent one (the shipped
 ``enhanced-ggx``), so a studio's two hundred materials of 10,000 samples would not fit in 24 GiB. The
-materials are fitted in consecutive blocks whose batch holds at most ``block_samples`` samples, each
-material padded to the block's largest (a material with more is a block of its own), and joined in order: 64 materials of 10,000 samples then take 0.2x the memory
-of one batch, and less time, not more (0.6-0.8x; docs/BENCHMARKS.md, "A fit's memory, bounded by
-blocks of materials"). A block still holds enough rows for the steps' fixed cost to be shared (eight
-materials in one batch take two thirds of their time one at a time), and fits of fewer samples are
-one block: the fit itself. A material's result is its block's fit, which — as for ``--jobs``' shares
+materials are fitted in consecutive blocks whose batch holds at most the protocol's ``block_samples``
+samples (100,000; the latent fit's 40,000, where it runs fastest), each material padded to the block's
+largest (a material with more is a block of its own), and joined in order: 64 materials of 10,000
+samples then take 0.2x the memory of one batch, and less time, not more (docs/BENCHMARKS.md, "A fit's
+memory, bounded by blocks of materials"). A block still holds enough rows for the steps' fixed cost to
+be shared (eight materials in one batch take two thirds of their time one at a time), and fits of fewer
+samples are one block: the fit itself. A material's result is its block's fit, which — as for ``--jobs``' shares
 (``parallel``) — may differ from a fit beside other materials by float rounding only.
 """
 
@@ -24,9 +25,6 @@ from ..model import BRDFModel
 from .options import FitOptions
 from .protocols import FitProtocol
 from .result import FitResult
-
-# Samples fitted at once: 1.5 GiB above the process's own for the adaptive fit (docs/BENCHMARKS.md).
-BLOCK_SAMPLES = 100_000
 
 
 def default_protocol(model: BRDFModel) -> FitProtocol:
@@ -54,16 +52,17 @@ def blocks(counts: list[int], block_samples: int) -> list[list[int]]:
 
 def fit_materials(model: BRDFModel, samples: Samples, protocol: FitProtocol | None = None, *,
                   start: MaterialTable | None = None, trained: MaterialTable | None = None,
-                  encoder: MaterialEncoder | None = None, seed: int = 0, block_samples: int = BLOCK_SAMPLES,
+                  encoder: MaterialEncoder | None = None, seed: int = 0, block_samples: int | None = None,
                   progress: Callable[[int, int], None] | None = None) -> FitResult:
     """Fit every material of ``samples`` with ``model`` frozen by ``protocol`` (default:
-    ``default_protocol(model)``), in blocks of at most ``block_samples`` padded samples (``blocks``);
+    ``default_protocol(model)``), in blocks of at most ``block_samples`` padded samples (``blocks``;
+    default the protocol's own, ``FitProtocol.block_samples``);
     ``start``, ``trained`` and ``encoder`` as ``FitProtocol.fit`` takes them. ``progress(done, total)``:
     materials fitted so far, after each block."""
     protocol = protocol or default_protocol(model)
     began, total = time.perf_counter(), len(samples.names)
     parts = []
-    for block in blocks(samples.counts().tolist(), block_samples):
+    for block in blocks(samples.counts().tolist(), protocol.block_samples if block_samples is None else block_samples):
         whole = len(block) == total
         parts.append(protocol.fit(model, samples if whole else samples.select(block),
                                   start=start if whole or start is None else start.subset(block),
