@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 from bench.harness import machine, machine_line, output_arguments, wait_quiet, write_json  # noqa: E402
 from bench.report import publish  # noqa: E402
 
-SECTION = "## A fit's memory, bounded by blocks of materials (stop 57)"
+SECTION = "## A fit's memory, bounded by blocks of materials (stops 57, 58)"
 ONE_BATCH = 10**12  # block_samples that holds any fit: every material in one batch
 CASES = [  # (what, materials, samples per material (a list: one count each), capacity, short budget)
     ("memory", 64, 10_000, "auto", True),

@@ -35,9 +35,9 @@ cannot be held out here: every shipped model trained on all 100.) RGL materials 
 never tuned on. Beside each model its in-sample validation loss, what its search selected by.
 
 Results go to ``--json`` after every finished (phase, group, model) unit, atomically; a rerun with
-the same arguments skips the units already there (resumable). The section is written from whatever
-units are complete; a missing cell reads "—". ``--workers`` processes run units in parallel, one
-torch thread each.
+the same draws skips the units already there (resumable), so a model can be added to a comparison
+without scoring the others again. The section is written from whatever units are complete; a missing
+cell reads "—". ``--workers`` processes run units in parallel, one torch thread each.
 """
 
 from __future__ import annotations
@@ -120,10 +120,10 @@ def search_rounds(data_dir: str) -> list[tuple[int, object]]:
 
 
 def contenders(model: str, extras: dict[str, str], search: str | None = None,
-               rung_choice: str = "all") -> list[tuple[str, float, object, object]]:
-    """(label, val loss, model, its training materials or None) of every rung of ``model`` (the last
-    only for ``rung_choice`` "final"), every extra bundle, every committed round of ``search`` and
-    plain GGX. A fit starts from the training materials as ``neuenh fit`` and the search's fit score
+               rung_choice: str = "all") -> list[tuple[str, float, object, object, str]]:
+    """(label, val loss, model, its training materials or None, where it was read) of every rung of
+    ``model`` (the last only for ``rung_choice`` "final"), every extra bundle, every committed round of
+    ``search`` and plain GGX. A fit starts from the training materials as ``neuenh fit`` and the search's fit score
     do (their mean code and the codes that fit a material best): a bundle's own for the model itself,
     an extra bundle and a search round; a rung, its round's (``Rung.trained``: their mean alone for the
     earlier rungs of a bundle written before stop 57).
@@ -133,16 +133,16 @@ def contenders(model: str, extras: dict[str, str], search: str | None = None,
     from neuenh.pretrained import load_model, rungs
 
     every = rungs(model)
-    out = [(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, r.trained())
+    out = [(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, r.trained(), model)
            for r in (every[-1:] if rung_choice == "final" else every)]
     for name, path in extras.items():
         m, table = load_model(path)
         val = float(Bundle.load(path).metrics.get("val_loss", float("nan")))
-        out.append((f"{name}:{m.state}", val, m, table))
+        out.append((f"{name}:{m.state}", val, m, table, str(Path(path).resolve())))
     for k, bundle in search_rounds(search) if search else ():
         val = float(bundle.metrics.get("val_loss", float("nan")))
-        out.append((f"search@{k}:{bundle.model.state}", val, bundle.model, bundle.materials))
-    out.append(("ggx", float("nan"), get_model("ggx"), None))
+        out.append((f"search@{k}:{bundle.model.state}", val, bundle.model, bundle.materials, f"{search}@{k}"))
+    out.append(("ggx", float("nan"), get_model("ggx"), None, "ggx"))
     return out
 
 
@@ -175,10 +175,14 @@ def _score(index: int, holdout, protocol: Protocol) -> dict:
     from neuenh.selection import fit_score
     from neuenh.train import FitScoreConfig
 
-    _, _, model, trained = _MODELS[index]
+    _, _, model, trained, _ = _MODELS[index]
     scored = fit_score(model, holdout, FitScoreConfig(protocol.fit_samples, protocol.test_samples, protocol.epochs),
                        trained=trained)
     return {"per_material": dict(zip(holdout.names, scored.per_material)), "wall_s": scored.wall_s}
+
+
+# What a unit's samples and fits depend on beside its model: a file drawn otherwise is not resumed.
+DRAWN_BY = ("zoo", "ggx", "seed", "score_budget", "starts")
 
 
 def unit_key(phase: str, group: str, label: str) -> str:
@@ -190,13 +194,19 @@ def save(path: Path, results: dict) -> None:
 
 
 def run(args, config: dict) -> dict:
-    """Every (phase, group, model) unit not yet in ``args.json``, written there as each finishes."""
+    """Every (phase, group, model) unit not yet in ``args.json``, written there as each finishes. The
+    file's units are kept while the draws are the same (``DRAWN_BY``) and each model is read from where
+    it was: a model added to the comparison runs alone, one whose bundle moved runs again."""
     results = json.loads(args.json.read_text()) if args.json.exists() else {}
-    if results.get("config") != config:
-        results = {"config": config, "units": {}}
+    if {k: results.get("config", {}).get(k) for k in DRAWN_BY} != {k: config.get(k) for k in DRAWN_BY}:
+        results = {"units": {}, "sources": {}}
+    results["config"] = config
     chosen = (args.model, config["extras"], config.get("search"), config.get("rungs", "all"))
     models = contenders(*chosen)
-    results["models"] = [(label, val) for label, val, _, _ in models]
+    moved = {label for label, *_, source in models if results.get("sources", {}).get(label) != source}
+    results["units"] = {key: unit for key, unit in results["units"].items() if key.split("|", 2)[2] not in moved}
+    results["sources"] = {**results.get("sources", {}), **{label: source for label, *_, source in models}}
+    results["models"] = [(label, val) for label, val, *_ in models]
     save(args.json, results)
     todo = [(phase, group, i) for phase in args.phases for group in PHASES[phase][0]
             if group != "rgl" or Path(args.rgl).is_dir()
