@@ -9,8 +9,8 @@ largest (a material with more is a block of its own), and joined in order: 64 ma
 samples then take 0.2x the memory of one batch, and less time, not more (docs/BENCHMARKS.md, "A fit's
 memory, bounded by blocks of materials"). A block still holds enough rows for the steps' fixed cost to
 be shared (eight materials in one batch take two thirds of their time one at a time), and fits of fewer
-samples are one block: the fit itself. A material's result is its block's fit, which — as for ``--jobs``' shares
-(``parallel``) — may differ from a fit beside other materials by float rounding only.
+samples are one block: the fit itself. A material's result is its block's fit, which — as for
+``--jobs``' shares (``parallel``) — may differ from a fit beside other materials by float rounding only.
 """
 
 from __future__ import annotations
@@ -62,7 +62,8 @@ def fit_materials(model: BRDFModel, samples: Samples, protocol: FitProtocol | No
     protocol = protocol or default_protocol(model)
     began, total = time.perf_counter(), len(samples.names)
     parts = []
-    for block in blocks(samples.counts().tolist(), protocol.block_samples if block_samples is None else block_samples):
+    block_samples = protocol.block_samples if block_samples is None else block_samples
+    for block in blocks(samples.counts().tolist(), block_samples):
         whole = len(block) == total
         parts.append(protocol.fit(model, samples if whole else samples.select(block),
                                   start=start if whole or start is None else start.subset(block),

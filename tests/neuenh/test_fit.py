@@ -740,14 +740,13 @@ def test_a_fit_in_blocks_is_each_blocks_own_fit_joined_in_order(enhanced):
         assert blocked.losses == parts[0].losses + parts[1].losses and blocked.protocol["blocks"] == 2
         assert torch.equal(blocked.materials.latent, torch.cat([p.materials.latent for p in parts]))
         assert blocked.materials.names == samples.names and done == [(2, 3), (3, 3)]
-        if given is None:
-            first = blocked
     whole = fit_materials(enhanced, samples, protocol)
     assert whole.losses == protocol.fit(enhanced, samples).losses and "blocks" not in whole.protocol
 
     class SmallBlocks(LatentAdam):  # the block's size is the protocol's unless the call gives one
         block_samples = 300
 
-    assert fit_materials(enhanced, samples, SmallBlocks(epochs=5)).losses == first.losses
+    own = fit_materials(enhanced, samples, SmallBlocks(epochs=5))
+    assert own.protocol["blocks"] == 2 and own.losses == fit_materials(enhanced, samples, protocol, block_samples=300).losses
     with pytest.raises(ValueError, match="block_samples must be at least 1"):
         fit_materials(enhanced, samples, protocol, block_samples=0)
