@@ -286,8 +286,9 @@ class LatentAdam(FitProtocol):
     samples")."""
 
     name: ClassVar[str] = "latent"
-    # Its fastest block: 0.78-0.80x the time of blocks of 72,000-100,000, where the adaptive fit is fastest
-    # (docs/BENCHMARKS.md, "Blocks and chunks of a fit: measured by hand").
+    # Its fastest block (0.8x the time of blocks of 72,000-100,000): its four starts a material take 512 bytes a
+    # sample in its widest activation, which above ~65,000 samples passes glibc's largest mmap threshold (32 MiB) and
+    # gets fresh pages every step (docs/BENCHMARKS.md, "Blocks and chunks of a fit: measured by hand").
     block_samples: ClassVar[int] = 40_000
     epochs: int = 300
     lr: float = 0.05
