@@ -57,6 +57,12 @@ from .optim import SURROGATE_EPS, Adam, adam_rows, evaluate_rows, lbfgs_rows
 from .result import FitResult, per_material_loss
 
 
+# Codes × samples the training codes' screen scores at once (``LatentAdam.screened_codes``): a 32-wide activation of
+# 32 MiB, glibc's largest mmap threshold (docs/BENCHMARKS.md, "Blocks and chunks of a fit: measured by hand"); the
+# shipped model's 260 codes × 1,000 samples are one group.
+SCREEN_SLOTS = 262_144
+
+
 class FitProtocol(ABC):
     """How materials are fitted with a frozen model: the contract is the module doc's."""
 
@@ -370,16 +376,21 @@ class LatentAdam(FitProtocol):
         winner = race.train.reshape(m, k).nan_to_num(torch.inf).argmin(1)
         return [race.x.reshape(m, k, dim)[torch.arange(m), winner]]
 
-    def screened_codes(self, model: BRDFModel, rows: Rows, trained: MaterialTable, base: torch.Tensor) -> torch.Tensor:
+    def screened_codes(self, model: BRDFModel, rows: Rows, trained: MaterialTable, base: torch.Tensor,
+                       slots_at_once: int = SCREEN_SLOTS) -> torch.Tensor:
         """(m, k, dim): for each material of ``rows``, its analytical fit ``base`` (m, analytical
         dim) beside each of the ``screened`` training codes of lowest loss on all its samples as they
-        are (no step taken), lowest first (k = at most ``screened``)."""
+        are (no step taken), lowest first (k = at most ``screened``). The codes are scored in groups of
+        at most ``slots_at_once`` codes × samples, so a bundle of many training materials screens in
+        bounded memory."""
         space = RowSpace(model)
         kernel, codes = RowKernel(model, space), trained.latent_codes().float()
+        group = max(1, slots_at_once // rows.wi.shape[1])
         best = []
         for i in range(rows.materials):  # one material at a time: a row per code, on its slots
             candidates = torch.cat([base[i].expand(len(codes), -1), codes], 1)
-            loss = evaluate_rows(kernel, candidates, rows.layout(torch.full((len(codes),), i))).train
+            loss = torch.cat([evaluate_rows(kernel, part, rows.layout(torch.full((len(part),), i))).train
+                              for part in torch.split(candidates, group)])
             best.append(candidates[loss.argsort()[: self.screened]])
         return torch.stack(best)
 

@@ -21,7 +21,7 @@ from neuenh.fit.layout import compacted, fold_masks, layout_rows, padded
 from neuenh.fit.optim import Adam, adam_rows, evaluate_rows, lbfgs_rows
 from neuenh.fit.parallel import fit_in_processes, shares
 from neuenh.fit.run import blocks
-from neuenh.fit.protocols import Rows
+from neuenh.fit.protocols import SCREEN_SLOTS, Rows
 from neuenh.materials import MaterialTable
 from neuenh.models import get_model
 from neuenh.pretrained import load_model
@@ -397,14 +397,16 @@ def _codes(model, n, seed):
     return _random_table(model, tuple(f"t{i}" for i in range(n)), seed)
 
 
-def test_screened_codes_are_the_training_codes_that_fit_best_as_they_are(enhanced, two_zoo_materials):
+@pytest.mark.parametrize("slots_at_once", [SCREEN_SLOTS, 2_500])  # the 12 codes in one group; in groups of four
+def test_screened_codes_are_the_training_codes_that_fit_best_as_they_are(enhanced, two_zoo_materials, slots_at_once):
     """Each material's screened codes sit beside its analytical row, lowest log-L1 first — ranked
-    here by the model's own forward pass (``per_material_loss``), not by the fit's kernel."""
+    here by the model's own forward pass (``per_material_loss``), not by the fit's kernel — whether
+    the codes are scored all at once or in groups."""
     samples, trained = two_zoo_materials, _codes(enhanced, 12, seed=1)
     rows, space = Rows(samples, seed=0), RowSpace(enhanced)
     n_base = space.base_dim - enhanced.latent_dim
     base = torch.rand(rows.materials, n_base, generator=torch.Generator().manual_seed(2)) - 0.5
-    screened = LatentAdam(screened=3).screened_codes(enhanced, rows, trained, base)
+    screened = LatentAdam(screened=3).screened_codes(enhanced, rows, trained, base, slots_at_once)
     assert screened.shape == (rows.materials, 3, space.dim)
     for i in range(rows.materials):
         mine = samples.of_material(i)
