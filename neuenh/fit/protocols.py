@@ -56,7 +56,6 @@ from .layout import compacted, layout_rows, padded
 from .optim import SURROGATE_EPS, Adam, adam_rows, evaluate_rows, lbfgs_rows
 from .result import FitResult, per_material_loss
 
-
 # Codes × samples the training codes' screen scores at once (``LatentAdam.screened_codes``): a 32-wide activation of
 # 32 MiB, glibc's largest mmap threshold (docs/BENCHMARKS.md, "Blocks and chunks of a fit: measured by hand"); the
 # shipped model's 260 codes × 1,000 samples are one group.
