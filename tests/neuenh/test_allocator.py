@@ -3,7 +3,6 @@ take far fewer new pages once freed memory is kept than under glibc's defaults."
 
 import json
 import platform
-import statistics
 import subprocess
 import sys
 
@@ -54,18 +53,18 @@ def _steps(mode: str) -> dict:
                     reason="the setting is glibc's malloc's; other C libraries are left alone")
 def test_fit_steps_take_far_fewer_new_pages_once_freed_memory_is_kept():
     """After the first step (which takes its pages either way): under glibc's defaults the steps take
-    tens of thousands of pages anew (freed activations handed back and taken again); kept, most steps
-    take none. A few still take a few thousand while the heap grows to the largest step, and which
-    ones moves from run to run (steps 2-4 and 8 of 12, say). glibc's own dynamic mmap threshold
-    sometimes settles the default after four steps, so its median step is no measure (397 to 4,000
-    pages on an EPYC). Its total is: steps 2-12 took 31,074-64,209 pages by default and 3,411-6,967
-    kept, with a median step of 0-3 (docs/BENCHMARKS.md, "The C allocator's page faults"). Page
-    faults, not time: a count is the same on a busy machine."""
+    tens of thousands of pages anew (freed activations handed back and taken again); kept, far fewer.
+    So the totals over the steps are compared, not single steps. Which steps take pages moves from run
+    to run, both ways. Kept, a few steps take a few thousand while the heap grows to the largest step.
+    By default, glibc's own dynamic mmap threshold sometimes settles after four steps. And a host
+    that pages out cold memory (DAMON's `pageout`, on in these machines' VMs) makes even kept memory
+    fault again. On an EPYC, steps 2-12 took 31,074-64,209 pages by default and 3,411-6,967 kept
+    (docs/BENCHMARKS.md, "The C allocator's page faults"). Page faults, not time: a count does not
+    depend on the machine's speed."""
     default, kept = _steps("default"), _steps("keep")
     assert kept["kept"] is True
     default_pages, kept_pages = sum(default["faults"][1:]), sum(kept["faults"][1:])
     assert default_pages > 20_000 and 2 * kept_pages < default_pages
-    assert statistics.median(kept["faults"][1:]) < 100
 
 
 @pytest.mark.parametrize("retain_bytes", [-1, 1 << 31])
