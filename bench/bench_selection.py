@@ -64,6 +64,18 @@ RGL = ROOT.parent / "shared" / "data" / "rgl"
 
 
 @dataclass(frozen=True)
+class Contender:
+    """A model to score: its label, in-sample validation loss, the model, its training materials (the
+    fit's starts; None for plain GGX) and where it was read (what a resumed unit must match)."""
+
+    label: str
+    val: float
+    model: object
+    trained: object
+    source: str
+
+
+@dataclass(frozen=True)
 class Protocol:
     """How a phase fits and measures: samples drawn per material, the share near the mirror, and
     the fit score's budget (``FitScoreConfig``: fit samples, test samples, epochs)."""
@@ -120,10 +132,9 @@ def search_rounds(data_dir: str) -> list[tuple[int, object]]:
 
 
 def contenders(model: str, extras: dict[str, str], search: str | None = None,
-               rung_choice: str = "all") -> list[tuple[str, float, object, object, str]]:
-    """(label, val loss, model, its training materials or None, where it was read) of every rung of
-    ``model`` (the last only for ``rung_choice`` "final"), every extra bundle, every committed round of
-    ``search`` and plain GGX. A fit starts from the training materials as ``neuenh fit`` and the search's fit score
+               rung_choice: str = "all") -> list[Contender]:
+    """Every rung of ``model`` (the last only for ``rung_choice`` "final"), every extra bundle, every
+    committed round of ``search`` and plain GGX. A fit starts from the training materials as ``neuenh fit`` and the search's fit score
     do (their mean code and the codes that fit a material best): a bundle's own for the model itself,
     an extra bundle and a search round; a rung, its round's (``Rung.trained``: their mean alone for the
     earlier rungs of a bundle written before stop 57).
@@ -133,16 +144,17 @@ def contenders(model: str, extras: dict[str, str], search: str | None = None,
     from neuenh.pretrained import load_model, rungs
 
     every = rungs(model)
-    out = [(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, r.trained(), model)
+    out = [Contender(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, r.trained(), model)
            for r in (every[-1:] if rung_choice == "final" else every)]
     for name, path in extras.items():
         m, table = load_model(path)
         val = float(Bundle.load(path).metrics.get("val_loss", float("nan")))
-        out.append((f"{name}:{m.state}", val, m, table, str(Path(path).resolve())))
+        out.append(Contender(f"{name}:{m.state}", val, m, table, str(Path(path).resolve())))
     for k, bundle in search_rounds(search) if search else ():
         val = float(bundle.metrics.get("val_loss", float("nan")))
-        out.append((f"search@{k}:{bundle.model.state}", val, bundle.model, bundle.materials, f"{search}@{k}"))
-    out.append(("ggx", float("nan"), get_model("ggx"), None, "ggx"))
+        out.append(Contender(f"search@{k}:{bundle.model.state}", val, bundle.model, bundle.materials,
+                             f"{search}@{k}"))
+    out.append(Contender("ggx", float("nan"), get_model("ggx"), None, "ggx"))
     return out
 
 
@@ -167,7 +179,7 @@ def _init(labels: list[str], *chosen) -> None:
     """A worker's models: ``contenders(*chosen)`` in the order of the parent's ``labels`` (a search
     may commit another round between the parent's listing and the worker's)."""
     fitting_process()
-    by_label = {c[0]: c for c in contenders(*chosen)}
+    by_label = {c.label: c for c in contenders(*chosen)}
     _MODELS[:] = [by_label[label] for label in labels]
 
 
@@ -175,9 +187,10 @@ def _score(index: int, holdout, protocol: Protocol) -> dict:
     from neuenh.selection import fit_score
     from neuenh.train import FitScoreConfig
 
-    _, _, model, trained, _ = _MODELS[index]
-    scored = fit_score(model, holdout, FitScoreConfig(protocol.fit_samples, protocol.test_samples, protocol.epochs),
-                       trained=trained)
+    contender = _MODELS[index]
+    scored = fit_score(contender.model, holdout,
+                       FitScoreConfig(protocol.fit_samples, protocol.test_samples, protocol.epochs),
+                       trained=contender.trained)
     return {"per_material": dict(zip(holdout.names, scored.per_material)), "wall_s": scored.wall_s}
 
 
@@ -203,24 +216,24 @@ def run(args, config: dict) -> dict:
     results["config"] = config
     chosen = (args.model, config["extras"], config.get("search"), config.get("rungs", "all"))
     models = contenders(*chosen)
-    moved = {label for label, *_, source in models if results.get("sources", {}).get(label) != source}
+    moved = {c.label for c in models if results.get("sources", {}).get(c.label) != c.source}
     results["units"] = {key: unit for key, unit in results["units"].items() if key.split("|", 2)[2] not in moved}
-    results["sources"] = {**results.get("sources", {}), **{label: source for label, *_, source in models}}
-    results["models"] = [(label, val) for label, val, *_ in models]
+    results["sources"] = {**results.get("sources", {}), **{c.label: c.source for c in models}}
+    results["models"] = [(c.label, c.val) for c in models]
     save(args.json, results)
     todo = [(phase, group, i) for phase in args.phases for group in PHASES[phase][0]
             if group != "rgl" or Path(args.rgl).is_dir()
-            for i in range(len(models)) if unit_key(phase, group, models[i][0]) not in results["units"]]
+            for i in range(len(models)) if unit_key(phase, group, models[i].label) not in results["units"]]
     print(f"{len(todo)} units to run, {len(results['units'])} done", flush=True)
     drawn: dict = {}
     with ProcessPoolExecutor(args.workers, initializer=_init,
-                             initargs=([label for label, *_ in models], *chosen)) as pool:
+                             initargs=([c.label for c in models], *chosen)) as pool:
         running = {}
         for phase, group, i in todo:
             _, protocol, offset = PHASES[phase]
             if (phase, group) not in drawn:
                 drawn[(phase, group)] = draw(group, protocol, args, offset)
-            running[pool.submit(_score, i, drawn[(phase, group)], protocol)] = (phase, group, models[i][0])
+            running[pool.submit(_score, i, drawn[(phase, group)], protocol)] = (phase, group, models[i].label)
         while running:
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             for future in done:
