@@ -29,7 +29,7 @@ from .checkpoint import Bundle
 from .data.samples import Samples, TrainingData
 from .model import BRDFModel
 from .optimizers import CosineSchedule, RMSProp
-from .materials import MaterialTable
+from .materials import LATENT_INIT, MaterialTable
 
 
 @dataclass(frozen=True)
@@ -85,11 +85,16 @@ class TrainConfig:
     # After training, score the candidate by fitting the data's held-out materials (``neuenh.selection``
     # does, in the worker); None: no fit score.
     fit_score: FitScoreConfig | None = None
+    # Weight of a Gaussian prior on every material's latent code about LATENT_INIT, the start of every
+    # training code and of every fit (an auto-decoder's code prior: Park et al. 2019, "DeepSDF", Sec. 4):
+    # each batch's loss gains latent_prior times the mean over its samples of their material's
+    # mean_d (z_d - LATENT_INIT)^2 (``batch_loss``). 0: no prior (the paper).
+    latent_prior: float = 0.0
 
     def __post_init__(self) -> None:
         if self.epochs < 0 or self.batch_size < 1 or self.lr <= 0 or not 0 <= self.rmsprop_alpha < 1 \
                 or (self.lr_final is not None and not 0 < self.lr_final <= self.lr) \
-                or self.precision not in PRECISIONS:
+                or self.precision not in PRECISIONS or not 0 <= self.latent_prior < math.inf:
             raise ValueError(f"invalid training config {self}")
 
     def to_json(self) -> dict:
@@ -99,6 +104,8 @@ class TrainConfig:
             out["compile"] = True
         if self.precision != "float32":
             out["precision"] = self.precision
+        if self.latent_prior:
+            out["latent_prior"] = self.latent_prior
         return out if self.lr_final is None else {**out, "lr_final": self.lr_final}
 
 
@@ -159,18 +166,27 @@ def evaluate_loss(model: BRDFModel, materials: MaterialTable, samples: Samples, 
     return total / len(samples)
 
 
-def batch_loss(model: BRDFModel, materials: MaterialTable, precision: Precision = "float32") -> Callable[..., torch.Tensor]:
+def batch_loss(model: BRDFModel, materials: MaterialTable, precision: Precision = "float32",
+               latent_prior: float = 0.0) -> Callable[..., torch.Tensor]:
     """The mean log-L1 of one batch ``(wi, wo, f_r, material)``: what a training step differentiates
     and ``TrainConfig.compile`` compiles. Every model and state traces into one torch.compile graph
     (tests/neuenh/test_train.py): a graph break costs the compiled step a fifth of its speed (docs/BENCHMARKS.md,
-    "The compiled training step"). ``precision``: see ``TrainConfig.precision``."""
+    "The compiled training step"). ``precision`` and ``latent_prior``: see ``TrainConfig``; with a
+    prior, each sample also pays ``latent_prior * mean_d (z_d - LATENT_INIT)^2`` of its material's code,
+    so a material's codes are pulled in proportion to its samples, as its data term pulls them."""
     low = PRECISIONS[precision]
     products = contextlib.nullcontext if low is None else lambda: torch.autocast("cpu", dtype=low)
+    prior = latent_prior > 0 and model.uses_latent
 
     def loss(wi: torch.Tensor, wo: torch.Tensor, f_r: torch.Tensor, material: torch.Tensor) -> torch.Tensor:
         with products():  # the modules cast their outputs back to the inputs' float32
             pred = model.forward_indexed(wi, wo, materials.values(), materials.latent, material)
-        return log_l1(pred, f_r, wi).mean()
+        data = log_l1(pred, f_r, wi).mean()
+        if not prior:
+            return data
+        # each material's squared distance from the start, once per material, weighed by its samples here
+        distance = (materials.latent - LATENT_INIT).square().mean(dim=1)
+        return data + latent_prior * distance[material].mean()
 
     return loss
 
@@ -239,7 +255,7 @@ def train_candidate(
     epoch_losses: list[float] = []
     error = None
 
-    loss_of = batch_loss(model, materials, config.precision)
+    loss_of = batch_loss(model, materials, config.precision, config.latent_prior)
     step_loss = torch.compile(loss_of, dynamic=False) if config.compile else loss_of
     with deterministic(config.compile and torch.get_num_threads() > 1):
         for _epoch in range(config.epochs):

@@ -155,6 +155,10 @@ class TrainSpec(_Strict):
         "(AVX512_BF16, AMX) a compiled step of 100K samples 1.7x the float32 one in one pass, of 4096 about as fast; "
         "near convergence it trains 3-10% worse; on CPUs without it (AVX2 alone) the products are emulated and "
         "the step is about 7x slower than in float32 (docs/BENCHMARKS.md)"))
+    latent_prior: float = Field(0.0, ge=0.0, allow_inf_nan=False, description=(
+        "weight of a Gaussian prior on each training material's latent code about 0.5, where every code "
+        "and every fit starts (an auto-decoder's code prior, as DeepSDF's): each sample's loss gains "
+        "latent_prior times its material's mean squared distance from 0.5 over the code; 0: none (the paper)"))
 
     @model_validator(mode="after")
     def _check_lr(self) -> "TrainSpec":
@@ -293,6 +297,7 @@ class JobSpec(_Strict):
         return TrainConfig(epochs=self.search.epochs_per_round if epochs is None else epochs,
                            lr=self.train.lr, batch_size=self.train.batch_size, lr_final=self.train.lr_final,
                            compile=self.train.compile, precision=self.train.precision,
+                           latent_prior=self.train.latent_prior,
                            fit_score=self.search.fit_score.config(self.train.seed) if self.holds_out() else None)
 
     def polish_config(self) -> TrainConfig:

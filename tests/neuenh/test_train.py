@@ -115,6 +115,54 @@ def test_lr_final_decays_the_learning_rate_by_a_cosine():
         TrainConfig(lr=1e-3, lr_final=2e-3)
 
 
+def test_a_latent_prior_adds_each_samples_share_of_its_materials_squared_distance_from_the_start(small_data):
+    """``batch_loss(..., latent_prior=w)``: the batch's mean log-L1 plus w times the mean over its samples
+    of their material's mean squared distance of the code from 0.5 (numpy); its gradient on a code is
+    the data term's plus w * 2 (z - 0.5) / latent_dim * (the material's share of the batch). Without
+    modules reading the code, no prior."""
+    bundle = Bundle.initial("ggx", small_data.names)
+    model = bundle.model.enhance(PAPER_STATE, seed=0)
+    materials = bundle.materials
+    g = np.random.default_rng(3)
+    with torch.no_grad():
+        materials.latent.copy_(torch.as_tensor(g.uniform(-1, 2, tuple(materials.latent.shape)), dtype=torch.float32))
+    train = small_data.train
+    batch = (train.wi[:900], train.wo[:900], train.f_r[:900], train.material[:900])
+    z, material = materials.latent.detach().double().numpy(), batch[3].numpy()
+    expected_prior = ((z - 0.5) ** 2).mean(axis=1)[material].mean()
+    share = np.bincount(material, minlength=len(z)) / len(material)
+    expected_grad = 2 * (z - 0.5) / z.shape[1] * share[:, None]
+
+    def loss_and_code_gradient(weight):
+        materials.latent.grad = None
+        loss = batch_loss(model, materials, latent_prior=weight)(*batch)
+        loss.backward()
+        return float(loss.detach()), materials.latent.grad.double().numpy()
+
+    data, data_grad = loss_and_code_gradient(0.0)
+    with_prior, prior_grad = loss_and_code_gradient(0.25)
+    eps = torch.finfo(torch.float32).eps
+    assert with_prior - data == pytest.approx(0.25 * expected_prior, rel=100 * eps, abs=100 * eps * data)
+    assert np.allclose(prior_grad - data_grad, 0.25 * expected_grad, rtol=1e-4, atol=1e-4 * np.abs(expected_grad).max())
+    analytical = bundle.model.enhance("0" * 11, seed=0)
+    assert batch_loss(analytical, materials, latent_prior=0.25)(*batch) == batch_loss(analytical, materials)(*batch)
+
+
+def test_a_latent_prior_keeps_the_codes_nearer_the_start_and_is_recorded(small_data):
+    """Trained with a strong prior, the codes end nearer 0.5 than without one; the bundle's training
+    record names the prior only when there is one, and a negative or infinite weight is refused."""
+    parent = Bundle.initial("ggx", small_data.names)
+    config = TrainConfig(epochs=3, batch_size=500, lr=1e-2)
+    free = train_candidate(parent, PAPER_STATE, small_data, config, seed=1).bundle
+    held = train_candidate(parent, PAPER_STATE, small_data, dataclasses.replace(config, latent_prior=10.0), seed=1).bundle
+    spread = lambda bundle: float((bundle.materials.latent - 0.5).square().mean())
+    assert spread(held) < 0.5 * spread(free)
+    assert held.training["latent_prior"] == 10.0 and "latent_prior" not in free.training
+    for weight in (-1e-3, float("inf")):
+        with pytest.raises(ValueError, match="invalid training config"):
+            TrainConfig(latent_prior=weight)
+
+
 def _gradient(model, materials, batch, rows):
     """The flattened gradient (float64) of ``batch``'s mean loss, taken ``rows`` rows at a time, and that loss."""
     params = [*model.neural.parameters(), *materials.parameters()]

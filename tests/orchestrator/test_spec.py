@@ -24,6 +24,12 @@ def test_a_bfloat16_spec_trains_every_stage_at_that_precision():
         == {("bfloat16", True)}
 
 
+def test_a_latent_prior_reaches_every_stage_of_training():
+    spec = parse_spec({**BASE, "train": {"latent_prior": 1e-3}, "search": {"polish_epochs": 5}})
+    assert {c.latent_prior for c in (spec.train_config(), spec.train_config(7), spec.polish_config())} == {1e-3}
+    assert parse_spec(BASE).train_config().latent_prior == 0.0
+
+
 @pytest.mark.parametrize(
     "change,message",
     [
@@ -35,6 +41,7 @@ def test_a_bfloat16_spec_trains_every_stage_at_that_precision():
         ({"search": {"fixed": {"D": 2}}}, "digit 2 for D is not in 0..1"),
         ({"train": {"lr": 0}}, "train.lr"),
         ({"train": {"precision": "float16"}}, "train.precision: Input should be 'float32' or 'bfloat16'"),
+        ({"train": {"latent_prior": -1e-3}}, "train.latent_prior: Input should be greater than or equal to 0"),
         ({"data": [{"source": "merl_raw"}]}, "does not match any of the expected tags"),
         ({"data": [{"source": "synthetic_zoo", "families": ["velvet"]}]}, "unknown zoo families"),
         ({"train": {"lr": 1e-3, "lr_final": 1e-2}}, r"train: .*lr_final \(0.01\) must not exceed lr \(0.001\)"),
@@ -48,7 +55,7 @@ def test_a_bfloat16_spec_trains_every_stage_at_that_precision():
                                                {"source": "synthetic_ggx", "materials": 4}]},
          r"every data source, but data\[1\] \(synthetic_ggx\) holds none out"),
     ],
-    ids=["no-data", "model", "typo", "radius", "position", "digit", "lr", "precision", "source", "family", "lr-final", "polish",
+    ids=["no-data", "model", "typo", "radius", "position", "digit", "lr", "precision", "latent-prior", "source", "family", "lr-final", "polish",
          "alternatives-model", "alternatives-digit", "alternatives-allowed", "table-near-mirror",
          "fit-score-without-holdout", "fit-score-blind-to-a-source"],
 )
