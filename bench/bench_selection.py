@@ -3,7 +3,7 @@
     python bench/bench_selection.py --json OUT.json [--model enhanced-ggx] [--rungs all|final]
                                     [--extra NAME=BUNDLE ...] [--search DATA_DIR]
                                     [--zoo 16] [--ggx 8] [--seed 1000] [--phases score rgl-score ...]
-                                    [--workers 2] [--write docs/BENCHMARKS.md]
+                                    [--merl-spec SPEC.yaml] [--workers 2] [--write docs/BENCHMARKS.md]
 
 Every rung of ``--model`` (each committed round's winner of the search that made it,
 ``neuenh.pretrained.rungs``; ``--rungs final``: the shipped state only), every ``--extra`` bundle,
@@ -25,14 +25,20 @@ phase          materials                              fit (``FitScoreConfig``), 
                                                       near the mirror (issue 23's protocol)
 ``score2``     a second draw (``--seed`` + 1000 + 5,  the search's budget: is the score's order stable?
                + 4)
+``merl-user``  the NBRDF stand-ins (MERL) that         the user's fit
+               ``--merl-spec``'s ``nbrdf`` source holds
+               out (``holdout: N``)
 ``rgl-score``  the 8 RGL materials (final check only)  the search's budget
 ``rgl-user``   the 8 RGL materials (final check only)  the user's fit (issue 23's protocol)
 =============  =====================================  ===========================================
 
 The shipped models' searches drew their synthetic materials with seeds 5 and 4, so the held-out
-draws share the sources' families and distributions but no material. (The NBRDF stand-ins of MERL
-cannot be held out here: every shipped model trained on all 100.) RGL materials are measured only,
-never tuned on. Beside each model its in-sample validation loss, what its search selected by.
+draws share the sources' families and distributions but no material. Those draws are synthetic
+alone, and they did not predict the visible RGL materials (docs/BENCHMARKS.md, "Stop 59: a prior
+on the training codes"): the ``merl-user`` phase scores real measurements (the NBRDF stand-ins of MERL) kept
+out of training by a spec's ``holdout``, and only for models that did not train on any of them (every
+shipped model trained on all 100; a model that did is listed, not scored). RGL materials are measured
+only, never tuned on. Beside each model its in-sample validation loss, what its search selected by.
 
 Results go to ``--json`` after every finished (phase, group, model) unit, atomically; a rerun with
 the same draws skips the units already there (resumable), so a model can be added to a comparison
@@ -66,13 +72,15 @@ RGL = ROOT.parent / "shared" / "data" / "rgl"
 @dataclass(frozen=True)
 class Contender:
     """A model to score: its label, in-sample validation loss, the model, its training materials (the
-    fit's starts; None for plain GGX) and where it was read (what a resumed unit must match)."""
+    fit's starts; None for plain GGX), where it was read (what a resumed unit must match) and the names
+    of the materials it trained on (a rung's fit starts are codes without names)."""
 
     label: str
     val: float
     model: object
     trained: object
     source: str
+    training_names: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -111,6 +119,7 @@ PHASES = {  # phase -> (groups, protocol, seed offset of the synthetic draws)
     "score": (("zoo", "ggx"), SEARCH, 0),
     "user": (("zoo", "ggx"), USER, 0),
     "score2": (("zoo", "ggx"), SEARCH, 1000),
+    "merl-user": (("merl",), USER, 0),
     "rgl-score": (("rgl",), SEARCH, 0),
     "rgl-user": (("rgl",), USER, 0),
 }
@@ -144,16 +153,18 @@ def contenders(model: str, extras: dict[str, str], search: str | None = None,
     from neuenh.pretrained import load_model, rungs
 
     every = rungs(model)
-    out = [Contender(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, r.trained(), model)
+    names = lambda table: tuple(table.names) if table is not None else ()
+    model_names = names(load_model(model)[1])  # every rung of one bundle trained on its materials
+    out = [Contender(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, r.trained(), model, model_names)
            for r in (every[-1:] if rung_choice == "final" else every)]
     for name, path in extras.items():
         m, table = load_model(path)
         val = float(Bundle.load(path).metrics.get("val_loss", float("nan")))
-        out.append(Contender(f"{name}:{m.state}", val, m, table, str(Path(path).resolve())))
+        out.append(Contender(f"{name}:{m.state}", val, m, table, str(Path(path).resolve()), names(table)))
     for k, bundle in search_rounds(search) if search else ():
         val = float(bundle.metrics.get("val_loss", float("nan")))
         out.append(Contender(f"search@{k}:{bundle.model.state}", val, bundle.model, bundle.materials,
-                             f"{search}@{k}"))
+                             f"{search}@{k}", names(bundle.materials)))
     out.append(Contender("ggx", float("nan"), get_model("ggx"), None, "ggx"))
     return out
 
@@ -168,8 +179,24 @@ def draw(group: str, protocol: Protocol, args, offset: int):
     if group == "ggx":
         return SyntheticGGX(source="synthetic_ggx", materials=args.ggx, seed=args.seed + offset + 4, noise=0.1,
                             **common).build()
+    if group == "merl":
+        source, held = merl_holdout(args.merl_spec)
+        drawn = source.model_copy(update={**common, "seed": args.seed + offset + 3, "holdout": 0}).build()
+        return drawn.select(held)
     return RGLSource(source="rgl", paths=[str(p) for p in sorted(Path(args.rgl).glob("*.bsdf"))], seed=0,
                      every_azimuth=True, **common).build()
+
+
+def merl_holdout(spec_path: Path):
+    """The ``nbrdf`` source of a search spec and the indices of the materials it holds out
+    (``neuenh.data.sources.held_out``: the same materials every search of that source keeps out)."""
+    from neuenh.data.sources import held_out
+    from neuenh_service.orchestrator.spec import load_spec
+
+    sources = [s for s in load_spec(spec_path).data if s.source == "nbrdf" and s.holdout]
+    if len(sources) != 1:
+        raise SystemExit(f"--merl-spec {spec_path}: needs exactly one nbrdf source with a holdout, found {len(sources)}")
+    return sources[0], held_out(sources[0], len(sources[0].load_materials()))
 
 
 _MODELS: list = []
@@ -213,6 +240,8 @@ def run(args, config: dict) -> dict:
     results = json.loads(args.json.read_text()) if args.json.exists() else {}
     if {k: results.get("config", {}).get(k) for k in DRAWN_BY} != {k: config.get(k) for k in DRAWN_BY}:
         results = {"units": {}, "sources": {}}
+    if results.get("config", {}).get("merl_spec") != config.get("merl_spec"):  # other MERL materials held out
+        results["units"] = {key: unit for key, unit in results["units"].items() if key.split("|")[1] != "merl"}
     results["config"] = config
     chosen = (args.model, config["extras"], config.get("search"), config.get("rungs", "all"))
     models = contenders(*chosen)
@@ -221,11 +250,17 @@ def run(args, config: dict) -> dict:
     results["sources"] = {**results.get("sources", {}), **{c.label: c.source for c in models}}
     results["models"] = [(c.label, c.val) for c in models]
     save(args.json, results)
+    drawn: dict = {}
+    if "merl-user" in args.phases:  # a model that trained on some of the held-out materials is not scored on them
+        held = drawn[("merl-user", "merl")] = draw("merl", USER, args, 0)
+        seen = {c.label: sorted(set(held.names) & set(c.training_names)) for c in models}
+        results["merl_seen"] = {label: names for label, names in seen.items() if names}
+    results.setdefault("merl_seen", {})
     todo = [(phase, group, i) for phase in args.phases for group in PHASES[phase][0]
             if group != "rgl" or Path(args.rgl).is_dir()
-            for i in range(len(models)) if unit_key(phase, group, models[i].label) not in results["units"]]
+            for i in range(len(models)) if unit_key(phase, group, models[i].label) not in results["units"]
+            and (group != "merl" or models[i].label not in results["merl_seen"])]
     print(f"{len(todo)} units to run, {len(results['units'])} done", flush=True)
-    drawn: dict = {}
     with ProcessPoolExecutor(args.workers, initializer=_init,
                              initargs=([c.label for c in models], *chosen)) as pool:
         running = {}
@@ -296,7 +331,7 @@ def columns(results: dict) -> list[tuple[str, str, tuple[str, ...]]]:
     out = []
     for phase, (groups, _, _) in PHASES.items():
         for heading, gs in ((f"{phase} zoo", ("zoo",)), (f"{phase} ggx", ("ggx",)), (f"{phase} both", groups)) \
-                if groups != ("rgl",) else ((phase, groups),):
+                if len(groups) > 1 else ((phase, groups),):
             if all(g in groups for g in gs) and any(cell(results, phase, gs, label) is not None
                                                     for label, _ in results["models"]):
                 out.append((heading, phase, gs))
@@ -318,7 +353,8 @@ def markdown_section(env: dict, results: dict, command: str) -> str:
              f"trained on. *zoo* ({n.get('zoo', 0)}) and *ggx* ({n.get('ggx', 0)}): materials of the training "
              f"sources drawn with seeds no search used (synthetic_zoo {config['seed'] + 5}, synthetic_ggx "
              f"{config['seed'] + 4}; *score2*: {config['seed'] + 1005} and {config['seed'] + 1004}); *rgl*: the "
-             f"{n.get('rgl', 0) or 'unmeasured'} visible RGL materials, a final check only. *score* phases: the search's budget "
+             f"{n.get('rgl', 0) or 'unmeasured'} visible RGL materials, a final check only; *merl* "
+             f"({n.get('merl', 0)}): the NBRDF stand-ins `{config.get('merl_spec', '—')}` holds out. *score* phases: the search's budget "
              f"({SEARCH.fit_samples} fit / {SEARCH.test_samples} test samples, {SEARCH.epochs} epochs, "
              f"{SEARCH.near_mirror:.0%} near the mirror); *user* phases: `neuenh fit`'s ({USER.fit_samples} / "
              f"{USER.test_samples}, {USER.epochs} epochs, {USER.near_mirror:.0%} near the mirror). *val*: the "
@@ -326,6 +362,8 @@ def markdown_section(env: dict, results: dict, command: str) -> str:
     lines += ["| model | val |" + "".join(f" {h} |" for h, _, _ in cols), "|---|---:|" + "---:|" * len(cols)]
     for label, val in models:
         lines.append(f"| `{label}` | {fmt(val, 5)} |" + "".join(f" {fmt(cell(results, p, gs, label))} |" for _, p, gs in cols))
+    for label, names in results.get("merl_seen", {}).items():
+        lines.append(f"`{label}` trained on {len(names)} of the held-out MERL materials: not scored on them.")
     selectors = [(h, p, gs) for h, p, gs in cols if p in ("score", "score2") and len(gs) > 1]
     truths = [(h, p, gs) for h, p, gs in cols if p not in ("score", "score2") or (p == "score2" and len(gs) > 1)]
     for what, subset in ((f"the rungs of `{config['model']}` (one search, one training set)",
@@ -365,6 +403,7 @@ def main() -> int:
     parser.add_argument("--ggx", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--rgl", type=Path, default=RGL)
+    parser.add_argument("--merl-spec", type=Path, help="the merl-user phase: the NBRDF stand-ins this spec holds out")
     parser.add_argument("--phases", nargs="+", choices=tuple(PHASES), default=list(PHASES))
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--json", type=Path, required=True, help="results, written as units finish; resumed from")
@@ -377,12 +416,17 @@ def main() -> int:
         if not sep or not name or not Path(path).is_dir():
             parser.error(f"--extra {e!r}: expected NAME=BUNDLE_DIR with an existing folder")
         extras[name] = path
+    if "merl-user" in args.phases and args.merl_spec is None:
+        if args.phases != list(PHASES):
+            parser.error("--phases merl-user needs --merl-spec SPEC.yaml (the spec whose nbrdf source holds them out)")
+        args.phases.remove("merl-user")
     if args.search and not (Path(args.search) / "jobs.sqlite").is_file():
         parser.error(f"--search {args.search}: no jobs.sqlite there (a `neuenh search --data-dir` folder)")
     config = {"model": args.model, "extras": extras, "zoo": args.zoo, "ggx": args.ggx, "seed": args.seed,
               "score_budget": [SEARCH.fit_samples, SEARCH.test_samples, SEARCH.epochs],  # a changed spec: units anew
               "starts": "training materials",  # not resumed from a file of the mean-only starts (``contenders``)
               **({"search": str(Path(args.search).resolve())} if args.search else {}),
+              **({"merl_spec": str(args.merl_spec.resolve())} if args.merl_spec else {}),
               **({"rungs": args.rungs} if args.rungs != "all" else {})}
     env = machine()
     if args.report_only:
