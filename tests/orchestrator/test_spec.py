@@ -94,6 +94,18 @@ def test_the_fit_scored_reference_spec_holds_out_every_kind_and_fits_as_users_do
     assert spec.search.fit_score.epochs == LatentAdam().epochs
 
 
+def test_the_default_fit_score_fits_as_users_do():
+    """A spec that holds materials out without naming a budget scores them with the users' fit's
+    epochs, in the spec and in the worker's config alike (stop 60: 100-epoch fits ranked a search's
+    rounds otherwise than users' fits did)."""
+    from neuenh.fit import LatentAdam
+    from neuenh.train import FitScoreConfig
+
+    spec = parse_spec({"data": [{"source": "synthetic_zoo", "materials": 4, "samples": 10, "holdout": 2}]})
+    assert spec.train_config().fit_score == FitScoreConfig(seed=spec.train.seed)
+    assert spec.search.fit_score.epochs == FitScoreConfig().epochs == LatentAdam().epochs
+
+
 def test_the_curriculum_spec_grows_the_shipped_state_on_the_reference_data():
     """examples/reference-curriculum.yaml (stop 54): from the shipped model's analytical choices it can
     reach only the shipped state and its two halves, on examples/reference.yaml's data and schedule."""
