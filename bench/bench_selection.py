@@ -180,23 +180,23 @@ def draw(group: str, protocol: Protocol, args, offset: int):
         return SyntheticGGX(source="synthetic_ggx", materials=args.ggx, seed=args.seed + offset + 4, noise=0.1,
                             **common).build()
     if group == "merl":
-        source, held = merl_holdout(args.merl_spec)
+        from neuenh.data.sources import held_out
+
+        source = merl_source(args.merl_spec)
         drawn = source.model_copy(update={**common, "seed": args.seed + offset + 3, "holdout": 0}).build()
-        return drawn.select(held)
+        return drawn.select(held_out(source, len(drawn.names)))  # the materials every search of it keeps out
     return RGLSource(source="rgl", paths=[str(p) for p in sorted(Path(args.rgl).glob("*.bsdf"))], seed=0,
                      every_azimuth=True, **common).build()
 
 
-def merl_holdout(spec_path: Path):
-    """The ``nbrdf`` source of a search spec and the indices of the materials it holds out
-    (``neuenh.data.sources.held_out``: the same materials every search of that source keeps out)."""
-    from neuenh.data.sources import held_out
+def merl_source(spec_path: Path):
+    """The one ``nbrdf`` source of a search spec that holds materials out."""
     from neuenh_service.orchestrator.spec import load_spec
 
     sources = [s for s in load_spec(spec_path).data if s.source == "nbrdf" and s.holdout]
     if len(sources) != 1:
         raise SystemExit(f"--merl-spec {spec_path}: needs exactly one nbrdf source with a holdout, found {len(sources)}")
-    return sources[0], held_out(sources[0], len(sources[0].load_materials()))
+    return sources[0]
 
 
 _MODELS: list = []
@@ -251,8 +251,15 @@ def run(args, config: dict) -> dict:
     results["models"] = [(c.label, c.val) for c in models]
     save(args.json, results)
     drawn: dict = {}
+
+    def samples_of(phase: str, group: str):  # each (phase, group)'s materials, drawn once
+        if (phase, group) not in drawn:
+            _, protocol, offset = PHASES[phase]
+            drawn[(phase, group)] = draw(group, protocol, args, offset)
+        return drawn[(phase, group)]
+
     if "merl-user" in args.phases:  # a model that trained on some of the held-out materials is not scored on them
-        held = drawn[("merl-user", "merl")] = draw("merl", USER, args, 0)
+        held = samples_of("merl-user", "merl")
         seen = {c.label: sorted(set(held.names) & set(c.training_names)) for c in models}
         results["merl_seen"] = {label: names for label, names in seen.items() if names}
     results.setdefault("merl_seen", {})
@@ -265,10 +272,7 @@ def run(args, config: dict) -> dict:
                              initargs=([c.label for c in models], *chosen)) as pool:
         running = {}
         for phase, group, i in todo:
-            _, protocol, offset = PHASES[phase]
-            if (phase, group) not in drawn:
-                drawn[(phase, group)] = draw(group, protocol, args, offset)
-            running[pool.submit(_score, i, drawn[(phase, group)], protocol)] = (phase, group, models[i].label)
+            running[pool.submit(_score, i, samples_of(phase, group), PHASES[phase][1])] = (phase, group, models[i].label)
         while running:
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             for future in done:
