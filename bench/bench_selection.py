@@ -3,7 +3,8 @@
     python bench/bench_selection.py --json OUT.json [--model enhanced-ggx] [--rungs all|final]
                                     [--extra NAME=BUNDLE ...] [--search DATA_DIR]
                                     [--zoo 16] [--ggx 8] [--seed 1000] [--phases score rgl-score ...]
-                                    [--merl-spec SPEC.yaml] [--workers 2] [--write docs/BENCHMARKS.md]
+                                    [--merl-spec SPEC.yaml] [--against LABEL] [--workers 2]
+                                    [--write docs/BENCHMARKS.md]
 
 Every rung of ``--model`` (each committed round's winner of the search that made it,
 ``neuenh.pretrained.rungs``; ``--rungs final``: the shipped state only), every ``--extra`` bundle,
@@ -43,7 +44,8 @@ only, never tuned on. Beside each model its in-sample validation loss, what its 
 Results go to ``--json`` after every finished (phase, group, model) unit, atomically; a rerun with
 the same draws skips the units already there (resumable), so a model can be added to a comparison
 without scoring the others again. The section is written from whatever units are complete; a missing
-cell reads "—". ``--workers`` processes run units in parallel, one torch thread each.
+cell reads "—". ``--workers`` processes run units in parallel, one torch thread each. ``--against
+LABEL`` adds every other model paired with that one, material by material (``paired``).
 """
 
 from __future__ import annotations
@@ -303,6 +305,28 @@ def cell(results: dict, phase: str, groups: tuple[str, ...], label: str) -> floa
     return sum(values) / len(values)
 
 
+def paired(results: dict, phase: str, groups: tuple[str, ...], label: str, reference: str) -> tuple[float, float, int, int] | None:
+    """``label`` against ``reference`` on the materials both were scored on in ``phase``: the geometric
+    mean of their per-material ratios, its standard error as a factor (exp of the log ratios' standard
+    deviation over sqrt(n)), on how many materials ``label`` is lower, and n. A mean over materials
+    is ruled by the few hardest; the paired ratio asks whether a model fits most materials better.
+    None unless both have every group's unit."""
+    logs, better = [], 0
+    for group in groups:
+        ours = results["units"].get(unit_key(phase, group, label))
+        theirs = results["units"].get(unit_key(phase, group, reference))
+        if ours is None or theirs is None:
+            return None
+        for name, value in theirs["per_material"].items():
+            if name in ours["per_material"]:
+                logs.append(math.log(ours["per_material"][name] / value))
+                better += ours["per_material"][name] < value
+    if not logs:
+        return None
+    spread = statistics.stdev(logs) / math.sqrt(len(logs)) if len(logs) > 1 else float("nan")
+    return math.exp(statistics.fmean(logs)), math.exp(spread), better, len(logs)
+
+
 def ranks(values: list[float]) -> list[float]:
     """Ranks from 0, ties sharing their mean rank."""
     order = sorted(range(len(values)), key=lambda i: values[i])
@@ -346,8 +370,9 @@ def fmt(x: float | None, digits: int = 4) -> str:
     return "—" if x is None or x != x else f"{x:.{digits}f}"
 
 
-def markdown_section(env: dict, results: dict, command: str) -> str:
-    """The section from whatever units are complete: never fails on a partial run."""
+def markdown_section(env: dict, results: dict, command: str, against: str | None = None) -> str:
+    """The section from whatever units are complete: never fails on a partial run. ``against``: a
+    model's label, to pair every other model with (``paired``)."""
     config, models = results["config"], results["models"]
     cols = columns(results)
     n = {g: len(u["per_material"]) for k, u in results["units"].items() for g in [k.split("|")[1]]}
@@ -368,6 +393,16 @@ def markdown_section(env: dict, results: dict, command: str) -> str:
         lines.append(f"| `{label}` | {fmt(val, 5)} |" + "".join(f" {fmt(cell(results, p, gs, label))} |" for _, p, gs in cols))
     for label, names in results.get("merl_seen", {}).items():
         lines.append(f"`{label}` trained on {len(names)} of the held-out MERL materials: not scored on them.")
+    if against is not None:
+        lines += ["", f"Paired against `{against}`: the geometric mean of each model's per-material ratio to it (× or ÷ "
+                  "its standard error), and on how many of the materials both were scored on the model is lower.", "",
+                  "| model |" + "".join(f" {h} |" for h, _, _ in cols), "|---|" + "---:|" * len(cols)]
+        for label, _ in models:
+            if label == against:
+                continue
+            cells = [paired(results, p, gs, label, against) for _, p, gs in cols]
+            lines.append(f"| `{label}` |" + "".join(
+                " — |" if c is None else f" {c[0]:.3f} (×/ {c[1]:.3f}), {c[2]} of {c[3]} |" for c in cells))
     selectors = [(h, p, gs) for h, p, gs in cols if p in ("score", "score2") and len(gs) > 1]
     truths = [(h, p, gs) for h, p, gs in cols if p not in ("score", "score2") or (p == "score2" and len(gs) > 1)]
     for what, subset in ((f"the rungs of `{config['model']}` (one search, one training set)",
@@ -412,6 +447,8 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--json", type=Path, required=True, help="results, written as units finish; resumed from")
     parser.add_argument("--report-only", action="store_true", help="write the section from --json, run nothing")
+    parser.add_argument("--against", metavar="LABEL", help="a scored model's label (as the table names it): every "
+                        "other model's per-material ratios to it, paired")
     parser.add_argument("--write")
     args = parser.parse_args()
     extras = {}
@@ -439,8 +476,11 @@ def main() -> int:
         results = json.loads(args.json.read_text())
     else:
         results = run(args, config)
+    labels = [label for label, _ in results["models"]]
+    if args.against is not None and args.against not in labels:
+        raise SystemExit(f"--against {args.against}: not a scored model; the models are {', '.join(labels)}")
     command = "python bench/bench_selection.py " + " ".join(a for a in sys.argv[1:] if a != "--report-only")
-    publish(markdown_section(env, results, command), args.write, SECTION)
+    publish(markdown_section(env, results, command, args.against), args.write, SECTION)
     return 0
 
 
