@@ -235,6 +235,11 @@ def save(path: Path, results: dict) -> None:
     atomic_write(path, json.dumps(results, indent=1))
 
 
+def check_against(label: str | None, labels: list[str]) -> None:
+    if label is not None and label not in labels:
+        raise SystemExit(f"--against {label}: not a scored model; the models are {', '.join(labels)}")
+
+
 def run(args, config: dict) -> dict:
     """Every (phase, group, model) unit not yet in ``args.json``, written there as each finishes. The
     file's units are kept while the draws are the same (``DRAWN_BY``) and each model is read from where
@@ -251,6 +256,7 @@ def run(args, config: dict) -> dict:
     results["units"] = {key: unit for key, unit in results["units"].items() if key.split("|", 2)[2] not in moved}
     results["sources"] = {**results.get("sources", {}), **{c.label: c.source for c in models}}
     results["models"] = [(c.label, c.val) for c in models]
+    check_against(args.against, [c.label for c in models])  # before hours of scoring, not after
     save(args.json, results)
     drawn: dict = {}
 
@@ -305,7 +311,8 @@ def cell(results: dict, phase: str, groups: tuple[str, ...], label: str) -> floa
     return sum(values) / len(values)
 
 
-def paired(results: dict, phase: str, groups: tuple[str, ...], label: str, reference: str) -> tuple[float, float, int, int] | None:
+def paired(results: dict, phase: str, groups: tuple[str, ...], label: str,
+           reference: str) -> tuple[float, float, int, int] | None:
     """``label`` against ``reference`` on the materials both were scored on in ``phase``: the geometric
     mean of their per-material ratios, its standard error as a factor (exp of the log ratios' standard
     deviation over sqrt(n)), on how many materials ``label`` is lower, and n. A mean over materials
@@ -394,8 +401,8 @@ def markdown_section(env: dict, results: dict, command: str, against: str | None
     for label, names in results.get("merl_seen", {}).items():
         lines.append(f"`{label}` trained on {len(names)} of the held-out MERL materials: not scored on them.")
     if against is not None:
-        lines += ["", f"Paired against `{against}`: the geometric mean of each model's per-material ratio to it (× or ÷ "
-                  "its standard error), and on how many of the materials both were scored on the model is lower.", "",
+        lines += ["", (f"Paired against `{against}`: the geometric mean of each model's per-material ratio to it (× or ÷ "
+                       "its standard error), and on how many of the materials both were scored on the model is lower."), "",
                   "| model |" + "".join(f" {h} |" for h, _, _ in cols), "|---|" + "---:|" * len(cols)]
         for label, _ in models:
             if label == against:
@@ -476,9 +483,7 @@ def main() -> int:
         results = json.loads(args.json.read_text())
     else:
         results = run(args, config)
-    labels = [label for label, _ in results["models"]]
-    if args.against is not None and args.against not in labels:
-        raise SystemExit(f"--against {args.against}: not a scored model; the models are {', '.join(labels)}")
+    check_against(args.against, [label for label, _ in results["models"]])
     command = "python bench/bench_selection.py " + " ".join(a for a in sys.argv[1:] if a != "--report-only")
     publish(markdown_section(env, results, command, args.against), args.write, SECTION)
     return 0
