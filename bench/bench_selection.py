@@ -398,7 +398,8 @@ def markdown_section(env: dict, results: dict, command: str, against: str | None
     lines += ["| model | val |" + "".join(f" {h} |" for h, _, _ in cols), "|---|---:|" + "---:|" * len(cols)]
     for label, val in models:
         lines.append(f"| `{label}` | {fmt(val, 5)} |" + "".join(f" {fmt(cell(results, p, gs, label))} |" for _, p, gs in cols))
-    for label, names in results.get("merl_seen", {}).items():
+    seen = results.get("merl_seen", {})  # models not scored on the held-out MERL materials, by design
+    for label, names in seen.items():
         lines.append(f"`{label}` trained on {len(names)} of the held-out MERL materials: not scored on them.")
     if against is not None:
         lines += ["", (f"Paired against `{against}`: the geometric mean of each model's per-material ratio to it (× or ÷ "
@@ -418,16 +419,18 @@ def markdown_section(env: dict, results: dict, command: str, against: str | None
         if len(subset) < 3 or not truths:
             continue
         lines += ["", f"Spearman rank correlation over {what}, {len(subset)} models, of the score each row selects by "
-                  "with each column's held-out error (1: the same order; —: incomplete):", "",
+                  "with each column's held-out error (1: the same order; —: incomplete; a model that trained on a "
+                  "column's materials is left out of it, and the cell then says how many models it ranks):", "",
                   "| selected by | " + " | ".join(h for h, _, _ in truths) + " |", "|---|" + "---:|" * len(truths)]
         for name, score in [("val (in-sample)", dict(subset))] + [
                 (h, {label: cell(results, p, gs, label) for label, _ in subset}) for h, p, gs in selectors]:
             cells = []
             for _, p, gs in truths:
-                truth = {label: cell(results, p, gs, label) for label, _ in subset}
-                complete = all(v is not None for v in list(score.values()) + list(truth.values()))
-                cells.append(fmt(spearman([score[k] for k, _ in subset], [truth[k] for k, _ in subset]), 2)
-                             if complete else "—")
+                ranked = [label for label, _ in subset if "merl" not in gs or label not in seen]
+                truth = {label: cell(results, p, gs, label) for label in ranked}
+                complete = len(ranked) >= 3 and all(score[k] is not None and truth[k] is not None for k in ranked)
+                value = fmt(spearman([score[k] for k in ranked], [truth[k] for k in ranked]), 2) if complete else "—"
+                cells.append(value if len(ranked) == len(subset) else f"{value} ({len(ranked)} models)")
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
     walls = [(u["wall_s"], len(u["per_material"])) for k, u in results["units"].items()
              if k.split("|")[0] in ("score", "score2") and not k.endswith("|ggx")]
