@@ -160,9 +160,10 @@ def contenders(model: str, extras: dict[str, str], search: str | None = None,
     out = [Contender(f"{model}@{r.round}:{r.state}", r.val_loss, r.model, r.trained(), model, model_names)
            for r in (every[-1:] if rung_choice == "final" else every)]
     for name, path in extras.items():
-        m, table = load_model(path)
-        val = float(Bundle.load(path).metrics.get("val_loss", float("nan")))
-        out.append(Contender(f"{name}:{m.state}", val, m, table, str(Path(path).resolve()), names(table)))
+        bundle = Bundle.load(path)
+        val = float(bundle.metrics.get("val_loss", float("nan")))
+        out.append(Contender(f"{name}:{bundle.model.state}", val, bundle.model, bundle.materials,
+                             str(Path(path).resolve()), names(bundle.materials)))
     for k, bundle in search_rounds(search) if search else ():
         val = float(bundle.metrics.get("val_loss", float("nan")))
         out.append(Contender(f"search@{k}:{bundle.model.state}", val, bundle.model, bundle.materials,
