@@ -485,9 +485,9 @@ def main() -> int:
         if not args.json.exists():
             parser.error(f"--report-only: {args.json} does not exist")
         results = json.loads(args.json.read_text())
+        check_against(args.against, [label for label, _ in results["models"]])  # a run checks before scoring
     else:
         results = run(args, config)
-    check_against(args.against, [label for label, _ in results["models"]])
     command = "python bench/bench_selection.py " + " ".join(a for a in sys.argv[1:] if a != "--report-only")
     publish(markdown_section(env, results, command, args.against), args.write, SECTION)
     return 0
