@@ -29,6 +29,9 @@ phase          materials                              fit (``FitScoreConfig``), 
 ``merl-user``  the NBRDF stand-ins (MERL) that         the user's fit
                ``--merl-spec``'s ``nbrdf`` source holds
                out (``holdout: N``)
+``merl-auto``  the same stand-ins                     the user's fit at ``neuenh fit``'s default
+                                                      capacity (``auto``: corrections where a
+                                                      material's cross-validation chooses them)
 ``rgl-score``  the 8 RGL materials (final check only)  the search's budget
 ``rgl-user``   the 8 RGL materials (final check only)  the user's fit (issue 23's protocol)
 =============  =====================================  ===========================================
@@ -36,7 +39,7 @@ phase          materials                              fit (``FitScoreConfig``), 
 The shipped models' searches drew their synthetic materials with seeds 5 and 4, so the held-out
 draws share the sources' families and distributions but no material. Those draws are synthetic
 alone, and they did not predict the visible RGL materials (docs/BENCHMARKS.md, "Stop 59: a prior
-on the training codes"): the ``merl-user`` phase scores real measurements (the NBRDF stand-ins of MERL) kept
+on the training codes"): the ``merl-user`` and ``merl-auto`` phases score real measurements (the NBRDF stand-ins of MERL) kept
 out of training by a spec's ``holdout``, and only for models that did not train on any of them (every
 shipped model trained on all 100; a model that did is listed, not scored). RGL materials are measured
 only, never tuned on. Beside each model its in-sample validation loss, what its search selected by.
@@ -89,12 +92,13 @@ class Contender:
 @dataclass(frozen=True)
 class Protocol:
     """How a phase fits and measures: samples drawn per material, the share near the mirror, and
-    the fit score's budget (``FitScoreConfig``: fit samples, test samples, epochs)."""
+    the fit score's budget and capacity (``FitScoreConfig``: fit samples, test samples, epochs, capacity)."""
 
     near_mirror: float
     fit_samples: int
     test_samples: int
     epochs: int
+    capacity: str = "latent"
 
     @property
     def samples(self) -> int:
@@ -118,14 +122,17 @@ def search_protocol(spec_path: Path = ROOT / "examples" / "reference-fit.yaml") 
 
 SEARCH = search_protocol()
 USER = Protocol(0.5, 3_000, 1_000, 300)  # issue 23: 3,000 fitted, half near the mirror, 1,000 held out; neuenh fit
+USER_AUTO = Protocol(0.5, 3_000, 1_000, 300, "auto")  # the same at neuenh fit's default capacity
 PHASES = {  # phase -> (groups, protocol, seed offset of the synthetic draws)
     "score": (("zoo", "ggx"), SEARCH, 0),
     "user": (("zoo", "ggx"), USER, 0),
     "score2": (("zoo", "ggx"), SEARCH, 1000),
     "merl-user": (("merl",), USER, 0),
+    "merl-auto": (("merl",), USER_AUTO, 0),
     "rgl-score": (("rgl",), SEARCH, 0),
     "rgl-user": (("rgl",), USER, 0),
 }
+MERL_PHASES = [phase for phase, (groups, _, _) in PHASES.items() if "merl" in groups]  # they need --merl-spec
 
 
 def search_rounds(data_dir: str) -> list[tuple[int, object]]:
@@ -220,7 +227,8 @@ def _score(index: int, holdout, protocol: Protocol) -> dict:
 
     contender = _MODELS[index]
     scored = fit_score(contender.model, holdout,
-                       FitScoreConfig(protocol.fit_samples, protocol.test_samples, protocol.epochs),
+                       FitScoreConfig(protocol.fit_samples, protocol.test_samples, protocol.epochs,
+                                      capacity=protocol.capacity),
                        trained=contender.trained)
     return {"per_material": dict(zip(holdout.names, scored.per_material)), "wall_s": scored.wall_s}
 
@@ -268,8 +276,9 @@ def run(args, config: dict) -> dict:
             drawn[(phase, group)] = draw(group, protocol, args, offset)
         return drawn[(phase, group)]
 
-    if "merl-user" in args.phases:  # a model that trained on some of the held-out materials is not scored on them
-        held = samples_of("merl-user", "merl")
+    merl = [phase for phase in args.phases if phase in MERL_PHASES]
+    if merl:  # a model that trained on some of the held-out materials is not scored on them
+        held = samples_of(merl[0], "merl")
         seen = {c.label: sorted(set(held.names) & set(c.training_names)) for c in models}
         results["merl_seen"] = {label: names for label, names in seen.items() if names}
     results.setdefault("merl_seen", {})
@@ -493,7 +502,7 @@ def main() -> int:
     parser.add_argument("--ggx", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--rgl", type=Path, default=RGL)
-    parser.add_argument("--merl-spec", type=Path, help="the merl-user phase: the NBRDF stand-ins this spec holds out")
+    parser.add_argument("--merl-spec", type=Path, help="the merl-user and merl-auto phases: the NBRDF stand-ins this spec holds out")
     parser.add_argument("--phases", nargs="+", choices=tuple(PHASES), default=list(PHASES))
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--json", type=Path, required=True, help="results, written as units finish; resumed from")
@@ -508,10 +517,11 @@ def main() -> int:
         if not sep or not name or not Path(path).is_dir():
             parser.error(f"--extra {e!r}: expected NAME=BUNDLE_DIR with an existing folder")
         extras[name] = path
-    if "merl-user" in args.phases and args.merl_spec is None:
+    if args.merl_spec is None and (merl := [phase for phase in args.phases if phase in MERL_PHASES]):
         if args.phases != list(PHASES):
-            parser.error("--phases merl-user needs --merl-spec SPEC.yaml (the spec whose nbrdf source holds them out)")
-        args.phases.remove("merl-user")
+            parser.error(f"--phases {' '.join(merl)} needs --merl-spec SPEC.yaml (the spec whose nbrdf source holds "
+                         "them out)")
+        args.phases = [phase for phase in args.phases if phase not in MERL_PHASES]
     if args.search and not (Path(args.search) / "jobs.sqlite").is_file():
         parser.error(f"--search {args.search}: no jobs.sqlite there (a `neuenh search --data-dir` folder)")
     config = {"model": args.model, "extras": extras, "zoo": args.zoo, "ggx": args.ggx, "seed": args.seed,

@@ -9,10 +9,12 @@ training never saw (``TrainingData.holdout``, a data source's ``holdout``):
 
 where ``f^_m`` is the candidate with its module weights frozen and material ``m``'s analytical and
 latent parameters fitted (``fit.fit_materials``, ``FitScoreConfig.epochs``, starting from the mean
-latent code of the candidate's training materials) to ``fit(m)``, ``FitScoreConfig.fit_samples`` of
-``m``'s samples, and ``test(m)`` up to ``test_samples`` of its other samples (one seeded permutation
-per material, ``split_materials``): the paper's loss (``train.log_l1``) on pairs the fit never saw,
-averaged per material and then over materials, so every held-out material counts alike.
+latent code of the candidate's training materials; with ``FitScoreConfig.capacity`` ``auto`` also
+module corrections where its own cross-validation chooses them, as ``neuenh fit`` does) to
+``fit(m)``, ``FitScoreConfig.fit_samples`` of ``m``'s samples, and ``test(m)`` up to
+``test_samples`` of its other samples (one seeded permutation per material, ``split_materials``):
+the paper's loss (``train.log_l1``) on pairs the fit never saw, averaged per material and then over
+materials, so every held-out material counts alike.
 
 ``train_and_score`` is what a search worker runs: ``train.train_candidate``, then this score when
 the training config asks for it and the data holds out materials. Both are pure functions of their
@@ -28,7 +30,7 @@ import torch
 
 from .checkpoint import Bundle
 from .data.samples import Samples, TrainingData
-from .fit import FitOptions, fit_materials, per_material_loss
+from .fit import FitOptions, fit_materials, losses_at_own_capacity
 from .materials import MaterialTable
 from .model import BRDFModel
 from .train import CandidateResult, FitScoreConfig, TrainConfig, train_candidate
@@ -65,9 +67,10 @@ def fit_score(model: BRDFModel, holdout: Samples, config: FitScoreConfig = FitSc
     candidate's training materials, whose mean latent code is a start of each fit."""
     start = time.perf_counter()
     fit, test = split_materials(holdout, config.fit_samples, config.test_samples, config.seed)
-    protocol = FitOptions(capacity="latent", epochs=config.epochs, lbfgs_iterations=config.epochs).protocol_for(model)
+    protocol = FitOptions(capacity=config.capacity, epochs=config.epochs,
+                          lbfgs_iterations=config.epochs).protocol_for(model)
     result = fit_materials(model, fit, protocol, seed=config.seed, trained=trained)
-    losses = per_material_loss(model, result.materials, test)
+    losses = losses_at_own_capacity(model, result.materials, test)  # each at the capacity its fit chose
     return FitScore(float(sum(losses) / len(losses)), tuple(losses), time.perf_counter() - start)
 
 

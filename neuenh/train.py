@@ -39,16 +39,22 @@ class FitScoreConfig:
     ``fit_samples`` of its samples, and the log-L1 is measured on up to ``test_samples`` others.
     ``epochs`` is the users' fit's (``fit.protocols.LatentAdam.epochs``): fits of 100 epochs end
     higher (30-70 % on synthetic materials, 2.4x on held-out stand-ins) and ranked a search's rounds
-    otherwise than users' fits do (docs/BENCHMARKS.md, "Stop 60")."""
+    otherwise than users' fits do (docs/BENCHMARKS.md, "Stop 60"). ``capacity``: what each material's
+    fit may free (``fit.FitOptions.capacity``): ``latent`` (its code and analytical parameters) or
+    ``auto``, the users' default (``neuenh.capacities.USER_CAPACITY``), at about twice the price."""
 
     fit_samples: int = 1000
     test_samples: int = 4000
     epochs: int = 300
     seed: int = 0
+    capacity: str = "latent"
 
     def __post_init__(self) -> None:
-        if self.fit_samples < 1 or self.test_samples < 1 or self.epochs < 1:
+        if self.fit_samples < 1 or self.test_samples < 1 or self.epochs < 1 or self.capacity not in SCORE_CAPACITIES:
             raise ValueError(f"invalid fit score config {self}")
+
+
+SCORE_CAPACITIES = ("latent", "auto")  # FitScoreConfig.capacity: a fixed capacity, or the users' own choice
 
 
 # TrainConfig.precision (and the job spec's train.precision) -> the dtype of the step's matrix

@@ -87,11 +87,15 @@ class FitScoreSpec(_Strict):
     epochs: int = Field(300, ge=1, description=(
         "the fit's epochs (fit.fit_materials), by default the users' fit's: fits of 100 epochs, a third of the price, "
         "ranked a search's rounds otherwise than users' fits of the same materials do (docs/BENCHMARKS.md, 'Stop 60')"))
+    capacity: Literal["latent", "auto"] = Field("latent", description=(
+        "what each held-out material's fit frees: 'latent', its latent code and analytical parameters; 'auto', "
+        "neuenh fit's default, which also frees module corrections where the material's own cross-validation "
+        "chooses them (about twice the price; docs/BENCHMARKS.md, 'Stop 62')"))
 
     def config(self, seed: int) -> FitScoreConfig:
         from neuenh.train import FitScoreConfig
 
-        return FitScoreConfig(self.fit_samples, self.test_samples, self.epochs, seed)
+        return FitScoreConfig(self.fit_samples, self.test_samples, self.epochs, seed, self.capacity)
 
 
 class SearchSpec(_Strict):

@@ -1,6 +1,6 @@
 import pytest
 
-from neuenh_service.orchestrator.spec import SpecError, load_spec, parse_spec
+from neuenh_service.orchestrator.spec import FitScoreSpec, SpecError, load_spec, parse_spec
 
 BASE = {"data": [{"source": "synthetic_zoo", "materials": 2, "samples": 10}]}
 
@@ -54,10 +54,11 @@ def test_a_latent_prior_reaches_every_stage_of_training():
         ({"search": {"score": "fit"}, "data": [{"source": "synthetic_zoo", "materials": 6, "holdout": 2},
                                                {"source": "synthetic_ggx", "materials": 4}]},
          r"every data source, but data\[1\] \(synthetic_ggx\) holds none out"),
+        ({"search": {"fit_score": {"capacity": "rank-8"}}}, "search.fit_score.capacity: Input should be 'latent' or 'auto'"),
     ],
     ids=["no-data", "model", "typo", "radius", "position", "digit", "lr", "precision", "latent-prior", "source", "family", "lr-final", "polish",
          "alternatives-model", "alternatives-digit", "alternatives-allowed", "table-near-mirror",
-         "fit-score-without-holdout", "fit-score-blind-to-a-source"],
+         "fit-score-without-holdout", "fit-score-blind-to-a-source", "fit-score-capacity"],
 )
 def test_bad_specs_name_the_field(change, message):
     with pytest.raises(SpecError, match=message):
@@ -104,6 +105,20 @@ def test_the_default_fit_score_fits_as_users_do():
     spec = parse_spec({"data": [{"source": "synthetic_zoo", "materials": 4, "samples": 10, "holdout": 2}]})
     assert spec.train_config().fit_score == FitScoreConfig(seed=spec.train.seed)
     assert spec.search.fit_score.epochs == FitScoreConfig().epochs == LatentAdam().epochs
+
+
+def test_a_fit_score_at_the_users_capacity_reaches_the_worker():
+    """``search.fit_score.capacity`` (the spec imports no torch, so it lists the choices itself): the
+    same choices as the worker's config, and the one asked for is the one the worker fits at."""
+    import typing
+
+    from neuenh.train import SCORE_CAPACITIES, FitScoreConfig
+
+    assert typing.get_args(FitScoreSpec.model_fields["capacity"].annotation) == SCORE_CAPACITIES
+    data = [{"source": "synthetic_zoo", "materials": 4, "samples": 10, "holdout": 2}]
+    spec = parse_spec({"search": {"fit_score": {"capacity": "auto"}}, "data": data})
+    assert spec.train_config().fit_score == FitScoreConfig(seed=spec.train.seed, capacity="auto")
+    assert parse_spec({"data": data}).train_config().fit_score.capacity == "latent"
 
 
 def test_the_curriculum_spec_grows_the_shipped_state_on_the_reference_data():
