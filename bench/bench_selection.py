@@ -39,8 +39,8 @@ phase          materials                              fit (``FitScoreConfig``), 
 The shipped models' searches drew their synthetic materials with seeds 5 and 4, so the held-out
 draws share the sources' families and distributions but no material. Those draws are synthetic
 alone, and they did not predict the visible RGL materials (docs/BENCHMARKS.md, "Stop 59: a prior
-on the training codes"): the ``merl-user`` and ``merl-auto`` phases score real measurements (the NBRDF stand-ins of MERL) kept
-out of training by a spec's ``holdout``, and only for models that did not train on any of them (every
+on the training codes"): the ``merl-user`` and ``merl-auto`` phases score real measurements (the
+NBRDF stand-ins of MERL) kept out of training by a spec's ``holdout``, and only for models that did not train on any of them (every
 shipped model trained on all 100; a model that did is listed, not scored). RGL materials are measured
 only, never tuned on. Beside each model its in-sample validation loss, what its search selected by.
 
@@ -453,14 +453,14 @@ def markdown_section(env: dict, results: dict, command: str, against: str | None
             lines.append(f"| `{label}` |" + "".join(
                 " — |" if c is None else f" {c[0]:.3f} (×/ {c[1]:.3f}), {c[2]} of {c[3]} |" for c in cells))
         enhanced = [label for label, _ in models if label != "ggx"]
-        halves = [(h, split_half(results, p, gs, [label for label in enhanced if "merl" not in gs or label not in seen]))
+        halves = [(h, split_half(results, p, gs, [x for x in enhanced if "merl" not in gs or x not in seen]))
                   for h, p, gs in cols]
         if any(r is not None for _, r in halves):
-            lines += ["", "Do the enhanced models' differences hold across materials? Their ranking on one random half "
-                      "of a column's materials against their ranking on the other half, Spearman's correlation averaged "
-                      "over 2,000 splits (near 1: a model's advantage is its own; near 0: it was the materials drawn): "
-                      + "; ".join(f"{h} {r[0]:.2f} ({r[1]} models, {r[2]} materials)" for h, r in halves if r is not None)
-                      + "."]
+            measured = [f"{h} {r[0]:.2f} ({r[1]} models, {r[2]} materials)" for h, r in halves if r is not None]
+            lines += ["", "Do the enhanced models' differences hold across materials? Their ranking on one random "
+                      "half of a column's materials against their ranking on the other half, Spearman's correlation "
+                      "averaged over 2,000 splits (near 1: a model's advantage is its own; near 0: it was the "
+                      "materials drawn): " + "; ".join(measured) + "."]
     selectors = [(h, p, gs) for h, p, gs in cols if p in ("score", "score2") and len(gs) > 1]
     truths = [(h, p, gs) for h, p, gs in cols if p not in ("score", "score2") or (p == "score2" and len(gs) > 1)]
     for what, subset in ((f"the rungs of `{config['model']}` (one search, one training set)",
@@ -502,7 +502,8 @@ def main() -> int:
     parser.add_argument("--ggx", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--rgl", type=Path, default=RGL)
-    parser.add_argument("--merl-spec", type=Path, help="the merl-user and merl-auto phases: the NBRDF stand-ins this spec holds out")
+    parser.add_argument("--merl-spec", type=Path,
+                        help="the merl-user and merl-auto phases: the NBRDF stand-ins this spec holds out")
     parser.add_argument("--phases", nargs="+", choices=tuple(PHASES), default=list(PHASES))
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--json", type=Path, required=True, help="results, written as units finish; resumed from")
