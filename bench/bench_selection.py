@@ -40,8 +40,9 @@ The shipped models' searches drew their synthetic materials with seeds 5 and 4, 
 draws share the sources' families and distributions but no material. Those draws are synthetic
 alone, and they did not predict the visible RGL materials (docs/BENCHMARKS.md, "Stop 59: a prior
 on the training codes"): the ``merl-user`` and ``merl-auto`` phases score real measurements (the
-NBRDF stand-ins of MERL) kept out of training by a spec's ``holdout``, and only for models that did not train on any of them (every
-shipped model trained on all 100; a model that did is listed, not scored). RGL materials are measured
+NBRDF stand-ins of MERL) kept out of training by a spec's ``holdout``, and only for models that did
+not train on any of them (every shipped model trained on all 100; a model that did is listed, not
+scored). RGL materials are measured
 only, never tuned on. Beside each model its in-sample validation loss, what its search selected by.
 
 Results go to ``--json`` after every finished (phase, group, model) unit, atomically; a rerun with
@@ -132,7 +133,11 @@ PHASES = {  # phase -> (groups, protocol, seed offset of the synthetic draws)
     "rgl-score": (("rgl",), SEARCH, 0),
     "rgl-user": (("rgl",), USER, 0),
 }
-MERL_PHASES = [phase for phase, (groups, _, _) in PHASES.items() if "merl" in groups]  # they need --merl-spec
+
+
+def merl_phases(phases: list[str]) -> list[str]:
+    """Those of ``phases`` that score the held-out MERL stand-ins (they need ``--merl-spec``)."""
+    return [phase for phase in phases if "merl" in PHASES[phase][0]]
 
 
 def search_rounds(data_dir: str) -> list[tuple[int, object]]:
@@ -276,8 +281,7 @@ def run(args, config: dict) -> dict:
             drawn[(phase, group)] = draw(group, protocol, args, offset)
         return drawn[(phase, group)]
 
-    merl = [phase for phase in args.phases if phase in MERL_PHASES]
-    if merl:  # a model that trained on some of the held-out materials is not scored on them
+    if merl := merl_phases(args.phases):  # a model that trained on some of the held-out materials is not scored on them
         held = samples_of(merl[0], "merl")
         seen = {c.label: sorted(set(held.names) & set(c.training_names)) for c in models}
         results["merl_seen"] = {label: names for label, names in seen.items() if names}
@@ -310,16 +314,23 @@ def run(args, config: dict) -> dict:
 
 
 # -- the section ------------------------------------------------------------------------------------
-def cell(results: dict, phase: str, groups: tuple[str, ...], label: str) -> float | None:
-    """The mean over the materials of ``groups`` of ``label``'s held-out log-L1 in ``phase`` (the fit
-    score's own aggregate); None unless every group's unit is complete."""
-    values = []
+def per_material(results: dict, phase: str, groups: tuple[str, ...], label: str) -> dict[str, float] | None:
+    """``label``'s held-out log-L1 in ``phase`` per material of ``groups`` (keyed ``group/name``); None
+    unless every group's unit is complete."""
+    values = {}
     for group in groups:
         unit = results["units"].get(unit_key(phase, group, label))
         if unit is None:
             return None
-        values += unit["per_material"].values()
-    return sum(values) / len(values)
+        values.update((f"{group}/{name}", v) for name, v in unit["per_material"].items())
+    return values
+
+
+def cell(results: dict, phase: str, groups: tuple[str, ...], label: str) -> float | None:
+    """The mean over the materials of ``groups`` of ``label``'s held-out log-L1 in ``phase`` (the fit
+    score's own aggregate); None unless every group's unit is complete."""
+    values = per_material(results, phase, groups, label)
+    return None if values is None else sum(values.values()) / len(values)
 
 
 def paired(results: dict, phase: str, groups: tuple[str, ...], label: str,
@@ -329,18 +340,14 @@ def paired(results: dict, phase: str, groups: tuple[str, ...], label: str,
     deviation over sqrt(n)), on how many materials ``label`` is lower, and n. A mean over materials
     is ruled by the few hardest; the paired ratio asks whether a model fits most materials better.
     None unless both have every group's unit."""
-    logs, better = [], 0
-    for group in groups:
-        ours = results["units"].get(unit_key(phase, group, label))
-        theirs = results["units"].get(unit_key(phase, group, reference))
-        if ours is None or theirs is None:
-            return None
-        for name, value in theirs["per_material"].items():
-            if name in ours["per_material"]:
-                logs.append(math.log(ours["per_material"][name] / value))
-                better += ours["per_material"][name] < value
-    if not logs:
+    ours, theirs = per_material(results, phase, groups, label), per_material(results, phase, groups, reference)
+    if ours is None or theirs is None:
         return None
+    shared = [name for name in theirs if name in ours]
+    if not shared:
+        return None
+    logs = [math.log(ours[name] / theirs[name]) for name in shared]
+    better = sum(ours[name] < theirs[name] for name in shared)
     spread = statistics.stdev(logs) / math.sqrt(len(logs)) if len(logs) > 1 else float("nan")
     return math.exp(statistics.fmean(logs)), math.exp(spread), better, len(logs)
 
@@ -353,17 +360,11 @@ def split_half(results: dict, phase: str, groups: tuple[str, ...], labels: list[
     of the two rankings (near 1: a model's advantage holds on materials it was not ranked on; near 0:
     it was the draw's). Also the models and materials counted. None for fewer than 3 models, fewer
     than 6 shared materials, or an incomplete unit."""
-    per = []
-    for label in labels:
-        values = {}
-        for group in groups:
-            unit = results["units"].get(unit_key(phase, group, label))
-            if unit is None:
-                return None
-            values.update((f"{group}/{name}", v) for name, v in unit["per_material"].items())
-        per.append(values)
+    per = [per_material(results, phase, groups, label) for label in labels]
+    if len(labels) < 3 or any(values is None for values in per):
+        return None
     shared = sorted(set.intersection(*(set(v) for v in per)))
-    if len(labels) < 3 or len(shared) < 6:
+    if len(shared) < 6:
         return None
     logs = [[math.log(values[name]) for name in shared] for values in per]
     draw, total, half = random.Random(seed), 0.0, len(shared) // 2
@@ -518,11 +519,11 @@ def main() -> int:
         if not sep or not name or not Path(path).is_dir():
             parser.error(f"--extra {e!r}: expected NAME=BUNDLE_DIR with an existing folder")
         extras[name] = path
-    if args.merl_spec is None and (merl := [phase for phase in args.phases if phase in MERL_PHASES]):
+    if args.merl_spec is None and (merl := merl_phases(args.phases)):
         if args.phases != list(PHASES):
             parser.error(f"--phases {' '.join(merl)} needs --merl-spec SPEC.yaml (the spec whose nbrdf source holds "
                          "them out)")
-        args.phases = [phase for phase in args.phases if phase not in MERL_PHASES]
+        args.phases = [phase for phase in args.phases if phase not in merl]
     if args.search and not (Path(args.search) / "jobs.sqlite").is_file():
         parser.error(f"--search {args.search}: no jobs.sqlite there (a `neuenh search --data-dir` folder)")
     config = {"model": args.model, "extras": extras, "zoo": args.zoo, "ggx": args.ggx, "seed": args.seed,

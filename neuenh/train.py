@@ -32,6 +32,9 @@ from .optimizers import CosineSchedule, RMSProp
 from .materials import LATENT_INIT, MaterialTable
 
 
+SCORE_CAPACITIES = ("latent", "auto")  # FitScoreConfig.capacity: a fixed capacity, or the users' own choice
+
+
 @dataclass(frozen=True)
 class FitScoreConfig:
     """How ``neuenh.selection`` scores a trained candidate on materials kept out of training: each
@@ -52,9 +55,6 @@ class FitScoreConfig:
     def __post_init__(self) -> None:
         if self.fit_samples < 1 or self.test_samples < 1 or self.epochs < 1 or self.capacity not in SCORE_CAPACITIES:
             raise ValueError(f"invalid fit score config {self}")
-
-
-SCORE_CAPACITIES = ("latent", "auto")  # FitScoreConfig.capacity: a fixed capacity, or the users' own choice
 
 
 # TrainConfig.precision (and the job spec's train.precision) -> the dtype of the step's matrix
