@@ -1,0 +1,180 @@
+"""A change of a fit protocol's settings against the protocol as it is, beside a null arm, on
+training-source materials (issues 23 and 24).
+
+    python bench/bench_fit_ab.py --arm NAME:FIELD=VALUE[,FIELD=VALUE...] [--arm ...] [--capacity auto]
+                                 [--model SPEC] [--materials 20] [--cases mirror:3000 uniform:10000]
+                                 [--test 1000] [--null-seed 1] [--json OUT.json]
+
+Every arm fits every material of every case in one process of one torch thread, the arms in an order
+rotated from material to material, on the same fit and test samples (``study.heldout.draw_fit_test``,
+seed 0; ``mirror:N`` draws half of the pairs near the mirror direction, ``uniform:N`` none):
+
+* **A**: ``FitOptions(capacity=...).protocol_for(model)``, what ``neuenh fit --capacity`` runs, seed 0;
+* **null**: A with the fit's seed ``--null-seed`` (its folds' shuffles and its low-rank starts): the
+  same protocol, so its spread is what rounding and seeds alone do to a material's end point — up to
+  ±16 % on single materials (docs/BENCHMARKS.md, "Many materials in one fit"), which a change must be
+  judged against rather than against zero;
+* each ``--arm``: A with the protocol's dataclass fields replaced (e.g. ``X:correction_epochs=100``).
+
+Materials: every ``len // N``-th NBRDF stand-in of MERL (``../shared/data/merl_nbrdf``, sorted names;
+never RGL), each fitted with its own training code left out of the model's training codes (the fit's
+screened starts would otherwise start where training left it). The shipped modules did see these
+materials: a paired comparison of two fits, not a measure of unseen-material error. Recorded per fit:
+CPU seconds (``time.process_time``, one thread: what another process on the machine does not add to),
+wall seconds, the held-out log-L1 and the capacity and prior chosen. Ratios are per material against A, then the
+median, the geometric mean and the worst; an arm's worst is printed beside the null's. The JSON file is
+written after every material and resumed by a rerun with the same arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import json
+import math
+import re
+import statistics
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
+
+from bench.harness import absent, fitting_process, machine, machine_line, write_json  # noqa: E402
+
+NBRDF_WEIGHTS = ROOT.parent / "shared" / "data" / "merl_nbrdf" / "merl_nbrdf_weights.npz"
+NEAR_MIRROR = {"mirror": 0.5, "uniform": 0.0}
+
+
+def parse_arm(text: str, protocol) -> tuple[str, object]:
+    """``NAME:FIELD=VALUE[,FIELD=VALUE...]`` -> (NAME, ``protocol`` with those fields replaced); each
+    VALUE a Python literal (or a bare word, read as a string)."""
+    name, sep, body = text.partition(":")
+    if not sep or not name or not body:
+        raise SystemExit(f"--arm {text!r}: write NAME:FIELD=VALUE[,FIELD=VALUE...]")
+    if name in ("A", "null"):
+        raise SystemExit(f"--arm {text!r}: {name} is the bench's own arm; name yours otherwise")
+    known = {f.name for f in dataclasses.fields(protocol)}
+    changes = {}
+    for item in re.split(r",(?=\s*[A-Za-z_]\w*=)", body):  # a comma inside a tuple value stays
+        key, sep, value = item.partition("=")
+        if not sep or key not in known:
+            raise SystemExit(f"--arm {text!r}: {key!r} is not a field of {type(protocol).__name__} "
+                             f"(its fields: {', '.join(sorted(known))})")
+        try:
+            changes[key] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            changes[key] = value
+    try:
+        return name, dataclasses.replace(protocol, **changes)
+    except (TypeError, ValueError) as error:
+        raise SystemExit(f"--arm {text!r}: {error}") from None
+
+
+def parse_case(text: str) -> tuple[float, int]:
+    """``mirror:N`` or ``uniform:N`` -> (share of pairs near the mirror, N fitted samples)."""
+    kind, _, n = text.partition(":")
+    if kind not in NEAR_MIRROR or not n.isdigit() or int(n) < 1:
+        raise SystemExit(f"--cases {text!r}: write mirror:N or uniform:N (N fitted samples)")
+    return NEAR_MIRROR[kind], int(n)
+
+
+def summary(results: dict, case: str, arm: str) -> dict | None:
+    """``arm`` against A over ``case``'s materials: median CPU ratio, held-out median, geometric mean,
+    worst and best ratio, and on how many materials it is lower; None before any material is done."""
+    rows = [r for key, r in results["fits"].items() if key.split("|")[0] == case]
+    if not rows:
+        return None
+    cpu = [r[arm]["cpu"] / r["A"]["cpu"] for r in rows]
+    held = [r[arm]["loss"] / r["A"]["loss"] for r in rows]
+    return {"materials": len(rows), "cpu": statistics.median(cpu), "median": statistics.median(held),
+            "geo": math.exp(statistics.fmean(math.log(h) for h in held)), "worst": max(held), "best": min(held),
+            "lower": sum(h < 1 for h in held)}
+
+
+def markdown(results: dict, command: str) -> str:
+    lines = [f"Command: `{command}`  ", machine_line(results["machine"]) + "  ",
+             f"Model: {results['config']['model']}, capacity `{results['config']['capacity']}`; arms: "
+             + "; ".join(f"**{name}** {what}" for name, what in results["arms"].items()), "",
+             "| case | arm / A | materials | CPU, median ratio | held-out: median | geometric mean | worst | best | lower on |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for case in results["config"]["cases"]:
+        for arm in (a for a in results["arms"] if a != "A"):
+            s = summary(results, case, arm)
+            if s is not None:
+                lines.append(f"| {case} | {arm} | {s['materials']} | {s['cpu']:.3f} | {s['median']:.4f} | {s['geo']:.4f} | "
+                             f"{s['worst']:.3f} | {s['best']:.3f} | {s['lower']} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--arm", action="append", default=[], metavar="NAME:FIELD=VALUE,...",
+                        help="a variant of the protocol (repeatable)")
+    parser.add_argument("--capacity", default="auto", help="the protocol: neuenh fit's --capacity (default auto)")
+    parser.add_argument("--model", default="enhanced-ggx", help="the enhanced model (default enhanced-ggx)")
+    parser.add_argument("--materials", type=int, default=20, help="how many NBRDF stand-ins (default 20)")
+    parser.add_argument("--cases", nargs="+", default=["mirror:3000", "uniform:10000"])
+    parser.add_argument("--test", type=int, default=1000, help="test pairs per material (default 1,000)")
+    parser.add_argument("--null-seed", type=int, default=1, help="the null arm's fit seed (default 1)")
+    parser.add_argument("--nbrdf", type=Path, default=NBRDF_WEIGHTS)
+    parser.add_argument("--json", type=Path, help="write (and resume) the raw numbers here")
+    args = parser.parse_args(argv)
+    if absent(args.nbrdf, "the NBRDF stand-ins of MERL"):
+        return 0
+    cases = {case: parse_case(case) for case in args.cases}
+    fitting_process()
+    import numpy as np
+
+    from neuenh.data.nbrdf import nbrdf_material
+    from neuenh.fit import FitOptions, fit_materials
+    from neuenh.pretrained import load_model
+    from neuenh.study.heldout import draw_fit_test, heldout_log_l1
+
+    model, trained = load_model(args.model)
+    try:
+        base = FitOptions(capacity=args.capacity).protocol_for(model)
+    except ValueError as error:
+        raise SystemExit(f"--capacity {args.capacity!r}: {error}") from None
+    arms = {"A": (base, 0), "null": (base, args.null_seed), **{name: (protocol, 0) for name, protocol in
+                                                              map(lambda text: parse_arm(text, base), args.arm)}}
+    config = {"model": args.model, "capacity": args.capacity, "materials": args.materials, "cases": args.cases,
+              "test": args.test, "null_seed": args.null_seed, "arms": args.arm}
+    results = json.loads(args.json.read_text()) if args.json and args.json.exists() else {}
+    if results.get("config") != config:
+        results = {"config": config, "fits": {}}
+    results["machine"] = machine()
+    results["arms"] = {"A": f"`{base}`", "null": f"A, fit seed {args.null_seed}", **dict(a.split(":", 1) for a in args.arm)}
+    names = sorted(np.load(args.nbrdf)["names"].tolist())
+    chosen = names[:: max(1, len(names) // args.materials)][: args.materials]
+    for case, (near_mirror, n) in cases.items():
+        for index, name in enumerate(chosen):
+            key = f"{case}|{name}"
+            if key in results["fits"]:
+                continue
+            fit, test, _ = draw_fit_test(nbrdf_material(str(args.nbrdf), name), n, args.test, 0, near_mirror)
+            codes = None if trained is None else trained.subset([i for i, t in enumerate(trained.names) if t != name])
+            order = list(arms)[index % len(arms):] + list(arms)[: index % len(arms)]
+            row = {}
+            for arm in order:
+                protocol, seed = arms[arm]
+                cpu, wall = time.process_time(), time.perf_counter()
+                result = fit_materials(model, fit, protocol, trained=codes, seed=seed)
+                row[arm] = {"cpu": time.process_time() - cpu, "wall": time.perf_counter() - wall,
+                            "loss": heldout_log_l1(model, result, test)[0], "capacity": result.capacity(0),
+                            "prior": (result.details[0] if result.details else {}).get("prior")}
+            results["fits"][key] = {arm: row[arm] for arm in arms}
+            if args.json:
+                write_json(args.json, results)
+            print(f"{time.strftime('%H:%M:%S')} {key:40s} " + "  ".join(
+                f"{arm} {row[arm]['cpu']:5.1f} s {row[arm]['loss']:.5f} {row[arm]['capacity']}" for arm in arms),
+                flush=True)
+    print()
+    print(markdown(results, "python bench/bench_fit_ab.py " + " ".join(sys.argv[1:] if argv is None else argv)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
