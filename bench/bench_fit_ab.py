@@ -138,15 +138,18 @@ def main(argv: list[str] | None = None) -> int:
         base = FitOptions(capacity=args.capacity).protocol_for(model)
     except ValueError as error:
         raise SystemExit(f"--capacity {args.capacity!r}: {error}") from None
-    arms = {"A": (base, 0), "null": (base, args.null_seed), **{name: (protocol, 0) for name, protocol in
-                                                              map(lambda text: parse_arm(text, base), args.arm)}}
+    variants = [(text, *parse_arm(text, base)) for text in args.arm]
+    if len({name for _, name, _ in variants}) < len(variants):
+        raise SystemExit(f"--arm: two arms share a name ({', '.join(args.arm)})")
+    arms = {"A": (base, 0), "null": (base, args.null_seed), **{name: (protocol, 0) for _, name, protocol in variants}}
     config = {"model": args.model, "capacity": args.capacity, "materials": args.materials, "cases": args.cases,
               "test": args.test, "null_seed": args.null_seed, "arms": args.arm}
     results = json.loads(args.json.read_text()) if args.json and args.json.exists() else {}
     if results.get("config") != config:
         results = {"config": config, "fits": {}}
     results["machine"] = machine()
-    results["arms"] = {"A": f"`{base}`", "null": f"A, fit seed {args.null_seed}", **dict(a.split(":", 1) for a in args.arm)}
+    results["arms"] = {"A": f"`{base}`", "null": f"A, fit seed {args.null_seed}",
+                       **{name: text.split(":", 1)[1] for text, name, _ in variants}}
     names = sorted(np.load(args.nbrdf)["names"].tolist())
     chosen = names[:: max(1, len(names) // args.materials)][: args.materials]
     for case, (near_mirror, n) in cases.items():
