@@ -152,23 +152,25 @@ def main(argv: list[str] | None = None) -> int:
                        **{name: text.split(":", 1)[1] for text, name, _ in variants}}
     names = sorted(np.load(args.nbrdf)["names"].tolist())
     chosen = names[:: max(1, len(names) // args.materials)][: args.materials]
+    # each material's fits start from the training codes of every other (the same for every case)
+    codes_of = {name: None if trained is None else trained.subset([i for i, t in enumerate(trained.names) if t != name])
+                for name in chosen}
     for case, (near_mirror, n) in cases.items():
         for index, name in enumerate(chosen):
             key = f"{case}|{name}"
             if key in results["fits"]:
                 continue
             fit, test, _ = draw_fit_test(nbrdf_material(str(args.nbrdf), name), n, args.test, 0, near_mirror)
-            codes = None if trained is None else trained.subset([i for i, t in enumerate(trained.names) if t != name])
             order = list(arms)[index % len(arms):] + list(arms)[: index % len(arms)]
             row = {}
             for arm in order:
                 protocol, seed = arms[arm]
                 cpu, wall = time.process_time(), time.perf_counter()
-                result = fit_materials(model, fit, protocol, trained=codes, seed=seed)
+                result = fit_materials(model, fit, protocol, trained=codes_of[name], seed=seed)
                 row[arm] = {"cpu": time.process_time() - cpu, "wall": time.perf_counter() - wall,
                             "loss": heldout_log_l1(model, result, test)[0], "capacity": result.capacity(0),
                             "prior": (result.details[0] if result.details else {}).get("prior")}
-            results["fits"][key] = {arm: row[arm] for arm in arms}
+            results["fits"][key] = row
             if args.json:
                 write_json(args.json, results)
             print(f"{time.strftime('%H:%M:%S')} {key:40s} " + "  ".join(
