@@ -126,6 +126,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     cases = {case: parse_case(case) for case in args.cases}
     fitting_process()
+    from neuenh.fit.jit import set_jit_threads
+
+    set_jit_threads(1)  # the jit kernel's pool one thread too, as torch's (no Mitsuba in this process)
     import numpy as np
 
     from neuenh.data.nbrdf import nbrdf_material

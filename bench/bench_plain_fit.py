@@ -36,25 +36,35 @@ N_TEST = 10_000
 
 def run(rgl: Path, with_nbrdf: bool = True) -> dict:
     """{case: {fit: {material: (held-out log-L1, seconds)}}} for every case of CASES, fit "plain GGX"
-    (the default protocol) and, ``with_nbrdf``, "NBRDF"."""
+    (the default protocol) and, ``with_nbrdf``, "NBRDF" and, where Dr.Jit is available, "plain GGX (jit)"
+    (the default protocol with the compiled kernel, ``neuenh.fit.jit``)."""
+    import dataclasses
+
     from neuenh.data import load_measured
-    from neuenh.fit import fit_materials
+    from neuenh.fit import default_protocol, fit_materials
     from neuenh.models import get_model
     from neuenh.study.efficiency import PROTOCOLS
     from neuenh.study.heldout import draw_fit_test, heldout_log_l1
     from neuenh.train import log_l1
 
     ggx = get_model("ggx")
+    fits = {"plain GGX": default_protocol(ggx)}
+    if with_nbrdf:  # the run of this checkout (not --before's): the jit kernel beside the default
+        from neuenh.fit.jit import available
+
+        if available():
+            fits["plain GGX (jit)"] = dataclasses.replace(fits["plain GGX"], kernel="jit")
     out: dict = {}
     for path in sorted(rgl.glob("*.bsdf")):
         material = load_measured(path)
         for protocol, n in CASES:
             case = out.setdefault(f"{protocol} {n:,}", {})
             fit, test, _ = draw_fit_test(material, n, N_TEST, 0, near_mirror=PROTOCOLS[protocol])
-            start = time.perf_counter()
-            result = fit_materials(ggx, fit, seed=0)
-            seconds = time.perf_counter() - start
-            case.setdefault("plain GGX", {})[material.name] = (heldout_log_l1(ggx, result.materials, test)[0], seconds)
+            for label, protocol_ in fits.items():
+                start = time.perf_counter()
+                result = fit_materials(ggx, fit, protocol_, seed=0)
+                seconds = time.perf_counter() - start
+                case.setdefault(label, {})[material.name] = (heldout_log_l1(ggx, result.materials, test)[0], seconds)
             if with_nbrdf:
                 from neuenh.study.contenders import NBRDFContender
 
@@ -74,8 +84,10 @@ def markdown_section(env: dict, now: dict, before: dict | None, command: str) ->
              "Plain GGX fitted by the default protocol to each RGL material (the visible 8), beside NBRDF's fit "
              "of the same samples in the same run and, *before*, the default plain fit of the checkout "
              "`--before-rev` names, run first; wall time of the fit, held-out log-L1 on 10,000 test pairs drawn "
-             "the same way. Ratios per material, then the median [worst].", "",
-             "| case | fit | median s | time / NBRDF | median held-out | held-out / before |",
+             "the same way; *jit*: the default protocol with the compiled Dr.Jit kernel (`kernel=\"jit\"`, "
+             "`neuenh.fit.jit`), its held-out error against the default's. Ratios per material, then the median "
+             "[worst].", "",
+             "| case | fit | median s | time / NBRDF | median held-out | held-out / before (jit: / default) |",
              "|---|---|---:|---:|---:|---:|"]
     for case, fits in now.items():
         nbrdf = fits["NBRDF"]
@@ -83,7 +95,8 @@ def markdown_section(env: dict, now: dict, before: dict | None, command: str) ->
         rows_of = [("plain GGX (before)", old)] if old else []
         for label, rows in [*rows_of, *fits.items()]:
             time_ratio = [rows[m][1] / nbrdf[m][1] for m in rows]
-            held = [rows[m][0] / old[m][0] for m in rows] if old and label == "plain GGX" else None
+            reference = old if label == "plain GGX" else fits.get("plain GGX") if label == "plain GGX (jit)" else None
+            held = [rows[m][0] / reference[m][0] for m in rows] if reference else None
             lines.append(f"| {case} | {label} | {statistics.median(t for _, t in rows.values()):.2f} | "
                          f"{statistics.median(time_ratio):.2f} [{max(time_ratio):.2f}] | "
                          f"{statistics.median(e for e, _ in rows.values()):.4f} | "
@@ -108,6 +121,9 @@ def main(argv: list[str] | None = None) -> int:
     if absent(args.rgl, "the RGL materials of ../shared"):
         return 0
     fitting_process()
+    from neuenh.fit.jit import set_jit_threads
+
+    set_jit_threads(1)  # the jit kernel's pool one thread too, as torch's (no Mitsuba in this process)
     wait_quiet(args.max_wait, 0.3)
     if args.before:
         write_json(args.json, run(args.rgl, with_nbrdf=False))

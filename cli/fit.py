@@ -1,7 +1,7 @@
 """``neuenh fit``: fit measured materials with an analytical model or a trained bundle.
 
     neuenh fit --model ggx measurements.npz [more.csv ...] [--capacity auto|latent|...] [--method fast|paper]
-               [--jobs N] [--json] [-o DIR] [--test held_out.npz [more_held_out.csv ...]] [--predictions out.npz]
+               [--kernel torch|jit] [--jobs N] [--json] [-o DIR] [--test held_out.npz [more_held_out.csv ...]] [--predictions out.npz]
     neuenh fit --model enhanced-ggx material.bsdf [more.binary ...] [--samples 3000] [--test-samples 1000]
 
 Each table is one material (``.npz`` with ``wi``, ``wo``, ``f_r``, or CSV; see neuenh.data.table). The
@@ -75,13 +75,18 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "RMSProp lr 1e-3, 1000 epochs, latent capacity")
     p.add_argument("--capacity", default=USER_CAPACITY, metavar="{" + ",".join(CAPACITY_CHOICES) + "}",
                    help=CAPACITY_HELP)
+    p.add_argument("--kernel", choices=("torch", "jit"), default="torch", help=(
+        "the fit's kernel: torch (default), or jit: each step one compiled Dr.Jit kernel (neuenh[export] and "
+        "libLLVM 17+), a latent fit 2-3x faster, the adaptive fit's analytical and latent stages too; the same "
+        "objective to float32 rounding, which moves some materials' end points as a fit's seed does "
+        "(docs/BENCHMARKS.md, 'Stop 65'). Its first fit of a model compiles for a few seconds (cached on disk)"))
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs of the first-order fits (Adam, RMSProp; default each protocol's own); a plain "
                         "model's L-BFGS iterations per phase unless --lbfgs-iterations")
     p.add_argument("--lbfgs-iterations", type=int, default=None,
                    help="a plain model's L-BFGS iterations per surrogate phase (default 300)")
     p.add_argument("--threads", type=int, default=None, help=(
-        "torch CPU threads (default: all); on a machine busy with other work 1 can be several times "
+        "torch CPU threads, and Dr.Jit's with --kernel jit (default: all); on a machine busy with other work 1 can be several times "
         "faster, since idle threads wait by spinning (docs/BENCHMARKS.md, 'Fit threads')"))
     p.add_argument("--jobs", type=int, default=1, metavar="N", help=(
         "fit the materials in N processes of one thread each (default 1: here). Each process takes a few "
@@ -105,11 +110,14 @@ def run(args) -> int:
 
     from neuenh.checkpoint import Bundle
     from neuenh.fit import FitOptions, fit_in_processes
+    from neuenh.fit.jit import set_jit_threads
     from neuenh.pretrained import load_for_fitting
     from neuenh.study.heldout import heldout_log_l1, predict_f_r, write_predictions
 
     if args.threads:
         torch.set_num_threads(args.threads)
+        if args.kernel == "jit":
+            set_jit_threads(args.threads)
     if args.jobs < 1:
         raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
     drawn = _check_measurement_args(args)
@@ -120,7 +128,7 @@ def run(args) -> int:
                              f"report as JSON is --json > {args.output}")
         output_folder(args.output)
     options = FitOptions(method=args.method, capacity=args.capacity, epochs=args.epochs,
-                         lbfgs_iterations=args.lbfgs_iterations, starts=args.starts)
+                         lbfgs_iterations=args.lbfgs_iterations, starts=args.starts, kernel=args.kernel)
     model, trained, encoder = load_for_fitting(args.model, "--model")
     samples, test = _measurements(args, drawn)
     if len(set(samples.names)) != len(samples.names):

@@ -8,7 +8,8 @@ handed to them as ``s.xp``. The same formula then runs
 * in numpy (``NUMPY``): a second backend that tests run every model on, which keeps the formulas
   honest (a formula that reaches for torch fails there);
 * in the exporters (``neuenh.export``, on ``EmittingOps``): Dr.Jit arrays in the Mitsuba plugin,
-  a GLSL code tracer, ONNX graph nodes.
+  a GLSL code tracer, ONNX graph nodes; and Dr.Jit arrays in the fit's compiled kernel
+  (``DrJitArrayOps``, ``neuenh.fit.jit``).
 
 Values. A per-sample scalar is an ``(n, 1)`` array; an RGB value is ``(n, 3)`` and scalars
 broadcast against it. A Python ``float`` is a constant: arithmetic between constants is done by
@@ -118,6 +119,60 @@ class EmittingOps:
 
     def abs(self, x):
         return self._fold_or_emit("abs", x)
+
+
+class DrJitArrayOps(EmittingOps):
+    """The vocabulary on Dr.Jit arrays: per-sample scalars are the backend's ``Float``, directions and
+    RGB values its ``vec3_type`` (``drjit.llvm.ad.Array3f`` unless given: the fit's compiled kernel,
+    ``neuenh.fit.jit``; Mitsuba's ``Vector3f`` in its plugin); Python floats fold. Imports ``drjit``
+    when made (an optional dependency)."""
+
+    name = "drjit"
+
+    def __init__(self, vec3_type=None):
+        import drjit as dr
+
+        if vec3_type is None:
+            from drjit.llvm.ad import Array3f as vec3_type
+        self.dr, self.vec3_type = dr, vec3_type
+
+    def unary(self, name: str, x):
+        return getattr(self.dr, name)(x)  # Dr.Jit's functions share the vocabulary's names
+
+    def minimum(self, a, b):
+        return min(a, b) if _is_const(a) and _is_const(b) else self.dr.minimum(a, b)
+
+    def maximum(self, a, b):
+        return max(a, b) if _is_const(a) and _is_const(b) else self.dr.maximum(a, b)
+
+    def clamp(self, x, lo: float | None = None, hi: float | None = None):
+        if _is_const(x):
+            return min(max(x, -math.inf if lo is None else lo), math.inf if hi is None else hi)
+        if lo is not None:
+            x = self.dr.maximum(x, lo)
+        return x if hi is None else self.dr.minimum(x, hi)
+
+    def where(self, cond, a, b):
+        if isinstance(b, tuple):
+            b = self.vec3_type(*b)
+        return self.dr.select(cond, a, b)
+
+    def vec3(self, x, y, z):
+        return self.vec3_type(x, y, z)
+
+    def dot(self, a, b):
+        return self.dr.dot(a, b)
+
+    def normalize(self, a):
+        return self.dr.normalize(a)
+
+    @staticmethod
+    def as_vec3(v):
+        return v
+
+    @staticmethod
+    def component(p, i: int):
+        return p[i]
 
 
 class _TorchOps:

@@ -38,19 +38,16 @@ on): ``set_variant`` points ``DRJIT_LIBLLVM_PATH`` at the newest one installed w
 
 from __future__ import annotations
 
-import glob
 import json
-import math
-import os
-import re
 from pathlib import Path
 from typing import Mapping
 
 import torch
 
 from ..files import atomic_write
+from ..llvm import LLVM_MIN, find_libllvm, point_drjit_at_libllvm  # noqa: F401 (LLVM_MIN, find_libllvm: this module's API)
 from ..materials import MaterialParams
-from ..ops import EmittingOps, _is_const
+from ..ops import DrJitArrayOps, _is_const
 from ..shading import shade
 from ..specialize import walk
 from . import file_names
@@ -62,30 +59,12 @@ BUNDLE_DIR = "neuenh-model"
 ENVMAP = "studio.exr"
 
 
-LLVM_MIN = 17  # the oldest libLLVM Dr.Jit 1.5's kernels compile with on x86 (module doc)
-LLVM_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64", "/usr/lib", "/usr/local/lib")
-
-
-def find_libllvm() -> str | None:
-    """The newest ``libLLVM`` of version ``LLVM_MIN`` or newer in the usual library folders, or None."""
-    found = []
-    for folder in LLVM_DIRS:
-        for path in glob.glob(os.path.join(folder, "libLLVM*.so*")):
-            match = re.search(r"libLLVM(?:-|\.so\.)(\d+)", os.path.basename(path))
-            if match and int(match.group(1)) >= LLVM_MIN:
-                found.append((int(match.group(1)), path))
-    return max(found)[1] if found else None
-
-
 def set_variant(variant: str = "llvm_ad_rgb"):
     """``mitsuba`` with ``variant`` set; for an LLVM variant ``DRJIT_LIBLLVM_PATH`` is pointed at
     ``find_libllvm()`` first, unless set. A RuntimeError says what to install when there is none."""
-    if variant.startswith("llvm") and not os.environ.get("DRJIT_LIBLLVM_PATH"):
-        path = find_libllvm()
-        if path is None:
-            raise RuntimeError(f"Mitsuba's {variant} variant needs libLLVM {LLVM_MIN} or newer (Debian 12: "
-                               "apt-get install libllvm19, or make mitsuba); or set DRJIT_LIBLLVM_PATH")
-        os.environ["DRJIT_LIBLLVM_PATH"] = path
+    if variant.startswith("llvm") and not point_drjit_at_libllvm():
+        raise RuntimeError(f"Mitsuba's {variant} variant needs libLLVM {LLVM_MIN} or newer (Debian 12: "
+                           "apt-get install libllvm19, or make mitsuba); or set DRJIT_LIBLLVM_PATH")
     import mitsuba as mi
 
     mi.set_variant(variant)
@@ -93,55 +72,15 @@ def set_variant(variant: str = "llvm_ad_rgb"):
 
 
 # -- the ops vocabulary on Dr.Jit arrays --------------------------------------------------------------
-class DrJitOps(EmittingOps):
+class DrJitOps(DrJitArrayOps):
     """``neuenh.ops``' vocabulary on the active Mitsuba variant's Dr.Jit types: per-sample scalars are
     ``mi.Float``, RGB values ``mi.Color3f``, directions ``mi.Vector3f``; Python floats fold."""
 
-    name = "drjit"
-
     def __init__(self):
-        import drjit as dr
         import mitsuba as mi
 
-        self.dr, self.mi = dr, mi
-
-    def unary(self, name: str, x):
-        return getattr(self.dr, name)(x)  # Dr.Jit's functions share the vocabulary's names
-
-    def minimum(self, a, b):
-        return min(a, b) if _is_const(a) and _is_const(b) else self.dr.minimum(a, b)
-
-    def maximum(self, a, b):
-        return max(a, b) if _is_const(a) and _is_const(b) else self.dr.maximum(a, b)
-
-    def clamp(self, x, lo: float | None = None, hi: float | None = None):
-        if _is_const(x):
-            return min(max(x, -math.inf if lo is None else lo), math.inf if hi is None else hi)
-        if lo is not None:
-            x = self.dr.maximum(x, lo)
-        return x if hi is None else self.dr.minimum(x, hi)
-
-    def where(self, cond, a, b):
-        if isinstance(b, tuple):
-            b = self.mi.Vector3f(*b)
-        return self.dr.select(cond, a, b)
-
-    def vec3(self, x, y, z):
-        return self.mi.Vector3f(x, y, z)
-
-    def dot(self, a, b):
-        return self.dr.dot(a, b)
-
-    def normalize(self, a):
-        return self.dr.normalize(a)
-
-    @staticmethod
-    def as_vec3(v):
-        return v
-
-    @staticmethod
-    def component(p, i: int):
-        return p[i]
+        super().__init__(mi.Vector3f)
+        self.mi = mi
 
 
 # -- the material, evaluated ----------------------------------------------------------------------------

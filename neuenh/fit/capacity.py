@@ -52,6 +52,7 @@ from ..capacities import ANALYTICAL_CAPACITIES
 from ..data.samples import Samples
 from ..materials import MaterialTable
 from ..model import BRDFModel
+from .jit import KERNELS, row_kernel
 from .kernel import LayerCorrection, RowKernel, RowSpace, frozen
 from .layout import fold_masks
 from .optim import Adam, AdamResult, adam_rows, evaluate_rows
@@ -186,6 +187,7 @@ class Adaptive(FitProtocol):
     correction_lr: float = 0.01
     standard_errors: float = 0.0
     validation_cap: int | None = 20_000
+    kernel: str = "torch"  # neuenh.fit.jit.KERNELS: the analytical and latent candidates' rows
 
     def __post_init__(self) -> None:
         unknown = [c for c in self.capacities if c not in CAPACITIES]
@@ -193,7 +195,7 @@ class Adaptive(FitProtocol):
             raise ValueError(f"unknown capacities {unknown} (known: {', '.join(CAPACITIES)})")
         if (self.folds < 2 or not 1 <= self.validation_folds <= self.folds or not self.priors
                 or any(p < 0 for p in self.priors) or self.correction_epochs < 1 or self.standard_errors < 0
-                or (self.validation_cap is not None and self.validation_cap < self.folds)):
+                or (self.validation_cap is not None and self.validation_cap < self.folds) or self.kernel not in KERNELS):
             raise ValueError(f"invalid adaptive protocol {self}")
 
     @property
@@ -292,14 +294,14 @@ class Adaptive(FitProtocol):
             analytical, a_space = capacity_space(model, capacity, seed)
             if analytical.state not in by_state:
                 x, _ = self._analytical(model, capacity, problems, seed)
-                by_state[analytical.state] = (*score(RowKernel(analytical, a_space), x), x[:m])
+                by_state[analytical.state] = (*score(row_kernel(analytical, a_space, self.kernel), x), x[:m])
             *scored, scores.analytical_fits[capacity] = by_state[analytical.state]
             keep((capacity, None), tuple(scored))
         corrected = [(c, p) for c, p in self.grid if c not in ANALYTICAL_CAPACITIES and c != "latent"]
         if "latent" in self.capacities or corrected:
             x_latent, _ = self._latent(model, problems, material, start, trained, seed)
             if "latent" in self.capacities:
-                keep(("latent", None), score(RowKernel(model, RowSpace(model)), x_latent))
+                keep(("latent", None), score(row_kernel(model, RowSpace(model), self.kernel), x_latent))
             if corrected:
                 r = problems.materials
                 entries = [g for g in corrected for _ in range(r)]
@@ -366,12 +368,12 @@ class Adaptive(FitProtocol):
         analytical, space = capacity_space(model, capacity, seed)
         x0 = space.from_table(paper_start(analytical, problems.names))
         return PlainLBFGS(iterations=self.lbfgs_iterations).fit_rows(
-            RowKernel(analytical, space), x0, problems.layout(torch.arange(problems.materials)), also)
+            row_kernel(analytical, space, self.kernel), x0, problems.layout(torch.arange(problems.materials)), also)
 
     def _latent(self, model: BRDFModel, problems: Rows, material: torch.Tensor, start: MaterialTable | None,
                 trained: MaterialTable | None, seed: int):
         """``LatentAdam``'s fit of every row of ``problems`` (rows of ``material``): (rows, dim), (rows,) losses."""
-        latent = LatentAdam(self.latent_epochs, starts=self.latent_starts)
+        latent = LatentAdam(self.latent_epochs, starts=self.latent_starts, kernel=self.kernel)
         start_rows = None if start is None else start.subset(material.tolist())
         return latent.fit_rows(model, problems, start_rows, trained, seed)
 

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 from ..capacities import CAPACITY_CHOICES
 from ..model import BRDFModel
 from .capacity import Adaptive
+from .jit import KERNELS
+from .jit import available as jit_available
 from .protocols import FitProtocol, LatentAdam, PaperRMSProp, PlainLBFGS
 
 METHODS = ("fast", "paper")
@@ -26,7 +28,9 @@ class FitOptions:
     """``method``: ``fast`` (default) or ``paper`` (the paper's RMSProp protocol, latent capacity).
     ``capacity`` (models with modules, fast method): ``auto`` chooses per material by validation on
     its own samples (``capacity.Adaptive``), a capacity name fits that capacity only.
-    ``epochs``/``lbfgs_iterations``: budgets (module doc), None for each protocol's own."""
+    ``epochs``/``lbfgs_iterations``: budgets (module doc), None for each protocol's own.
+    ``kernel`` (fast method): ``torch`` (default) or ``jit``, the fits' compiled Dr.Jit kernel
+    (``neuenh.fit.jit``) for the rows it applies to; "jit" without Dr.Jit is an error here."""
 
     method: str = "fast"
     # the library's default, not the users' ("auto", ``neuenh.capacities.USER_CAPACITY``): the fits inside
@@ -36,6 +40,7 @@ class FitOptions:
     epochs: int | None = None
     lbfgs_iterations: int | None = None
     starts: str = "analytical"
+    kernel: str = "torch"
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -44,6 +49,11 @@ class FitOptions:
             raise ValueError(f"capacity must be one of {', '.join(CAPACITY_CHOICES)}, got {self.capacity!r}")
         if self.starts not in ("analytical", "paper"):
             raise ValueError(f"fit starts must be 'analytical' or 'paper', got {self.starts!r}")
+        if self.kernel not in KERNELS:
+            raise ValueError(f"fit kernel must be one of {', '.join(KERNELS)}, got {self.kernel!r}")
+        if self.kernel == "jit" and not jit_available():
+            raise ValueError("the jit fit kernel needs Dr.Jit's LLVM backend: pip install 'neuenh[export]' and a "
+                             "libLLVM 17 or newer (Debian 12: apt-get install libllvm19; make mitsuba)")
         for name in ("epochs", "lbfgs_iterations"):
             value = getattr(self, name)
             if value is not None and value < 1:
@@ -55,14 +65,14 @@ class FitOptions:
             return PaperRMSProp(**_given(epochs=self.epochs))
         if not model.has_modules:
             # a plain model's only budget: --epochs stands for it unless lbfgs_iterations is given
-            return PlainLBFGS(**_given(iterations=self.lbfgs_iterations or self.epochs))
+            return PlainLBFGS(**_given(iterations=self.lbfgs_iterations or self.epochs), kernel=self.kernel)
         if self.capacity == "latent":
-            return LatentAdam(**_given(epochs=self.epochs), starts=self.starts)
+            return LatentAdam(**_given(epochs=self.epochs), starts=self.starts, kernel=self.kernel)
         capacities = {} if self.capacity == "auto" else {"capacities": (self.capacity,)}
         budget = {} if self.epochs is None else {"latent_epochs": self.epochs,
                                                  "correction_epochs": max(1, self.epochs // 2)}
         return Adaptive(**capacities, **_given(lbfgs_iterations=self.lbfgs_iterations), **budget,
-                        latent_starts=self.starts)
+                        latent_starts=self.starts, kernel=self.kernel)
 
     def replace(self, **changes) -> "FitOptions":
         return dataclasses.replace(self, **changes)

@@ -30,14 +30,18 @@ from ..data.samples import Samples
 from ..encoder import MaterialEncoder
 from ..materials import MaterialTable
 from ..model import BRDFModel
+from .jit import set_jit_threads
 from .protocols import FitProtocol
 from .result import FitResult
 from .run import fit_materials
 
 
-def _start_worker() -> None:
-    """A fit process: one torch thread, and freed activations kept for the next step (``neuenh.allocator``)."""
+def _start_worker(jit: bool) -> None:
+    """A fit process: one torch thread (and one Dr.Jit thread for ``jit``, the protocol's kernel), and
+    freed activations kept for the next step (``neuenh.allocator``)."""
     torch.set_num_threads(1)
+    if jit:
+        set_jit_threads(1)
     keep_freed_memory()
 
 
@@ -63,7 +67,8 @@ def fit_in_processes(model: BRDFModel, samples: Samples, protocol: FitProtocol, 
     if len(groups) <= 1:  # nothing to split: this process fits it
         return fit_materials(model, samples, protocol, trained=trained, encoder=encoder, seed=seed, progress=progress)
     context = multiprocessing.get_context("spawn")  # no forked copy of this process's threads and locks
-    with ProcessPoolExecutor(len(groups), mp_context=context, initializer=_start_worker) as pool:
+    with ProcessPoolExecutor(len(groups), mp_context=context, initializer=_start_worker,
+                             initargs=(getattr(protocol, "kernel", "torch") == "jit",)) as pool:
         futures = {pool.submit(fit_materials, model, samples.select(group), protocol, trained=trained,
                                encoder=encoder, seed=seed): len(group) for group in groups}
         done = 0

@@ -51,6 +51,7 @@ from ..materials import LATENT_INIT, MaterialTable
 from ..model import BRDFModel
 from ..optimizers import RMSProp
 from ..train import log_l1, predict
+from .jit import KERNELS, row_kernel
 from .kernel import RowKernel, RowLosses, RowSpace, frozen
 from .layout import compacted, layout_rows, padded
 from .optim import SURROGATE_EPS, Adam, adam_rows, evaluate_rows, lbfgs_rows
@@ -211,9 +212,11 @@ class PlainLBFGS(FitProtocol):
     warmup_epochs: int = 100
     warmup_lr: float = 0.05
     coarse_slots: int = 2000
+    kernel: str = "torch"  # neuenh.fit.jit.KERNELS
 
     def __post_init__(self) -> None:
-        if self.iterations < 1 or self.warmup_epochs < 0 or self.warmup_lr <= 0 or self.coarse_slots < 1:
+        if (self.iterations < 1 or self.warmup_epochs < 0 or self.warmup_lr <= 0 or self.coarse_slots < 1
+                or self.kernel not in KERNELS):
             raise ValueError(f"invalid plain protocol {self}")
 
     @property
@@ -227,7 +230,8 @@ class PlainLBFGS(FitProtocol):
         space = RowSpace(model)
         first = space.from_table(paper_start(model, samples.names) if start is None else start)
         with frozen(model):
-            x, scored = self.fit_rows(RowKernel(model, space), first, rows.layout(torch.arange(rows.materials)))
+            x, scored = self.fit_rows(row_kernel(model, space, self.kernel), first,
+                                      rows.layout(torch.arange(rows.materials)))
         table = _table(model, space, x, samples.names)
         return FitResult(table, scored.train.tolist(), time.perf_counter() - start_time, self.describe())
 
@@ -301,10 +305,12 @@ class LatentAdam(FitProtocol):
     screened: int = 8
     screen_samples: int = 1000
     sample_cap: int | None = 20_000
+    kernel: str = "torch"  # neuenh.fit.jit.KERNELS: every stage's rows
 
     def __post_init__(self) -> None:
         if (self.epochs < 1 or self.lr <= 0 or self.starts not in ("analytical", "paper") or self.screened < 0
-                or self.screen_samples < 1 or (self.sample_cap is not None and self.sample_cap < 1)):
+                or self.screen_samples < 1 or (self.sample_cap is not None and self.sample_cap < 1)
+                or self.kernel not in KERNELS):
             raise ValueError(f"invalid latent protocol {self} (starts: 'analytical' or 'paper')")
 
     @property
@@ -340,7 +346,7 @@ class LatentAdam(FitProtocol):
             return [paper]
         analytical = model.enhance(model.analytical_state(), seed)
         a_space = RowSpace(analytical)
-        a_kernel = RowKernel(analytical, a_space)
+        a_kernel = row_kernel(analytical, a_space, self.kernel)
         layout = rows.layout(torch.arange(m), train)
         base = adam_rows(a_kernel, a_space.from_table(paper_start(analytical, rows.names)), layout,
                          Adam(self.epochs, self.lr)).x
@@ -355,7 +361,7 @@ class LatentAdam(FitProtocol):
         like = torch.cat([torch.cat([base, latent], 1) if space.latent else base for latent in latents])
         imitate = rows.layout(torch.arange(m).repeat(k), None if train is None else train.repeat(k, 1)).with_targets(
             imitated_f.reshape(m, -1, 3).repeat(k, 1, 1))
-        imitated = adam_rows(RowKernel(model, space), like, imitate, Adam(max(1, self.epochs // 3), self.lr)).x
+        imitated = adam_rows(row_kernel(model, space, self.kernel), like, imitate, Adam(max(1, self.epochs // 3), self.lr)).x
         return [paper, *imitated.reshape(k, m, -1), *self.screened_starts(model, rows, trained, base, train)]
 
     def screened_starts(self, model: BRDFModel, rows: Rows, trained: MaterialTable | None, base: torch.Tensor,
@@ -370,7 +376,7 @@ class LatentAdam(FitProtocol):
         subset = rows.as_problems(torch.arange(rows.materials), usable & (usable.cumsum(1) <= self.screen_samples))
         screened = self.screened_codes(model, subset, trained, base)  # (m, k, dim)
         m, k, dim = screened.shape
-        race = adam_rows(RowKernel(model, space), screened.reshape(m * k, dim),
+        race = adam_rows(row_kernel(model, space, self.kernel), screened.reshape(m * k, dim),
                          subset.layout(torch.arange(m).repeat_interleave(k)), Adam(max(1, self.epochs // 4), self.lr))
         winner = race.train.reshape(m, k).nan_to_num(torch.inf).argmin(1)
         return [race.x.reshape(m, k, dim)[torch.arange(m), winner]]
@@ -383,7 +389,7 @@ class LatentAdam(FitProtocol):
         at most ``slots_at_once`` codes × samples, so a bundle of many training materials screens in
         bounded memory."""
         space = RowSpace(model)
-        kernel, codes = RowKernel(model, space), trained.latent_codes().float()
+        kernel, codes = row_kernel(model, space, self.kernel), trained.latent_codes().float()
         group = max(1, slots_at_once // rows.wi.shape[1])
         best = []
         for i in range(rows.materials):  # one material at a time: a row per code, on its slots
@@ -408,7 +414,7 @@ class LatentAdam(FitProtocol):
         material = torch.arange(m).repeat(k)
         layout = rows.layout(material, None if train is None else train.repeat(k, 1),
                              None if val is None else val.repeat(k, 1))
-        kernel = RowKernel(model, space)
+        kernel = row_kernel(model, space, self.kernel)
         result = adam_rows(kernel, torch.cat(starts), layout, Adam(self.epochs, self.lr),
                            groups=material if k > 1 else None)
         return result.x, result.train

@@ -11,6 +11,7 @@ import torch
 from neuenh.checkpoint import Bundle
 from neuenh.data.synthetic import synthetic_ggx
 from neuenh.data.table import write_table
+from neuenh.fit.jit import available as jit_available
 from cli_runs import neuenh, neuenh_here, neuenh_on_a_terminal
 from ggx_states import PAPER_STATE
 
@@ -96,6 +97,19 @@ def test_fit_with_the_shipped_enhanced_ggx_out_of_the_box(table, tmp_path):
     assert report["state"] != "0" * 11 and report["protocol"]["name"] == "adaptive"
     assert (material["capacity"], material["latent"], material["params_per_material"]) == ("original", None, 12)
     assert material["loss"] < 1e-3
+
+
+@pytest.mark.skipif(not jit_available(), reason="Dr.Jit's LLVM backend is not available (neuenh[export]; libLLVM 17+)")
+def test_the_jit_kernel_fits_as_the_torch_kernel_does(table):
+    """``--kernel jit``: the same protocol (named in the report) on the compiled kernel, ending where the
+    torch kernel's fit ends up to what float32 rounding moves in 30 epochs."""
+    runs = {kernel: neuenh_here("fit", "--model", "enhanced-ggx", table, "--capacity", "latent", "--epochs", "30",
+                                "--kernel", kernel, "--json") for kernel in ("torch", "jit")}
+    reports = {kernel: json.loads(out.stdout) for kernel, out in runs.items() if out.returncode == 0}
+    assert set(reports) == {"torch", "jit"}, [out.stderr for out in runs.values()]
+    assert [r["protocol"]["kernel"] for r in reports.values()] == ["torch", "jit"]
+    (torch_fit,), (jit_fit,) = (r["materials"] for r in reports.values())
+    assert jit_fit["loss"] == pytest.approx(torch_fit["loss"], rel=1e-2)
 
 
 def test_a_bundle_with_an_encoder_starts_fits_from_it_too_and_keeps_it(table, tmp_path):

@@ -16,6 +16,7 @@ from neuenh.fit import (SURROGATE_EPS, Adaptive, FitOptions, LatentAdam, PaperRM
                         per_material_loss)
 from neuenh.data.samples import Samples
 from neuenh.fit.capacity import capacity_space, gap_errors, simplest_within
+from neuenh.fit.jit import available as jit_available
 from neuenh.fit.kernel import LayerCorrection, RowKernel, RowSpace
 from neuenh.fit.layout import compacted, fold_masks, layout_rows, padded
 from neuenh.fit.optim import Adam, adam_rows, evaluate_rows, lbfgs_rows
@@ -28,6 +29,7 @@ from neuenh.pretrained import load_model
 from neuenh.study.heldout import heldout_log_l1, predict_f_r
 from neuenh.train import log_l1
 from ggx_states import PAPER_STATE
+from random_tables import random_table
 
 FLOAT32_EPS = torch.finfo(torch.float32).eps
 
@@ -88,22 +90,12 @@ class TestProtocolContract:
 
 
 # -- the kernel against independent references ---------------------------------------------------
-def _random_table(model, names, seed):
-    g = torch.Generator().manual_seed(seed)
-    table = MaterialTable(model.specs, names, model.latent_dim)
-    with torch.no_grad():
-        table.latent.add_(0.3 * torch.randn(table.latent.shape, generator=g))
-        for raw in table.raw.values():
-            raw.add_(0.5 * torch.randn(raw.shape, generator=g))
-    return table
-
-
 def test_kernel_losses_and_corrections_equal_the_model_with_corrected_weights(enhanced, two_zoo_materials):
     """Each row's loss (mean and per sample) is the model's own log-L1 with the row's corrections
     added to its weights (``torch.func.functional_call``, evaluated per material), also when evaluated
     in slot chunks, and the gradient is the float64 kernel's within float32 rounding."""
     samples = two_zoo_materials
-    table = _random_table(enhanced, samples.names, 0)
+    table = random_table(enhanced, samples.names, 0)
     corrections = [LayerCorrection(p, i, None if i % 2 else 2) for p in enhanced.neural for i in range(4)]
     space = RowSpace(enhanced, corrections)
     x = space.from_table(table, seed=1)
@@ -143,7 +135,7 @@ def test_a_kernel_over_slot_chunks_has_the_objective_and_gradient_of_one_pass(en
     corrections = [LayerCorrection(p, i, None if i % 2 else 2) for p in double.neural for i in range(4)]
     space = RowSpace(double, corrections)
     samples = two_zoo_materials
-    x = space.from_table(_random_table(double, samples.names, 0), seed=1).double()
+    x = space.from_table(random_table(double, samples.names, 0), seed=1).double()
     x[:, space.base_dim:] += 0.05 * torch.randn(x[:, space.base_dim:].shape, generator=torch.Generator().manual_seed(2),
                                                 dtype=torch.float64)
     wi, wo, f_r, valid = padded(samples)
@@ -167,7 +159,7 @@ def test_a_rows_gradient_does_not_depend_on_the_rows_beside_it(enhanced, two_zoo
     rounding of the stacked products (bounded by the float32 kernel's distance to float64)."""
     samples = two_zoo_materials
     space = RowSpace(enhanced, [LayerCorrection(p, 3) for p in enhanced.neural])
-    table = _random_table(enhanced, samples.names, 4)
+    table = random_table(enhanced, samples.names, 4)
     x = space.from_table(table)
     wi, wo, f_r, valid = padded(samples)
     stacked = layout_rows(wi, wo, f_r, torch.tensor([0, 1]), valid, torch.zeros_like(valid))
@@ -219,7 +211,7 @@ def test_padding_carries_no_weight_and_folds_partition_each_materials_samples():
     assert torch.equal(folds.sum(0), valid.long()) and (folds.sum(2) >= torch.tensor([16, 10])).all()
     # a layout row's loss is the mean over its material's valid samples only
     model = get_model("ggx")
-    table = _random_table(model, samples.names, 3)
+    table = random_table(model, samples.names, 3)
     space = RowSpace(model)
     layout = layout_rows(wi, wo, f_r, torch.arange(2), valid, torch.zeros_like(valid))
     losses = RowKernel(model, space)(space.from_table(table), layout, grad=False)
@@ -261,10 +253,12 @@ def _quarter_turn_canonical(params: dict) -> dict:
     return out
 
 
-def test_plain_lbfgs_recovers_a_ggx_material(clean_ggx):
+@pytest.mark.parametrize("kernel", ["torch", pytest.param("jit", marks=pytest.mark.skipif(
+    not jit_available(), reason="Dr.Jit's LLVM backend is not available (neuenh[export]; libLLVM 17+)"))])
+def test_plain_lbfgs_recovers_a_ggx_material(clean_ggx, kernel):
     material, samples = clean_ggx
     model = get_model("ggx")
-    result = fit_materials(model, samples)
+    result = fit_materials(model, samples, PlainLBFGS(kernel=kernel))
     truth = {k: torch.tensor(v, dtype=torch.float32) for k, v in material.metadata["params"].items()}
     # The floor: the float32 model's own loss at the true parameters (its rounding against the data).
     floor = float(log_l1(model.evaluate(samples.wi, samples.wo, truth), samples.f_r, samples.wi).double().mean())
@@ -394,7 +388,7 @@ def test_a_latent_fit_over_its_cap_fits_a_seeded_draw_of_each_materials_samples(
 
 def _codes(model, n, seed):
     """A training table of ``n`` materials with spread-out latent codes (``_random_table``'s)."""
-    return _random_table(model, tuple(f"t{i}" for i in range(n)), seed)
+    return random_table(model, tuple(f"t{i}" for i in range(n)), seed)
 
 
 @pytest.mark.parametrize("slots_at_once", [SCREEN_SLOTS, 2_500])  # the 12 codes in one group; in groups of four
@@ -428,7 +422,7 @@ def test_a_material_measured_at_a_training_code_starts_there(enhanced):
     """A material the model itself renders at one of the training codes (and known analytical
     parameters): that code is screened first, and the start raced from it fits better than any
     other training code as it is."""
-    truth = _random_table(enhanced, ("m",), seed=4)
+    truth = random_table(enhanced, ("m",), seed=4)
     trained = _codes(enhanced, 10, seed=5)
     with torch.no_grad():
         truth.latent.copy_(trained.latent[7])
@@ -452,7 +446,7 @@ def test_the_encoders_prediction_is_one_more_start_of_the_latent_fit(enhanced):
     latent fit's own starts, wins the race and ends an order of magnitude below the fit from the
     protocol's own starts alone (×13 at 12 epochs on AMD EPYC); a given ``start`` or the paper's
     starts take no encoder start, and the report says which fit had one."""
-    truth = _random_table(enhanced, ("m",), seed=4)
+    truth = random_table(enhanced, ("m",), seed=4)
     wi, wo = (d.float() for d in sample_directions(800, seed=6, near_mirror=0.3))
     with torch.no_grad():
         f_r = enhanced.forward_indexed(wi, wo, truth.values(), truth.latent, torch.zeros(len(wi), dtype=torch.long))
@@ -468,7 +462,7 @@ def test_the_encoders_prediction_is_one_more_start_of_the_latent_fit(enhanced):
     with_encoder = protocol.fit(enhanced, samples, trained=trained, encoder=KnowsTheAnswer())
     assert not own.protocol["encoder_start"] and with_encoder.protocol["encoder_start"]
     assert with_encoder.losses[0] < own.losses[0] / 4
-    start = _random_table(enhanced, ("m",), seed=9)
+    start = random_table(enhanced, ("m",), seed=9)
     for fit in (protocol.fit(enhanced, samples, start=start, encoder=KnowsTheAnswer()),
                 LatentAdam(epochs=12, starts="paper").fit(enhanced, samples, encoder=KnowsTheAnswer())):
         assert not fit.protocol["encoder_start"]

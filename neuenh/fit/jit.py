@@ -1,0 +1,321 @@
+"""A fit's kernel compiled by Dr.Jit: each step's forward and reverse pass as one fused CPU kernel.
+
+``RowKernel`` runs a fit step as ~900 torch operations, each a pass over (rows x slots, 32)
+activations in memory; a step of the latent fit costs what those passes cost, not what its FLOPs
+cost (docs/BENCHMARKS.md, "The latent fit's step under `torch.compile`"). ``JitRowKernel`` computes
+the same losses and gradients with the model's frozen modules unrolled into one Dr.Jit kernel
+(LLVM, the machine's vector width), each sample's activations kept in registers, the reverse pass
+traced into the same kernel, and the step recorded once by ``drjit.freeze`` and replayed after.
+
+The work is split where it is cheap to split (as ``BRDFModel.forward_indexed`` splits it):
+
+* torch, per row and differentiable: the physical values, the shading frame, the terms that read
+  no direction, and each module's first-layer bias with the row's 12 analytical inputs and latent
+  code folded in (``b1 + W1[:, :P] @ [unit params, latent]``, as ``neuenh.specialize`` folds one
+  material);
+* Dr.Jit, per sample: those per-row values gathered, the shading geometry, the term formulas
+  (``neuenh.ops``' vocabulary on Dr.Jit arrays) and the modules with their remaining weights as
+  constants, the log-L1 (or its Charbonnier surrogate) and its gradient with respect to every
+  per-row value;
+* torch again: that gradient carried back to the rows ``x`` through the first part.
+
+Only rows without module corrections (the ``latent`` capacity and analytical models' rows): a
+correction's per-row weights would be gathered per sample, which is what makes the torch kernel
+slow. ``available()`` says whether Dr.Jit and a usable libLLVM are installed; the kernel is an
+optional speed-up (the ``neuenh[export]`` extra already brings Dr.Jit), never a requirement.
+"""
+
+from __future__ import annotations
+
+import gc
+from typing import Any
+
+import torch
+
+from ..graph import Operator, Term, apply, fold
+from ..llvm import point_drjit_at_libllvm
+from ..ops import TORCH, DrJitArrayOps
+from ..shading import Shading, frame_of, shade, to_frame
+from .kernel import CHUNK_SLOTS, RowKernel, RowLosses, RowSpace
+from .layout import RowLayout
+
+# A fit protocol's ``kernel``: "torch" (``RowKernel``), "jit" (``JitRowKernel`` where it applies, else torch).
+KERNELS = ("torch", "jit")
+_STATE: dict[str, Any] = {}
+
+
+def row_kernel(model, space: RowSpace, kernel: str = "torch"):
+    """The kernel a fit protocol's ``kernel`` names for ``model``'s rows in ``space``: ``JitRowKernel``
+    for "jit" when the rows have no corrections and Dr.Jit is ``available()``, else ``RowKernel``."""
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
+    if kernel == "jit" and not space.corrections and available():
+        return JitRowKernel(model, space)
+    return RowKernel(model, space)
+
+
+def available() -> bool:
+    """Whether Dr.Jit's LLVM backend can run here (imported and initialised once per process)."""
+    if "ok" not in _STATE:
+        try:
+            if not point_drjit_at_libllvm():
+                raise ImportError("no libLLVM")
+            import drjit as dr
+            import drjit.llvm.ad  # noqa: F401
+
+            _STATE["ok"] = bool(dr.has_backend(dr.JitBackend.LLVM))
+        except (ImportError, RuntimeError, OSError):
+            _STATE["ok"] = False
+    return _STATE["ok"]
+
+
+def set_jit_threads(threads: int) -> None:
+    """Dr.Jit's thread pool, in which the jit kernel runs, to ``threads`` (when Dr.Jit is available).
+    Process-wide: set it where the process is the fit's own (``neuenh fit --threads``, a fit's worker
+    processes); Mitsuba in the same process needs more than one (with one, its EXR reader waits on a
+    task of the pool forever)."""
+    if available():
+        import drjit as dr
+
+        dr.set_thread_count(threads)
+
+
+class JitRowKernel:
+    """``RowKernel``'s losses and gradients (the same call; module doc) for rows without corrections,
+    computed by one Dr.Jit kernel a step in Dr.Jit's thread pool (all cores unless ``set_jit_threads``).
+    Equal to ``RowKernel``'s up to float32 rounding."""
+
+    def __init__(self, model, space: RowSpace):
+        if space.corrections:
+            raise ValueError("the Dr.Jit kernel fits rows without module corrections")
+        if not available():
+            raise RuntimeError("Dr.Jit's LLVM backend is not available (pip install drjit; libLLVM 17 or newer)")
+        self.model, self.space = model, space
+        self.dtype = torch.float32
+        self._plan()
+        self._frozen = {}
+
+    # -- what runs per row (torch) and what per sample (Dr.Jit) ----------------------------------------
+    def _plan(self) -> None:
+        """Which positions are per-row constants, which modules run per sample (their constant layers,
+        and whether their first layer reads the per-material inputs), in the model's expression."""
+        model = self.model
+        self.expression = model.expression()
+        self.const_positions: dict[str, str] = {}  # position -> "module", "formula" or "operator"
+        self.modules: dict[str, tuple[list, list, float, bool]] = {}
+        chosen = model.chosen_terms()
+        for expr, digit in zip(model.graph.positions, model.digits):
+            expr = chosen.get(expr.name, expr)
+            neural = model.is_neural(digit)
+            if isinstance(expr, Term):
+                if neural and expr.reads_directions:
+                    self.modules[expr.name] = self._constant_layers(expr.name, folded=True)
+                elif not expr.reads_directions:
+                    self.const_positions[expr.name] = "module" if neural else "formula"
+            elif neural:
+                self.modules[expr.name] = self._constant_layers(expr.name, folded=False)
+            elif expr.left.name in self.const_positions and expr.right.name in self.const_positions:
+                self.const_positions[expr.name] = "operator"
+
+    def _constant_layers(self, position: str, folded: bool):
+        """A module's layers as Python floats (the first layer's per-sample columns only when the row's
+        inputs are folded into its bias), its slope, and whether its first-layer bias is per row."""
+        module = self.model.neural[position]
+        layers = [(layer.weight.detach().double(), layer.bias.detach().double()) for layer in module.layers]
+        if folded:
+            k = self._material_inputs()
+            layers[0] = (layers[0][0][:, k:], layers[0][1])
+        weights = [[[float(w) for w in row] for row in weight.tolist()] for weight, _ in layers]
+        biases = [[float(b) for b in bias.tolist()] for _, bias in layers]
+        return weights, biases, module.negative_slope, folded
+
+    def _material_inputs(self) -> int:
+        model = self.model
+        return sum(spec.width for spec in model.module_specs) + (model.latent_dim if model.uses_latent else 0)
+
+    def _per_row(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Everything a sample reads from its row, (rows, width) each, as a differentiable function of
+        ``x``: ``param:NAME``, ``frame`` (9: tangent, bitangent, normal), ``const:POS``, ``bias:POS``."""
+        model = self.model
+        values, latent = self.space.values(x)
+        out = {f"param:{k}": v for k, v in values.items()}
+        frame = frame_of(TORCH, values)
+        if frame is not None:
+            out["frame"] = torch.cat([axis.array for axis in frame], dim=1)
+        per_material = Shading.of_params(values, TORCH)
+        rows = x.shape[0]
+        material_input = None
+        if any(folded for *_, folded in self.modules.values()):
+            parts = [model.module_specs.unit_vector(values)]
+            if model.uses_latent:
+                parts.append(latent)
+            material_input = torch.cat(parts, dim=1)
+        constants: dict[str, torch.Tensor] = {}
+        chosen = model.chosen_terms()
+        for expr in model.graph.positions:
+            expr = chosen.get(expr.name, expr)
+            if expr.name in self.modules and self.modules[expr.name][3]:
+                first = model.neural[expr.name].layers[0]
+                k = material_input.shape[1]
+                out[f"bias:{expr.name}"] = torch.addmm(first.bias, material_input, first.weight[:, :k].t())
+            kind = self.const_positions.get(expr.name)
+            if kind == "module":
+                value = model.neural[expr.name](material_input)
+            elif kind == "formula":
+                value = torch.as_tensor(expr.formula(per_material), dtype=x.dtype)
+            elif kind == "operator":
+                left, right = constants[expr.left.name], constants[expr.right.name]
+                value = left + right if expr.op == "+" else left * right
+            else:
+                continue
+            constants[expr.name] = (value.reshape(1, 1) if value.ndim == 0 else value).expand(rows, expr.width)
+        out.update({f"const:{k}": v for k, v in constants.items()})
+        return out
+
+    # -- the per-sample kernel (Dr.Jit) ------------------------------------------------------------------
+    def _loss(self, rows: dict, wi, wo, f_r, row, eps: float | None):
+        """Each sample's loss (log-L1, ``train.log_l1``) and fitted value (the loss, or its Charbonnier
+        surrogate with ``eps``, as ``RowKernel``), on Dr.Jit arrays."""
+        import drjit as dr
+        from drjit.llvm.ad import Array3f, Float
+
+        xp = DrJitArrayOps()
+        lane = {name: [dr.gather(Float, column, row) for column in columns] for name, columns in rows.items()}
+
+        def vec(values):
+            return values[0] if len(values) == 1 else (Array3f(*values) if len(values) == 3 else tuple(values))
+
+        params = {name[6:]: vec(v) for name, v in lane.items() if name.startswith("param:")}
+        if "frame" in lane:
+            f = lane["frame"]
+            frame = (Array3f(*f[0:3]), Array3f(*f[3:6]), Array3f(*f[6:9]))
+            s = shade(xp, wi, wo, to_frame(xp, wi, frame), to_frame(xp, wo, frame), params)
+        else:
+            s = shade(xp, wi, wo, wi, wo, params)
+        directions = [s.wi.x, s.wi.y, s.wi.z, s.wo.x, s.wo.y, s.wo.z]
+
+        def mlp(name: str, inputs: list):
+            weights, biases, slope, folded = self.modules[name]
+            first_bias = lane[f"bias:{name}"] if folded else biases[0]
+            x = inputs
+            for layer, weight in enumerate(weights):
+                out = []
+                for row_w, b in zip(weight, first_bias if layer == 0 else biases[layer]):
+                    acc = b
+                    for w, v in zip(row_w, x):
+                        if w != 0.0:
+                            acc = acc + w * v
+                    out.append(acc)
+                if layer < len(weights) - 1:
+                    out = [dr.maximum(v, slope * v) for v in out]
+                x = out
+            return x[0] if len(x) == 1 else Array3f(*x)
+
+        def flat(value, width: int) -> list:
+            if width == 1:
+                return [value]
+            return [value.x, value.y, value.z] if isinstance(value, Array3f) else [value] * 3
+
+        def term(leaf: Term):
+            return mlp(leaf.name, directions) if leaf.name in self.modules else leaf.formula(s)
+
+        def operator(op: Operator, left, right):
+            if op.name not in self.modules:
+                return apply(op, left, right)
+            return mlp(op.name, flat(left, op.left.width) + flat(right, op.right.width))
+
+        def given(expr):
+            if expr.name not in self.const_positions:
+                return None
+            return vec(lane[f"const:{expr.name}"])
+
+        value = fold(self.expression, term, operator, given)
+        value = Array3f(value) if not isinstance(value, Array3f) else value
+        pred = dr.select(s.above, value, 0.0)
+        cos_i = dr.maximum(wi.z, 0.0)
+        loss, fitted = Float(0.0), Float(0.0)
+        for c in range(3):
+            p, t = pred[c] * cos_i, f_r[c] * cos_i
+            r = dr.log(1.0 + t) - dr.sign(p) * dr.log(1.0 + dr.abs(p))
+            loss += dr.abs(r) / 3.0
+            fitted += (dr.abs(r) if eps is None else dr.sqrt(r * r + eps * eps) - eps) / 3.0
+        return loss, fitted
+
+    def _step(self, rows: dict, wi, wo, f_r, row, weight, eps: float | None, grad: bool):
+        """Each sample's loss and fitted value (the loss or its surrogate) and, with ``grad``, the
+        gradient of the weighted sum of the fitted values with respect to every per-row column."""
+        import drjit as dr
+
+        if grad:
+            for columns in rows.values():
+                dr.enable_grad(columns)
+        loss, fitted = self._loss(rows, wi, wo, f_r, row, eps)
+        grads = {}
+        if grad:
+            dr.backward(fitted * weight)  # every sample seeded with 1: the gradient of their sum, no reduction
+            grads = {name: [dr.grad(c) for c in columns] for name, columns in rows.items()}
+        loss, fitted = dr.detach(loss), dr.detach(fitted)
+        dr.eval(loss, fitted, grads)
+        return loss, fitted, grads
+
+    # -- RowKernel's call ------------------------------------------------------------------------------------
+    def __call__(self, x: torch.Tensor, layout: RowLayout, *, grad: bool = True,
+                 prior_strength: torch.Tensor | None = None, surrogate_eps: float | None = None,
+                 chunk_slots: int = CHUNK_SLOTS) -> RowLosses:
+        """``RowKernel.__call__``'s losses (``prior_strength`` weighs corrections, which these rows have
+        none of); a layout of more than ``chunk_slots`` slots a row is evaluated a chunk at a time, the
+        gradients summed, as ``RowKernel`` does (the reverse pass keeps each sample's intermediates)."""
+        if chunk_slots < 1:
+            raise ValueError(f"chunk_slots must be at least 1, got {chunk_slots}")
+        x = x.detach().to(self.dtype)
+        weight = layout.train.sum(1).clamp_min(1e-12)
+        parts = [self._pass(x, layout.chunk(lo, min(lo + chunk_slots, layout.slots)), weight, grad, surrogate_eps)
+                 for lo in range(0, layout.slots, chunk_slots)]
+        per = torch.cat([part[0] for part in parts], 1)
+        fitted = torch.cat([part[1] for part in parts], 1)
+        g = sum(part[2] for part in parts) if grad else None
+        train = (per * layout.train).sum(1) / layout.train.sum(1).double().clamp_min(1e-12)
+        objective = (fitted * layout.train).sum(1) / weight.double()
+        val_weight = layout.val.sum(1).double()
+        val = torch.where(val_weight > 0, (per * layout.val).sum(1) / val_weight.clamp_min(1e-12), torch.nan)
+        return RowLosses(train, val, objective, g, per)
+
+    def _pass(self, x: torch.Tensor, layout: RowLayout, weight: torch.Tensor, grad: bool, eps: float | None
+              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """One kernel call over ``layout``: each slot's loss and fitted value (rows, slots) float64 and the
+        gradient (rows, dim) of the sum of its train slots' fitted values over each row's ``weight``."""
+        import drjit as dr
+        from drjit.llvm.ad import Array3f, Float, UInt32
+
+        rows, slots = layout.rows, layout.slots
+        with torch.enable_grad() if grad else torch.no_grad():
+            leaf = x.clone().requires_grad_(grad)
+            per_row = self._per_row(leaf)
+            names = sorted(per_row)
+            columns = {name: [Float(per_row[name][:, j].detach().contiguous()) for j in range(per_row[name].shape[1])]
+                       for name in names}
+            lanes = lambda t: Array3f(*(Float(t[:, j].contiguous()) for j in range(3)))
+            row = UInt32(torch.arange(rows, dtype=torch.int32).repeat_interleave(slots))
+            w = Float((layout.train / weight[:, None]).reshape(-1).contiguous())
+            # recorded at a shape's first call, replayed after (drjit.freeze; one per shape: a recording's
+            # reverse pass is bound to the sizes it saw)
+            key = (eps, grad, rows, slots)
+            if key not in self._frozen:
+                self._frozen[key] = dr.freeze(lambda c, a, b, y, r, ww: self._step(c, a, b, y, r, ww, eps, grad))
+            # Python's cycle collector stays out of the call: an array it frees while a step is being
+            # recorded enqueues a host function, which a recording cannot hold (Dr.Jit aborts the process).
+            collecting = gc.isenabled()
+            gc.disable()
+            try:
+                loss, fitted, grads = self._frozen[key](columns, lanes(layout.wi), lanes(layout.wo), lanes(layout.f_r),
+                                                        row, w)
+            finally:
+                if collecting:
+                    gc.enable()
+            g = None
+            if grad:
+                cotangents = [torch.stack([torch.from_numpy(c.numpy()) for c in grads[name]], dim=1) for name in names]
+                torch.autograd.backward([per_row[name] for name in names], cotangents)
+                g = leaf.grad.detach()
+        as_rows = lambda values: torch.from_numpy(values.numpy()).double().reshape(rows, slots)
+        return as_rows(loss), as_rows(fitted), g

@@ -1,0 +1,142 @@
+"""neuenh.fit.jit: the Dr.Jit kernel against the float64 torch kernel, on hard directions, and as every
+protocol's ``kernel``."""
+
+import copy
+
+import pytest
+import torch
+
+from neuenh.data.samples import sample_materials
+from neuenh.data.synthetic import synthetic_zoo
+from neuenh.fit import Adaptive, FitOptions, LatentAdam, PlainLBFGS, fit_materials
+from neuenh.fit.jit import JitRowKernel, available, row_kernel
+from neuenh.fit.kernel import LayerCorrection, RowKernel, RowSpace
+from neuenh.fit.layout import layout_rows, padded
+from neuenh.materials import MaterialTable
+from neuenh.models import get_model
+from neuenh.pretrained import load_model
+from ggx_states import PAPER_STATE
+from random_tables import random_table
+
+needs_drjit = pytest.mark.skipif(not available(), reason="Dr.Jit's LLVM backend is not available (pip install "
+                                "drjit, the neuenh[export] extra; libLLVM 17+: make mitsuba)")
+
+MODELS = {  # every kind of position the kernel folds: formulas, modules of directions, operator modules
+    "plain ggx": lambda: get_model("ggx", state="00000000000", seed=0),
+    "paper state": lambda: get_model("ggx", state=PAPER_STATE, seed=1),
+    "F and S*D*F": lambda: get_model("ggx", state="00010001000", seed=3),
+    "ward": lambda: get_model("ward", seed=0),
+    "shipped (alternatives)": lambda: load_model("enhanced-ggx")[0],
+}
+
+
+@pytest.fixture(scope="module")
+def zoo():
+    return sample_materials(synthetic_zoo(2, seed=5), 600, seed=1)
+
+
+@needs_drjit
+@pytest.mark.parametrize("surrogate_eps", [None, 1e-2])
+@pytest.mark.parametrize("name", MODELS)
+def test_the_jit_kernel_is_the_torch_kernel_to_float32_rounding(name, surrogate_eps, zoo):
+    """Losses per row and per sample, the objective and its gradient, with a held-out fold, in one pass
+    and in chunks of slots: each within 4x the float32 torch kernel's own distance to the float64 one
+    (plus a few ulps), so the two differ by rounding alone (the order of sums, fused multiply-adds,
+    Dr.Jit's log)."""
+    model = MODELS[name]()
+    space = RowSpace(model)
+    x = space.from_table(random_table(model, zoo.names, 0))
+    wi, wo, f_r, valid = padded(zoo)
+    train, val = valid.clone(), torch.zeros_like(valid)
+    train[:, ::4], val[:, ::4] = False, valid[:, ::4]
+    layout = layout_rows(wi, wo, f_r, torch.tensor([0, 1, 1]), train[[0, 1, 1]], val[[0, 1, 1]])
+    x = torch.cat([x, x[1:] + 0.1])  # a second row of material 1
+    double = copy.deepcopy(model).double()
+    layout64 = layout_rows(wi.double(), wo.double(), f_r.double(), layout.material, layout.train, layout.val)
+    exact = RowKernel(double, RowSpace(double))(x.double(), layout64, surrogate_eps=surrogate_eps)
+    torch32 = RowKernel(model, space)(x, layout, surrogate_eps=surrogate_eps)
+    jit = JitRowKernel(model, space)(x, layout, surrogate_eps=surrogate_eps)
+    eps = torch.finfo(torch.float32).eps
+    for field in ("train", "val", "objective", "per_sample", "grad"):
+        ours, theirs, truth = (getattr(r, field).double() for r in (jit, torch32, exact))
+        scale = truth.abs().max()
+        assert ((ours - truth).abs().max() <= 4 * (theirs - truth).abs().max() + 16 * eps * scale), field
+    assert JitRowKernel(model, space)(x, layout, grad=False).grad is None
+    # in chunks of slots (bounded memory, as RowKernel): the same up to the order of float32 sums
+    chunked = JitRowKernel(model, space)(x, layout, surrogate_eps=surrogate_eps, chunk_slots=97)
+    for field in ("train", "val", "objective", "per_sample", "grad"):
+        ours, truth = getattr(chunked, field).double(), getattr(exact, field).double()
+        theirs = getattr(torch32, field).double()
+        assert (ours - truth).abs().max() <= 4 * (theirs - truth).abs().max() + 16 * eps * truth.abs().max(), field
+
+
+@needs_drjit
+def test_the_jit_kernel_is_finite_at_grazing_below_horizon_and_tiny_roughness():
+    """The stability cases of the torch kernel's test: 89.99 degrees, below either horizon, at the
+    horizon, roughness at its lower bound, a huge target: finite losses and gradients."""
+    model = get_model("ggx", state=PAPER_STATE, seed=0)
+    space = RowSpace(model)
+    graze = torch.tensor([0.99999998, 0.0, 2e-4])
+    cases = [(graze, graze * torch.tensor([-1.0, 1.0, 1.0])), (torch.tensor([0.0, 0.6, -0.8]), torch.tensor([0.0, 0.0, 1.0])),
+             (torch.tensor([0.0, 0.0, 1.0]), torch.tensor([0.6, 0.0, -0.8])), (torch.tensor([1.0, 0.0, 0.0]), torch.tensor([0.0, 1.0, 0.0])),
+             (torch.tensor([0.0, 0.0, 1.0]), torch.tensor([0.0, 0.0, 1.0]))]
+    wi = torch.nn.functional.normalize(torch.stack([c[0] for c in cases]).float(), dim=1)
+    wo = torch.nn.functional.normalize(torch.stack([c[1] for c in cases]).float(), dim=1)
+    f_r = torch.tensor([[1e4, 0.0, 1.0]]).expand(len(wi), 3)
+    table = MaterialTable(model.specs, ["m"], model.latent_dim)
+    with torch.no_grad():
+        for name in ("alpha_x", "alpha_y"):
+            table.raw[name].fill_(-17.0)
+    every = torch.ones(1, len(wi), dtype=torch.bool)
+    layout = layout_rows(wi[None], wo[None], f_r[None], torch.tensor([0]), every, every)
+    out = JitRowKernel(model, space)(space.from_table(table), layout, surrogate_eps=1e-3)
+    assert torch.isfinite(out.objective).all() and torch.isfinite(out.val).all() and torch.isfinite(out.grad).all()
+
+
+@needs_drjit
+def test_a_protocols_kernel_names_the_jit_kernel_only_for_rows_without_corrections():
+    model = get_model("ggx", state="00010001000", seed=3)
+    assert isinstance(row_kernel(model, RowSpace(model), "jit"), JitRowKernel)
+    assert type(row_kernel(model, RowSpace(model), "torch")) is RowKernel
+    corrected = RowSpace(model, [LayerCorrection("F", 3)])
+    assert type(row_kernel(model, corrected, "jit")) is RowKernel
+    with pytest.raises(ValueError, match="without module corrections"):
+        JitRowKernel(model, corrected)
+    with pytest.raises(ValueError, match="kernel must be one of torch, jit"):
+        row_kernel(model, RowSpace(model), "cuda")
+    for protocol in (PlainLBFGS, LatentAdam, Adaptive):
+        with pytest.raises(ValueError, match="invalid"):
+            protocol(kernel="cuda")
+
+
+def test_without_drjit_the_jit_kernel_is_an_error_to_ask_for_and_torch_where_it_is_a_setting(monkeypatch):
+    """A user's ``--kernel jit`` on a machine without Dr.Jit says what to install; a protocol's setting
+    falls back to the torch kernel (a bundle's fits run wherever it is loaded)."""
+    import neuenh.fit.jit as jit
+
+    monkeypatch.setitem(jit._STATE, "ok", False)
+    with pytest.raises(ValueError, match="needs Dr.Jit's LLVM backend: pip install 'neuenh\\[export\\]'"):
+        FitOptions(kernel="jit")
+    model = get_model("ggx", state="00010001000", seed=3)
+    assert type(row_kernel(model, RowSpace(model), "jit")) is RowKernel
+    assert FitOptions(kernel="torch", capacity="latent").protocol_for(model).kernel == "torch"
+
+
+@needs_drjit
+@pytest.mark.parametrize("protocol", [
+    LatentAdam(epochs=9),
+    Adaptive(capacities=("latent", "last-layer"), latent_epochs=6, correction_epochs=4, priors=(1e-2,), folds=2),
+], ids=["latent", "adaptive"])
+def test_an_adam_fit_with_the_jit_kernel_ends_where_the_torch_fit_ends(protocol, zoo):
+    """The same protocol, kernel "jit" against "torch", from the same starts: the same choices and fit
+    losses within 1 % (a few Adam steps: the kernels' rounding has not yet moved an end point, which it
+    does after enough steps, as a fit's seed does: docs/BENCHMARKS.md, "Stop 64"; L-BFGS's line searches
+    amplify it from the first steps, so the plain fit is checked by what it recovers: test_fit.py)."""
+    import dataclasses
+
+    model = get_model("ggx", state="00010001000", seed=3)
+    torch_fit = fit_materials(model, zoo, protocol)
+    jit_fit = fit_materials(model, zoo, dataclasses.replace(protocol, kernel="jit"))
+    assert jit_fit.losses == pytest.approx(torch_fit.losses, rel=1e-2)
+    capacities = lambda fit: [fit.materials.as_params(i).capacity for i in range(len(zoo.names))]
+    assert capacities(jit_fit) == capacities(torch_fit)
