@@ -16,7 +16,7 @@ seed 0; ``mirror:N`` draws half of the pairs near the mirror direction, ``unifor
   judged against rather than against zero;
 * each ``--arm``: A with the protocol's dataclass fields replaced (e.g. ``X:correction_epochs=100``).
 
-Materials: every ``len // N``-th NBRDF stand-in of MERL (``../shared/data/merl_nbrdf``, sorted names;
+Materials: every ``len // N``-th NBRDF stand-in of MERL from the ``--offset``-th (``../shared/data/merl_nbrdf``, sorted names;
 never RGL), each fitted with its own training code left out of the model's training codes (the fit's
 screened starts would otherwise start where training left it). The shipped modules did see these
 materials: a paired comparison of two fits, not a measure of unseen-material error. Recorded per fit:
@@ -116,6 +116,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--capacity", default="auto", help="the protocol: neuenh fit's --capacity (default auto)")
     parser.add_argument("--model", default="enhanced-ggx", help="the enhanced model (default enhanced-ggx)")
     parser.add_argument("--materials", type=int, default=20, help="how many NBRDF stand-ins (default 20)")
+    parser.add_argument("--offset", type=int, default=0,
+                        help="start the every-len//N-th draw of stand-ins at this name (default 0; another draw of "
+                             "the same size: 1 .. len//N - 1)")
     parser.add_argument("--cases", nargs="+", default=["mirror:3000", "uniform:10000"])
     parser.add_argument("--test", type=int, default=1000, help="test pairs per material (default 1,000)")
     parser.add_argument("--null-seed", type=int, default=1, help="the null arm's fit seed (default 1)")
@@ -145,8 +148,8 @@ def main(argv: list[str] | None = None) -> int:
     if len({name for _, name, _ in variants}) < len(variants):
         raise SystemExit(f"--arm: two arms share a name ({', '.join(args.arm)})")
     arms = {"A": (base, 0), "null": (base, args.null_seed), **{name: (protocol, 0) for _, name, protocol in variants}}
-    config = {"model": args.model, "capacity": args.capacity, "materials": args.materials, "cases": args.cases,
-              "test": args.test, "null_seed": args.null_seed, "arms": args.arm}
+    config = {"model": args.model, "capacity": args.capacity, "materials": args.materials, "offset": args.offset,
+              "cases": args.cases, "test": args.test, "null_seed": args.null_seed, "arms": args.arm}
     results = json.loads(args.json.read_text()) if args.json and args.json.exists() else {}
     if results.get("config") != config:
         results = {"config": config, "fits": {}}
@@ -154,7 +157,10 @@ def main(argv: list[str] | None = None) -> int:
     results["arms"] = {"A": f"`{base}`", "null": f"A, fit seed {args.null_seed}",
                        **{name: text.split(":", 1)[1] for text, name, _ in variants}}
     names = sorted(np.load(args.nbrdf)["names"].tolist())
-    chosen = names[:: max(1, len(names) // args.materials)][: args.materials]
+    step = max(1, len(names) // args.materials)
+    if not 0 <= args.offset < step:
+        raise SystemExit(f"--offset {args.offset}: must be in 0 .. {step - 1} (every {step}th of {len(names)} names)")
+    chosen = names[args.offset :: step][: args.materials]
     # each material's fits start from the training codes of every other (the same for every case)
     codes_of = {name: None if trained is None else trained.subset([i for i, t in enumerate(trained.names) if t != name])
                 for name in chosen}
