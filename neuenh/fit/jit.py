@@ -28,6 +28,7 @@ optional speed-up (the ``neuenh[export]`` extra already brings Dr.Jit), never a 
 from __future__ import annotations
 
 import gc
+import itertools
 from typing import Any
 
 import torch
@@ -173,14 +174,16 @@ class JitRowKernel:
         return out
 
     # -- the per-sample kernel (Dr.Jit) ------------------------------------------------------------------
-    def _loss(self, rows: dict, wi, wo, f_r, row, eps: float | None):
+    def _loss(self, table, n_rows: int, wi, wo, f_r, row, eps: float | None):
         """Each sample's loss (log-L1, ``train.log_l1``) and fitted value (the loss, or its Charbonnier
-        surrogate with ``eps``, as ``RowKernel``), on Dr.Jit arrays."""
+        surrogate with ``eps``, as ``RowKernel``), on Dr.Jit arrays; ``table``: the per-row values, column
+        by column (``_columns``: each name's first column and width) of ``n_rows`` rows each."""
         import drjit as dr
         from drjit.llvm.ad import Array3f, Float
 
         xp = DrJitArrayOps()
-        lane = {name: [dr.gather(Float, column, row) for column in columns] for name, columns in rows.items()}
+        lane = {name: [dr.gather(Float, table, row + (first + j) * n_rows) for j in range(width)]
+                for name, (first, width) in self._columns.items()}
 
         def vec(values):
             return values[0] if len(values) == 1 else (Array3f(*values) if len(values) == 3 else tuple(values))
@@ -241,22 +244,21 @@ class JitRowKernel:
             fitted += (dr.abs(r) if eps is None else dr.sqrt(r * r + eps * eps) - eps) / 3.0
         return loss, fitted
 
-    def _step(self, rows: dict, wi, wo, f_r, row, weight, eps: float | None, grad: bool):
+    def _step(self, table, n_rows: int, wi, wo, f_r, row, weight, eps: float | None, grad: bool):
         """Each sample's loss and fitted value (the loss or its surrogate) and, with ``grad``, the
-        gradient of the weighted sum of the fitted values with respect to every per-row column."""
+        gradient of the weighted sum of the fitted values with respect to every entry of ``table``."""
         import drjit as dr
 
         if grad:
-            for columns in rows.values():
-                dr.enable_grad(columns)
-        loss, fitted = self._loss(rows, wi, wo, f_r, row, eps)
-        grads = {}
+            dr.enable_grad(table)
+        loss, fitted = self._loss(table, n_rows, wi, wo, f_r, row, eps)
+        gradient = None
         if grad:
             dr.backward(fitted * weight)  # every sample seeded with 1: the gradient of their sum, no reduction
-            grads = {name: [dr.grad(c) for c in columns] for name, columns in rows.items()}
+            gradient = dr.grad(table)
         loss, fitted = dr.detach(loss), dr.detach(fitted)
-        dr.eval(loss, fitted, grads)
-        return loss, fitted, grads
+        dr.eval(loss, fitted, gradient)
+        return loss, fitted, gradient
 
     # -- RowKernel's call ------------------------------------------------------------------------------------
     def __call__(self, x: torch.Tensor, layout: RowLayout, *, grad: bool = True,
@@ -291,9 +293,12 @@ class JitRowKernel:
         with torch.enable_grad() if grad else torch.no_grad():
             leaf = x.clone().requires_grad_(grad)
             per_row = self._per_row(leaf)
-            names = sorted(per_row)
-            columns = {name: [Float(per_row[name][:, j].detach().contiguous()) for j in range(per_row[name].shape[1])]
-                       for name in names}
+            if not hasattr(self, "_columns"):  # the same names and widths at every call
+                widths = {name: value.shape[1] for name, value in sorted(per_row.items())}
+                offsets = [0, *itertools.accumulate(widths.values())]
+                self._columns = {name: (first, width) for (name, width), first in zip(widths.items(), offsets)}
+            values = torch.cat([per_row[name] for name in self._columns], dim=1)  # (rows, columns)
+            table = Float(values.detach().t().contiguous().reshape(-1))
             lanes = lambda t: Array3f(*(Float(t[:, j].contiguous()) for j in range(3)))
             row = UInt32(torch.arange(rows, dtype=torch.int32).repeat_interleave(slots))
             w = Float((layout.train / weight[:, None]).reshape(-1).contiguous())
@@ -301,21 +306,21 @@ class JitRowKernel:
             # reverse pass is bound to the sizes it saw)
             key = (eps, grad, rows, slots)
             if key not in self._frozen:
-                self._frozen[key] = dr.freeze(lambda c, a, b, y, r, ww: self._step(c, a, b, y, r, ww, eps, grad))
+                self._frozen[key] = dr.freeze(lambda t, a, b, y, r, ww: self._step(t, rows, a, b, y, r, ww, eps, grad))
             # Python's cycle collector stays out of the call: an array it frees while a step is being
             # recorded enqueues a host function, which a recording cannot hold (Dr.Jit aborts the process).
             collecting = gc.isenabled()
             gc.disable()
             try:
-                loss, fitted, grads = self._frozen[key](columns, lanes(layout.wi), lanes(layout.wo), lanes(layout.f_r),
-                                                        row, w)
+                loss, fitted, gradient = self._frozen[key](table, lanes(layout.wi), lanes(layout.wo),
+                                                           lanes(layout.f_r), row, w)
             finally:
                 if collecting:
                     gc.enable()
             g = None
             if grad:
-                cotangents = [torch.stack([torch.from_numpy(c.numpy()) for c in grads[name]], dim=1) for name in names]
-                torch.autograd.backward([per_row[name] for name in names], cotangents)
+                cotangent = torch.from_numpy(gradient.numpy()).reshape(values.shape[1], rows).t()
+                torch.autograd.backward(values, cotangent)
                 g = leaf.grad.detach()
         as_rows = lambda values: torch.from_numpy(values.numpy()).double().reshape(rows, slots)
         return as_rows(loss), as_rows(fitted), g
