@@ -81,6 +81,17 @@ def set_jit_threads(threads: int) -> None:
         dr.set_thread_count(threads)
 
 
+def _log1p(x):
+    """log(1 + x) to float32's precision for small x, as torch.log1p (Dr.Jit has none): log(u) x / (u - 1)
+    with u = 1 + x rounded (Goldberg, "What every computer scientist should know about floating-point
+    arithmetic", 1991, Theorem 4), x itself where u rounds to 1. log(1 + x) alone loses x's digits below
+    1 + x's ulp: a relative error of ~6e-8 / x, 1 % of a dark material's residuals at x ~ 1e-5."""
+    import drjit as dr
+
+    u = 1.0 + x
+    return dr.select(u == 1.0, x, dr.log(u) * (x / (u - 1.0)))
+
+
 class JitRowKernel:
     """``RowKernel``'s losses and gradients (the same call; module doc) for rows without corrections,
     computed by one Dr.Jit kernel a step in Dr.Jit's thread pool (all cores unless ``set_jit_threads``).
@@ -239,7 +250,7 @@ class JitRowKernel:
         loss, fitted = Float(0.0), Float(0.0)
         for c in range(3):
             p, t = pred[c] * cos_i, f_r[c] * cos_i
-            r = dr.log(1.0 + t) - dr.sign(p) * dr.log(1.0 + dr.abs(p))
+            r = _log1p(t) - dr.sign(p) * _log1p(dr.abs(p))  # train.log_residual
             loss += dr.abs(r) / 3.0
             fitted += (dr.abs(r) if eps is None else dr.sqrt(r * r + eps * eps) - eps) / 3.0
         return loss, fitted
