@@ -3,9 +3,10 @@
 ``RowKernel`` runs a fit step as ~900 torch operations, each a pass over (rows x slots, 32)
 activations in memory; a step of the latent fit costs what those passes cost, not what its FLOPs
 cost (docs/BENCHMARKS.md, "The latent fit's step under `torch.compile`"). ``JitRowKernel`` computes
-the same losses and gradients with the model's frozen modules unrolled into one Dr.Jit kernel
-(LLVM, the machine's vector width), each sample's activations kept in registers, the reverse pass
-traced into the same kernel, and the step recorded once by ``drjit.freeze`` and replayed after.
+the same losses and gradients with the model's frozen modules unrolled into Dr.Jit kernels (LLVM,
+the machine's vector width), each sample's activations in registers: the forward pass, keeping what
+the reverse pass reads, and the reverse pass, the step recorded once by ``drjit.freeze`` and replayed
+after (docs/BENCHMARKS.md, "Stop 65").
 
 The work is split where it is cheap to split (as ``BRDFModel.forward_indexed`` splits it):
 
@@ -106,6 +107,7 @@ class JitRowKernel:
         self.dtype = torch.float32
         self._plan()
         self._frozen = {}
+        self._columns: dict[str, tuple[int, int]] | None = None  # per-row values: name -> (first column, width)
 
     # -- what runs per row (torch) and what per sample (Dr.Jit) ----------------------------------------
     def _plan(self) -> None:
@@ -304,7 +306,7 @@ class JitRowKernel:
         with torch.enable_grad() if grad else torch.no_grad():
             leaf = x.clone().requires_grad_(grad)
             per_row = self._per_row(leaf)
-            if not hasattr(self, "_columns"):  # the same names and widths at every call
+            if self._columns is None:  # the same names and widths at every call
                 widths = {name: value.shape[1] for name, value in sorted(per_row.items())}
                 offsets = [0, *itertools.accumulate(widths.values())]
                 self._columns = {name: (first, width) for (name, width), first in zip(widths.items(), offsets)}
