@@ -60,9 +60,9 @@ def run(rgl: Path, with_nbrdf: bool = True) -> dict:
         for protocol, n in CASES:
             case = out.setdefault(f"{protocol} {n:,}", {})
             fit, test, _ = draw_fit_test(material, n, N_TEST, 0, near_mirror=PROTOCOLS[protocol])
-            for label, protocol_ in fits.items():
+            for label, fit_protocol in fits.items():
                 start = time.perf_counter()
-                result = fit_materials(ggx, fit, protocol_, seed=0)
+                result = fit_materials(ggx, fit, fit_protocol, seed=0)
                 seconds = time.perf_counter() - start
                 case.setdefault(label, {})[material.name] = (heldout_log_l1(ggx, result.materials, test)[0], seconds)
             if with_nbrdf:

@@ -1,7 +1,8 @@
 """``neuenh fit``: fit measured materials with an analytical model or a trained bundle.
 
     neuenh fit --model ggx measurements.npz [more.csv ...] [--capacity auto|latent|...] [--method fast|paper]
-               [--kernel torch|jit] [--jobs N] [--json] [-o DIR] [--test held_out.npz [more_held_out.csv ...]] [--predictions out.npz]
+               [--kernel torch|jit] [--jobs N] [--json] [-o DIR] [--test held_out.npz [more_held_out.csv ...]]
+               [--predictions out.npz]
     neuenh fit --model enhanced-ggx material.bsdf [more.binary ...] [--samples 3000] [--test-samples 1000]
 
 Each table is one material (``.npz`` with ``wi``, ``wo``, ``f_r``, or CSV; see neuenh.data.table). The
@@ -86,8 +87,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lbfgs-iterations", type=int, default=None,
                    help="a plain model's L-BFGS iterations per surrogate phase (default 300)")
     p.add_argument("--threads", type=int, default=None, help=(
-        "torch CPU threads, and Dr.Jit's with --kernel jit (default: all); on a machine busy with other work 1 can be several times "
-        "faster, since idle threads wait by spinning (docs/BENCHMARKS.md, 'Fit threads')"))
+        "torch CPU threads, and Dr.Jit's with --kernel jit (default: all); on a machine busy with other work 1 "
+        "can be several times faster, since idle threads wait by spinning (docs/BENCHMARKS.md, 'Fit threads')"))
     p.add_argument("--jobs", type=int, default=1, metavar="N", help=(
         "fit the materials in N processes of one thread each (default 1: here). Each process takes a few "
         "seconds to start, so it pays for many materials: enhanced-ggx, 8 of 3,000 samples, 1.5-1.7x "
