@@ -71,6 +71,33 @@ class FoldedModule:
         layers = tuple((w.to(dtype).contiguous(), b.to(dtype)) for w, b in self.layers)
         return FoldedModule(self.position, layers, self.negative_slope)
 
+    def as_floats(self) -> tuple[list, list, float]:
+        """The layers as Python floats (weights row by row, biases) and the slope: what an unrolled
+        evaluation (``unrolled_mlp``: the Mitsuba plugin, the fit's Dr.Jit kernel) folds into its code."""
+        return ([[[float(w) for w in row] for row in weight.tolist()] for weight, _ in self.layers],
+                [[float(b) for b in bias.tolist()] for _, bias in self.layers], self.negative_slope)
+
+
+def unrolled_mlp(xp, module: tuple[list, list, float], inputs: list, first_bias: list | None = None) -> list:
+    """The MLP ``FoldedModule.as_floats`` holds, on a backend's per-sample values (``neuenh.ops``; Dr.Jit's):
+    a product per non-zero weight, LeakyReLU (``max(x, slope x)``, slope below 1) between layers; its
+    outputs as a list. ``first_bias``: per-sample values in place of the first layer's bias (the fit's
+    rows, whose inputs are folded in per row)."""
+    weights, biases, slope = module
+    x = inputs
+    for layer, (weight, bias) in enumerate(zip(weights, biases)):
+        out = []
+        for row, b in zip(weight, first_bias if layer == 0 and first_bias is not None else bias):
+            acc = b
+            for w, v in zip(row, x):
+                if w != 0.0:
+                    acc = acc + w * v
+            out.append(acc)
+        if layer < len(weights) - 1:
+            out = [xp.maximum(v, slope * v) for v in out]
+        x = out
+    return x
+
 
 @dataclass(frozen=True)
 class Folded:

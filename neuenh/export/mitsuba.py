@@ -47,9 +47,9 @@ import torch
 from ..files import atomic_write
 from ..llvm import LLVM_MIN, find_libllvm, point_drjit_at_libllvm  # noqa: F401 (LLVM_MIN, find_libllvm: this module's API)
 from ..materials import MaterialParams
-from ..ops import DrJitArrayOps, _is_const
+from ..ops import DrJitArrayOps
 from ..shading import shade
-from ..specialize import walk
+from ..specialize import unrolled_mlp, walk
 from . import file_names
 
 PLUGIN = "neuenh"
@@ -102,7 +102,7 @@ class DrJitMaterial:
         self.rotation = None if k.rotation is None else [[float(v) for v in row] for row in k.rotation.tolist()]
         self.params = {name: self._constant(v) for name, v in k.params.items()}
         self.constants = {name: self._constant(v) for name, v in k.constants.items()}
-        self.modules = {name: _constants(m) for name, m in k.modules.items()}
+        self.modules = {name: m.as_floats() for name, m in k.modules.items()}
         self._mi = mi
 
     def _constant(self, value):
@@ -153,7 +153,7 @@ class DrJitNBRDF:
         from .nbrdf import folded_network
 
         self.xp = DrJitOps()
-        self.network = _constants(folded_network(net).to(torch.float64))
+        self.network = folded_network(net).to(torch.float64).as_floats()
 
     def __call__(self, wi, wo, active=True):
         from .nbrdf import above, brdf
@@ -177,28 +177,9 @@ def _rotate(mi, rows: list | None, w, inverse: bool = False):
     return mi.Vector3f(a * w.x + b * w.y + c * w.z, d * w.x + e * w.y + f * w.z, g * w.x + h * w.y + i * w.z)
 
 
-def _constants(module) -> tuple[list, list, float]:
-    """A ``FoldedModule``'s layers as Python floats (weights row by row, biases) and its slope."""
-    return ([[[float(w) for w in row] for row in weight.tolist()] for weight, _ in module.layers],
-            [[float(b) for b in bias.tolist()] for _, bias in module.layers], module.negative_slope)
-
-
 def _mlp(xp: DrJitOps, module: tuple[list, list, float], inputs: list):
-    """The MLP ``_constants`` holds on Dr.Jit values: a product per non-zero weight, LeakyReLU between
-    layers; a ``mi.Float`` for one output, else a ``mi.Color3f``."""
-    weights, biases, slope = module
-    x = inputs
-    for layer, (weight, bias) in enumerate(zip(weights, biases)):
-        out = []
-        for row, b in zip(weight, bias):
-            acc = b
-            for w, v in zip(row, x):
-                if w != 0.0:
-                    acc = acc + w * v
-            out.append(acc)
-        if layer < len(weights) - 1:  # LeakyReLU: max(x, slope x) for a slope below 1
-            out = [xp.dr.maximum(v, slope * v) if not _is_const(v) else max(v, slope * v) for v in out]
-        x = out
+    """``unrolled_mlp`` on Mitsuba's types: a ``mi.Float`` for one output, else a ``mi.Color3f``."""
+    x = unrolled_mlp(xp, module, inputs)
     return x[0] if len(x) == 1 else xp.mi.Color3f(*x)
 
 

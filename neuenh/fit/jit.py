@@ -38,6 +38,7 @@ from ..graph import Operator, Term, apply, fold
 from ..llvm import point_drjit_at_libllvm
 from ..ops import TORCH, DrJitArrayOps
 from ..shading import Shading, frame_of, shade, to_frame
+from ..specialize import FoldedModule, unrolled_mlp
 from .kernel import CHUNK_SLOTS, RowKernel, RowLosses, RowSpace
 from .layout import RowLayout
 
@@ -116,7 +117,7 @@ class JitRowKernel:
         model = self.model
         self.expression = model.expression()
         self.const_positions: dict[str, str] = {}  # position -> "module", "formula" or "operator"
-        self.modules: dict[str, tuple[list, list, float, bool]] = {}
+        self.modules: dict[str, tuple[tuple[list, list, float], bool]] = {}  # layers as floats, bias per row
         chosen = model.chosen_terms()
         for expr, digit in zip(model.graph.positions, model.digits):
             expr = chosen.get(expr.name, expr)
@@ -132,16 +133,13 @@ class JitRowKernel:
                 self.const_positions[expr.name] = "operator"
 
     def _constant_layers(self, position: str, folded: bool):
-        """A module's layers as Python floats (the first layer's per-sample columns only when the row's
-        inputs are folded into its bias), its slope, and whether its first-layer bias is per row."""
+        """A module's layers as Python floats (``FoldedModule.as_floats``; the first layer's per-sample
+        columns only when the row's inputs are folded into its bias), and whether that bias is per row."""
         module = self.model.neural[position]
         layers = [(layer.weight.detach().double(), layer.bias.detach().double()) for layer in module.layers]
         if folded:
-            k = self._material_inputs()
-            layers[0] = (layers[0][0][:, k:], layers[0][1])
-        weights = [[[float(w) for w in row] for row in weight.tolist()] for weight, _ in layers]
-        biases = [[float(b) for b in bias.tolist()] for _, bias in layers]
-        return weights, biases, module.negative_slope, folded
+            layers[0] = (layers[0][0][:, self._material_inputs():], layers[0][1])
+        return FoldedModule(position, tuple(layers), module.negative_slope).as_floats(), folded
 
     def _material_inputs(self) -> int:
         model = self.model
@@ -159,7 +157,7 @@ class JitRowKernel:
         per_material = Shading.of_params(values, TORCH)
         rows = x.shape[0]
         material_input = None
-        if any(folded for *_, folded in self.modules.values()):
+        if any(folded for _, folded in self.modules.values()):
             parts = [model.module_specs.unit_vector(values)]
             if model.uses_latent:
                 parts.append(latent)
@@ -168,7 +166,7 @@ class JitRowKernel:
         chosen = model.chosen_terms()
         for expr in model.graph.positions:
             expr = chosen.get(expr.name, expr)
-            if expr.name in self.modules and self.modules[expr.name][3]:
+            if expr.name in self.modules and self.modules[expr.name][1]:
                 first = model.neural[expr.name].layers[0]
                 k = material_input.shape[1]
                 out[f"bias:{expr.name}"] = torch.addmm(first.bias, material_input, first.weight[:, :k].t())
@@ -211,20 +209,8 @@ class JitRowKernel:
         directions = [s.wi.x, s.wi.y, s.wi.z, s.wo.x, s.wo.y, s.wo.z]
 
         def mlp(name: str, inputs: list):
-            weights, biases, slope, folded = self.modules[name]
-            first_bias = lane[f"bias:{name}"] if folded else biases[0]
-            x = inputs
-            for layer, weight in enumerate(weights):
-                out = []
-                for row_w, b in zip(weight, first_bias if layer == 0 else biases[layer]):
-                    acc = b
-                    for w, v in zip(row_w, x):
-                        if w != 0.0:
-                            acc = acc + w * v
-                    out.append(acc)
-                if layer < len(weights) - 1:
-                    out = [dr.maximum(v, slope * v) for v in out]
-                x = out
+            floats, folded = self.modules[name]
+            x = unrolled_mlp(xp, floats, inputs, lane[f"bias:{name}"] if folded else None)
             return x[0] if len(x) == 1 else Array3f(*x)
 
         def flat(value, width: int) -> list:
