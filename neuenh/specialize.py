@@ -78,11 +78,13 @@ class FoldedModule:
                 [[float(b) for b in bias.tolist()] for _, bias in self.layers], self.negative_slope)
 
 
-def unrolled_mlp(xp, module: tuple[list, list, float], inputs: list, first_bias: list | None = None) -> list:
+def unrolled_mlp(xp, module: tuple[list, list, float], inputs: list, first_bias: list | None = None,
+                 after_layer: Callable[[int, list, list], list] | None = None) -> list:
     """The MLP ``FoldedModule.as_floats`` holds, on a backend's per-sample values (``neuenh.ops``; Dr.Jit's):
     a product per non-zero weight, LeakyReLU (``max(x, slope x)``, slope below 1) between layers; its
     outputs as a list. ``first_bias``: per-sample values in place of the first layer's bias (the fit's
-    rows, whose inputs are folded in per row)."""
+    rows, whose inputs are folded in per row); ``after_layer(layer, its inputs, its outputs)``: the
+    outputs to go on with, before the activation (the fit's per-row corrections of a layer)."""
     weights, biases, slope = module
     x = inputs
     for layer, (weight, bias) in enumerate(zip(weights, biases)):
@@ -93,6 +95,8 @@ def unrolled_mlp(xp, module: tuple[list, list, float], inputs: list, first_bias:
                 if w != 0.0:
                     acc = acc + w * v
             out.append(acc)
+        if after_layer is not None:
+            out = after_layer(layer, x, out)
         if layer < len(weights) - 1:
             out = [xp.maximum(v, slope * v) for v in out]
         x = out

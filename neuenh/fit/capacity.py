@@ -187,7 +187,7 @@ class Adaptive(FitProtocol):
     correction_lr: float = 0.01
     standard_errors: float = 0.0
     validation_cap: int | None = 20_000
-    kernel: str = "torch"  # neuenh.fit.jit.KERNELS: the analytical and latent candidates' rows
+    kernel: str = "torch"  # neuenh.fit.jit.KERNELS: every stage's rows (``row_kernel`` says where jit applies)
 
     def __post_init__(self) -> None:
         unknown = [c for c in self.capacities if c not in CAPACITIES]
@@ -393,7 +393,7 @@ class Adaptive(FitProtocol):
             own = _columns(space, CAPACITIES[capacity](model))
             free[n, own] = True
             x0[n, own[: len(starts[n])]] = starts[n]
-        kernel = RowKernel(model, space)
+        kernel = row_kernel(model, space, self.kernel)  # jit only where few factors: the union's (auto's) are many
         result = adam_rows(kernel, x0, layout, Adam(self.correction_epochs, self.correction_lr), free=free,
                            prior_strength=torch.tensor([p for _, p in entries], dtype=torch.float32))
         return kernel, result

@@ -20,9 +20,16 @@ The work is split where it is cheap to split (as ``BRDFModel.forward_indexed`` s
   per-row value;
 * torch again: that gradient carried back to the rows ``x`` through the first part.
 
-Only rows without module corrections (the ``latent`` capacity and analytical models' rows): a
-correction's per-row weights would be gathered per sample, which is what makes the torch kernel
-slow. ``available()`` says whether Dr.Jit and a usable libLLVM are installed; the kernel is an
+Rows with module corrections (the adaptive fit's ``last-layer``, ``low-rank``, ``rank-8``, ``full``)
+add each corrected layer's per-row factors (``W`` or ``U V``, and ``b``) to its constant weights in the
+kernel, gathered per sample but outside Dr.Jit's derivative: their gradient is each row's sum over its
+samples of the layer's output adjoint times its input, ``G^T X``, one batched matrix product in torch
+from the two the kernel hands back (the adjoint read off a zero added to the layer's output), then
+carried to ``U`` and ``V`` by torch (a scatter of every factor's gradient from every sample would
+cost an atomic add per factor and sample). The gathers still cost a read per factor and sample, so
+``row_kernel`` gives rows of many factors (``rank-8``, auto's union of candidates) to torch.
+
+``available()`` says whether Dr.Jit and a usable libLLVM are installed; the kernel is an
 optional speed-up (the ``neuenh[export]`` extra already brings Dr.Jit), never a requirement.
 """
 
@@ -30,8 +37,10 @@ from __future__ import annotations
 
 import gc
 import itertools
+from functools import partial
 from typing import Any
 
+import numpy as np
 import torch
 
 from ..graph import Operator, Term, apply, fold
@@ -39,21 +48,36 @@ from ..llvm import point_drjit_at_libllvm
 from ..ops import TORCH, DrJitArrayOps
 from ..shading import Shading, frame_of, shade, to_frame
 from ..specialize import FoldedModule, unrolled_mlp
-from .kernel import CHUNK_SLOTS, RowKernel, RowLosses, RowSpace
+from .kernel import (
+    CHUNK_SLOTS,
+    LayerCorrection,
+    RowKernel,
+    RowLosses,
+    RowSpace,
+    row_view,
+)
 from .layout import RowLayout
 
-# A fit protocol's ``kernel``: "torch" (``RowKernel``), "jit" (``JitRowKernel`` where it applies, else torch).
+# A fit protocol's ``kernel``: "torch" (``RowKernel``), "jit" (``JitRowKernel`` where it is faster, else torch).
 KERNELS = ("torch", "jit")
+# Per-row correction factors a sample may read for the jit kernel to be the faster: each is a gather per
+# sample, and a step of the shipped model's rows (one thread, 4 x 3,000 and 8 x 10,000 slots) took, jit over
+# torch, 0.20-0.32 without corrections, 0.34-0.40 with its last layers (198 a sample), 0.60-0.85 at rank 2
+# (1,022), 1.29-1.37 at rank 8 (3,014) (docs/BENCHMARKS.md, "Stop 66").
+JIT_FACTOR_READS = 2000
 _STATE: dict[str, Any] = {}
 
 
 def row_kernel(model, space: RowSpace, kernel: str = "torch"):
     """The kernel a fit protocol's ``kernel`` names for ``model``'s rows in ``space``: ``JitRowKernel``
-    for "jit" when the rows have no corrections and Dr.Jit is ``available()``, else ``RowKernel``."""
+    for "jit" when Dr.Jit is ``available()`` and a sample reads at most ``JIT_FACTOR_READS`` of the rows'
+    correction factors, else ``RowKernel``."""
     if kernel not in KERNELS:
         raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
-    if kernel == "jit" and not space.corrections and available():
-        return JitRowKernel(model, space)
+    if kernel == "jit" and available():
+        jit = JitRowKernel(model, space)
+        if jit.factor_reads <= JIT_FACTOR_READS:
+            return jit
     return RowKernel(model, space)
 
 
@@ -94,14 +118,18 @@ def _log1p(x):
     return dr.select(u == 1.0, x, dr.log(u) * (x / (u - 1.0)))
 
 
+def _column_map(values: dict[str, torch.Tensor]) -> dict[str, tuple[int, int]]:
+    """Each (rows, width) value's first column and width in the values side by side, in ``values``' order."""
+    widths = [value.shape[1] for value in values.values()]
+    return dict(zip(values, zip(itertools.accumulate([0, *widths[:-1]]), widths)))
+
+
 class JitRowKernel:
-    """``RowKernel``'s losses and gradients (the same call; module doc) for rows without corrections,
-    computed by one Dr.Jit kernel a step in Dr.Jit's thread pool (all cores unless ``set_jit_threads``).
-    Equal to ``RowKernel``'s up to float32 rounding."""
+    """``RowKernel``'s losses and gradients (the same call; module doc), computed by one Dr.Jit kernel a
+    step in Dr.Jit's thread pool (all cores unless ``set_jit_threads``). Equal to ``RowKernel``'s up to
+    float32 rounding."""
 
     def __init__(self, model, space: RowSpace):
-        if space.corrections:
-            raise ValueError("the Dr.Jit kernel fits rows without module corrections")
         if not available():
             raise RuntimeError("Dr.Jit's LLVM backend is not available (pip install drjit; libLLVM 17 or newer)")
         self.model, self.space = model, space
@@ -109,6 +137,7 @@ class JitRowKernel:
         self._plan()
         self._frozen = {}
         self._columns: dict[str, tuple[int, int]] | None = None  # per-row values: name -> (first column, width)
+        self._factor_columns: dict[str, tuple[int, int]] | None = None  # the same for the corrections' factors
 
     # -- what runs per row (torch) and what per sample (Dr.Jit) ----------------------------------------
     def _plan(self) -> None:
@@ -131,6 +160,24 @@ class JitRowKernel:
                 self.modules[expr.name] = self._constant_layers(expr.name, folded=False)
             elif expr.left.name in self.const_positions and expr.right.name in self.const_positions:
                 self.const_positions[expr.name] = "operator"
+        # the corrections of each layer a sample runs, and the layers' columns a sample reads (the first
+        # layer of a folded module: its per-sample inputs only; the per-row part and bias are in its bias)
+        self.corrected: dict[tuple[str, int], list[tuple[int, LayerCorrection]]] = {}
+        for i, c in enumerate(self.space.corrections):
+            if c.position in self.modules:
+                self.corrected.setdefault((c.position, c.layer), []).append((i, c))
+        self.factor_reads = 0  # the per-row factors a sample reads (``_sample_factors``' widths)
+        for (position, layer), corrections in self.corrected.items():
+            k = self._row_inputs(position, layer)
+            for _, c in corrections:
+                *matrices, bias = c.shapes(model.neural[position])
+                self.factor_reads += (sum(rows * (columns - (k if j == len(matrices) - 1 else 0))
+                                          for j, (rows, columns) in enumerate(matrices)) + (0 if k else bias[0]))
+
+    def _row_inputs(self, position: str, layer: int) -> int:
+        """How many of a layer's input columns are the row's (folded into its bias per row): the
+        material inputs for a folded module's first layer, else none."""
+        return self._material_inputs() if layer == 0 and self.modules[position][1] else 0
 
     def _constant_layers(self, position: str, folded: bool):
         """A module's layers as Python floats (``FoldedModule.as_floats``; the first layer's per-sample
@@ -150,6 +197,7 @@ class JitRowKernel:
         ``x``: ``param:NAME``, ``frame`` (9: tangent, bitangent, normal), ``const:POS``, ``bias:POS``."""
         model = self.model
         values, latent = self.space.values(x)
+        view = row_view(model, x.shape[0], self.space.deltas(x))  # the rows' own weights where corrected
         out = {f"param:{k}": v for k, v in values.items()}
         frame = frame_of(TORCH, values)
         if frame is not None:
@@ -167,12 +215,10 @@ class JitRowKernel:
         for expr in model.graph.positions:
             expr = chosen.get(expr.name, expr)
             if expr.name in self.modules and self.modules[expr.name][1]:
-                first = model.neural[expr.name].layers[0]
-                k = material_input.shape[1]
-                out[f"bias:{expr.name}"] = torch.addmm(first.bias, material_input, first.weight[:, :k].t())
+                out[f"bias:{expr.name}"] = self._first_bias(view, expr.name, material_input)
             kind = self.const_positions.get(expr.name)
             if kind == "module":
-                value = model.neural[expr.name](material_input)
+                value = view.neural[expr.name](material_input)
             elif kind == "formula":
                 value = torch.as_tensor(expr.formula(per_material), dtype=x.dtype)
             elif kind == "operator":
@@ -184,17 +230,62 @@ class JitRowKernel:
         out.update({f"const:{k}": v for k, v in constants.items()})
         return out
 
+    def _first_bias(self, view, position: str, material_input: torch.Tensor) -> torch.Tensor:
+        """(rows, out): a folded module's first-layer bias with the row's inputs folded in, ``b + W[:, :k] m``,
+        with the row's own ``W`` and ``b`` where that layer is corrected (``row_view``)."""
+        k = material_input.shape[1]
+        module = view.neural[position]
+        if 0 in module.weights:
+            weight, bias = module.weights[0]
+            return bias + torch.bmm(weight[:, :, :k], material_input.unsqueeze(2)).squeeze(2)
+        first = module.shared.layers[0]
+        return torch.addmm(first.bias, material_input, first.weight[:, :k].t())
+
+    def _sample_factors(self, factors: dict) -> dict[str, torch.Tensor]:
+        """(rows, width) each, detached: the factors a sample's corrected layers read, ``corr:I:W``
+        (dense) or ``corr:I:U`` and ``corr:I:V`` (low rank), and ``corr:I:b`` (not for a folded first
+        layer, whose bias is per row), ``I`` the correction's index in the space."""
+        out = {}
+        for (position, layer), corrections in self.corrected.items():
+            k = self._row_inputs(position, layer)
+            for i, c in corrections:
+                f = [t.detach() for t in factors[c]]
+                if c.rank is None:
+                    out[f"corr:{i}:W"] = f[0][:, :, k:].flatten(1)
+                else:
+                    out[f"corr:{i}:U"], out[f"corr:{i}:V"] = f[0].flatten(1), f[1][:, :, k:].flatten(1)
+                if not k:
+                    out[f"corr:{i}:b"] = f[-1]
+        return out
+
+    def _sample_deltas(self, x: torch.Tensor) -> dict[tuple[str, int], tuple[torch.Tensor, torch.Tensor | None]]:
+        """Each corrected layer's summed delta over the columns a sample reads, (rows, out, in) and its
+        bias delta (rows, out) (None for a folded first layer's), differentiable in ``x``."""
+        deltas = self.space.deltas(x)
+        out = {}
+        for (position, layer), corrections in self.corrected.items():
+            k = self._row_inputs(position, layer)
+            weight = sum(deltas[c][0][:, :, k:] for _, c in corrections)
+            out[position, layer] = (weight, None if k else sum(deltas[c][1] for _, c in corrections))
+        return out
+
     # -- the per-sample kernel (Dr.Jit) ------------------------------------------------------------------
-    def _loss(self, table, n_rows: int, wi, wo, f_r, row, eps: float | None):
+    def _loss(self, table, factor_table, n_rows: int, wi, wo, f_r, row, eps: float | None, taps: dict | None):
         """Each sample's loss (log-L1, ``train.log_l1``) and fitted value (the loss, or its Charbonnier
         surrogate with ``eps``, as ``RowKernel``), on Dr.Jit arrays; ``table``: the per-row values, column
-        by column (``_columns``: each name's first column and width) of ``n_rows`` rows each."""
+        by column (``_columns``: each name's first column and width) of ``n_rows`` rows each;
+        ``factor_table`` the same for the corrections' factors (``_factor_columns``), read outside the
+        derivative. ``taps``, when given, gets each corrected layer's inputs and the zeros added to its
+        outputs, with their derivative enabled: their gradient is the layer's output adjoint."""
         import drjit as dr
         from drjit.llvm.ad import Array3f, Float
 
         xp = DrJitArrayOps()
-        lane = {name: [dr.gather(Float, table, row + (first + j) * n_rows) for j in range(width)]
-                for name, (first, width) in self._columns.items()}
+        gather = lambda source, columns: {
+            name: [dr.gather(Float, source, row + (first + j) * n_rows) for j in range(width)]
+            for name, (first, width) in columns.items()}
+        lane = gather(table, self._columns)
+        factor = {name: [dr.detach(v) for v in values] for name, values in gather(factor_table, self._factor_columns).items()}
 
         def vec(values):
             return values[0] if len(values) == 1 else (Array3f(*values) if len(values) == 3 else tuple(values))
@@ -208,9 +299,28 @@ class JitRowKernel:
             s = shade(xp, wi, wo, wi, wo, params)
         directions = [s.wi.x, s.wi.y, s.wi.z, s.wo.x, s.wo.y, s.wo.z]
 
+        def corrected(name: str, layer: int, inputs: list, out: list) -> list:
+            """A layer's outputs with its rows' corrections added: ``W x`` or ``U (V x)``, and ``b``."""
+            for i, c in self.corrected.get((name, layer), ()):
+                if c.rank is None:
+                    w = factor[f"corr:{i}:W"]
+                    out = [o + sum(w[r * len(inputs) + j] * v for j, v in enumerate(inputs)) for r, o in enumerate(out)]
+                else:
+                    u, v_ = factor[f"corr:{i}:U"], factor[f"corr:{i}:V"]
+                    z = [sum(v_[q * len(inputs) + j] * v for j, v in enumerate(inputs)) for q in range(c.rank)]
+                    out = [o + sum(u[r * c.rank + q] * zq for q, zq in enumerate(z)) for r, o in enumerate(out)]
+                if f"corr:{i}:b" in factor:
+                    out = [o + b for o, b in zip(out, factor[f"corr:{i}:b"])]
+            if taps is not None and (name, layer) in self.corrected:
+                zeros = [dr.zeros(Float, dr.width(row)) for _ in out]
+                dr.enable_grad(zeros)
+                taps[name, layer] = ([dr.detach(v) for v in inputs], zeros)
+                out = [o + h for o, h in zip(out, zeros)]
+            return out
+
         def mlp(name: str, inputs: list):
             floats, folded = self.modules[name]
-            x = unrolled_mlp(xp, floats, inputs, lane[f"bias:{name}"] if folded else None)
+            x = unrolled_mlp(xp, floats, inputs, lane[f"bias:{name}"] if folded else None, partial(corrected, name))
             return x[0] if len(x) == 1 else Array3f(*x)
 
         def flat(value, width: int) -> list:
@@ -243,29 +353,35 @@ class JitRowKernel:
             fitted += (dr.abs(r) if eps is None else dr.sqrt(r * r + eps * eps) - eps) / 3.0
         return loss, fitted
 
-    def _step(self, table, n_rows: int, wi, wo, f_r, row, weight, eps: float | None, grad: bool):
+    def _step(self, table, factor_table, n_rows: int, wi, wo, f_r, row, weight, eps: float | None, grad: bool):
         """Each sample's loss and fitted value (the loss or its surrogate) and, with ``grad``, the
-        gradient of the weighted sum of the fitted values with respect to every entry of ``table``."""
+        gradient of the weighted sum of the fitted values with respect to every entry of ``table`` and
+        the corrected layers' taps: per layer (``corrected`` order) its inputs, then its output adjoint,
+        a column of samples each."""
         import drjit as dr
 
         if grad:
             dr.enable_grad(table)
-        loss, fitted = self._loss(table, n_rows, wi, wo, f_r, row, eps)
-        gradient = None
+        taps = {} if grad and self.corrected else None
+        loss, fitted = self._loss(table, factor_table, n_rows, wi, wo, f_r, row, eps, taps)
+        gradient = tapped = None
         if grad:
             dr.backward(fitted * weight)  # every sample seeded with 1: the gradient of their sum, no reduction
             gradient = dr.grad(table)
+        if taps:
+            tapped = [c for key in self.corrected for c in taps[key][0] + [dr.grad(h) for h in taps[key][1]]]
         loss, fitted = dr.detach(loss), dr.detach(fitted)
-        dr.eval(loss, fitted, gradient)
-        return loss, fitted, gradient
+        dr.eval(loss, fitted, gradient, tapped)
+        return loss, fitted, gradient, tapped
 
     # -- RowKernel's call ------------------------------------------------------------------------------------
     def __call__(self, x: torch.Tensor, layout: RowLayout, *, grad: bool = True,
                  prior_strength: torch.Tensor | None = None, surrogate_eps: float | None = None,
                  chunk_slots: int = CHUNK_SLOTS) -> RowLosses:
-        """``RowKernel.__call__``'s losses (``prior_strength`` weighs corrections, which these rows have
-        none of); a layout of more than ``chunk_slots`` slots a row is evaluated a chunk at a time, the
-        gradients summed, as ``RowKernel`` does (the reverse pass keeps each sample's intermediates)."""
+        """``RowKernel.__call__``'s losses (``prior_strength`` (rows,) weighs ``RowSpace.prior`` of rows
+        with corrections); a layout of more than ``chunk_slots`` slots a row is evaluated a chunk at a
+        time, the gradients summed, as ``RowKernel`` does (the reverse pass keeps each sample's
+        intermediates)."""
         if chunk_slots < 1:
             raise ValueError(f"chunk_slots must be at least 1, got {chunk_slots}")
         x = x.detach().to(self.dtype)
@@ -277,6 +393,13 @@ class JitRowKernel:
         g = sum(part[2] for part in parts) if grad else None
         train = (per * layout.train).sum(1) / layout.train.sum(1).double().clamp_min(1e-12)
         objective = (fitted * layout.train).sum(1) / weight.double()
+        if prior_strength is not None and self.space.corrections:
+            with torch.enable_grad() if grad else torch.no_grad():
+                leaf = x.clone().requires_grad_(grad)
+                penalty = prior_strength * self.space.prior(leaf)
+                if grad:
+                    g = g + torch.autograd.grad(penalty.sum(), leaf)[0]
+            objective = objective + penalty.detach().double()
         val_weight = layout.val.sum(1).double()
         val = torch.where(val_weight > 0, (per * layout.val).sum(1) / val_weight.clamp_min(1e-12), torch.nan)
         return RowLosses(train, val, objective, g, per)
@@ -293,11 +416,14 @@ class JitRowKernel:
             leaf = x.clone().requires_grad_(grad)
             per_row = self._per_row(leaf)
             if self._columns is None:  # the same names and widths at every call
-                widths = {name: value.shape[1] for name, value in sorted(per_row.items())}
-                offsets = [0, *itertools.accumulate(widths.values())]
-                self._columns = {name: (first, width) for (name, width), first in zip(widths.items(), offsets)}
+                self._columns = _column_map(dict(sorted(per_row.items())))
             values = torch.cat([per_row[name] for name in self._columns], dim=1)  # (rows, columns)
             table = Float(values.detach().t().contiguous().reshape(-1))
+            factors = self._sample_factors(self.space.factors(leaf))
+            if self._factor_columns is None:
+                self._factor_columns = _column_map(factors)
+            factor_table = Float(torch.cat([factors[name] for name in self._factor_columns], dim=1).t().contiguous()
+                                 .reshape(-1) if factors else torch.zeros(1))
             lanes = lambda t: Array3f(*(Float(t[:, j].contiguous()) for j in range(3)))
             row = UInt32(torch.arange(rows, dtype=torch.int32).repeat_interleave(slots))
             w = Float((layout.train / weight[:, None]).reshape(-1).contiguous())
@@ -305,21 +431,34 @@ class JitRowKernel:
             # reverse pass is bound to the sizes it saw)
             key = (eps, grad, rows, slots)
             if key not in self._frozen:
-                self._frozen[key] = dr.freeze(lambda t, a, b, y, r, ww: self._step(t, rows, a, b, y, r, ww, eps, grad))
+                self._frozen[key] = dr.freeze(lambda t, c, a, b, y, r, ww: self._step(t, c, rows, a, b, y, r, ww, eps, grad))
             # Python's cycle collector stays out of the call: an array it frees while a step is being
             # recorded enqueues a host function, which a recording cannot hold (Dr.Jit aborts the process).
             collecting = gc.isenabled()
             gc.disable()
             try:
-                loss, fitted, gradient = self._frozen[key](table, lanes(layout.wi), lanes(layout.wo),
-                                                           lanes(layout.f_r), row, w)
+                loss, fitted, gradient, tapped = self._frozen[key](table, factor_table, lanes(layout.wi),
+                                                                   lanes(layout.wo), lanes(layout.f_r), row, w)
             finally:
                 if collecting:
                     gc.enable()
             g = None
             if grad:
                 cotangent = torch.from_numpy(gradient.numpy()).reshape(values.shape[1], rows).t()
-                torch.autograd.backward(values, cotangent)
+                outputs, cotangents = [values], [cotangent]
+                if self.corrected:  # each corrected layer's per-row gradient: sum over samples of G x^T
+                    columns = torch.from_numpy(np.stack([column.numpy() for column in tapped])).reshape(-1, rows, slots)
+                    at = 0
+                    for weight_delta, bias_delta in self._sample_deltas(leaf).values():
+                        n_out, n_in = weight_delta.shape[1:]
+                        inputs, adjoint = columns[at : at + n_in], columns[at + n_in : at + n_in + n_out]
+                        at += n_in + n_out
+                        outputs.append(weight_delta)
+                        cotangents.append(torch.bmm(adjoint.permute(1, 0, 2), inputs.permute(1, 2, 0)))
+                        if bias_delta is not None:
+                            outputs.append(bias_delta)
+                            cotangents.append(adjoint.sum(2).t())
+                torch.autograd.backward(outputs, cotangents)
                 g = leaf.grad.detach()
         as_rows = lambda values: torch.from_numpy(values.numpy()).double().reshape(rows, slots)
         return as_rows(loss), as_rows(fitted), g

@@ -155,19 +155,21 @@ class RowSpace:
         values = dict(zip(self.names, torch.split(value, self.widths, dim=1)))
         return values, x[:, analytical : self.base_dim] if self.latent else None
 
-    def deltas(self, x: torch.Tensor) -> dict[LayerCorrection, tuple[torch.Tensor, torch.Tensor]]:
-        """Each correction's dense (rows, out, in) weight delta and (rows, out) bias delta."""
+    def factors(self, x: torch.Tensor) -> dict[LayerCorrection, list[torch.Tensor]]:
+        """Each correction's free parameters per row, (rows, *shape) in ``LayerCorrection.shapes``' order."""
         out = {}
         offset = self.base_dim
         rows = x.shape[0]
         for c, size in zip(self.corrections, self.correction_sizes):
             shapes = c.shapes(self.model.neural[c.position])
             flat = torch.split(x[:, offset : offset + size], [int(torch.Size(s).numel()) for s in shapes], dim=1)
-            factors = [f.reshape(rows, *s) for f, s in zip(flat, shapes)]
-            weight = factors[0] if c.rank is None else torch.bmm(factors[0], factors[1])
-            out[c] = (weight, factors[-1])
+            out[c] = [f.reshape(rows, *s) for f, s in zip(flat, shapes)]
             offset += size
         return out
+
+    def deltas(self, x: torch.Tensor) -> dict[LayerCorrection, tuple[torch.Tensor, torch.Tensor]]:
+        """Each correction's dense (rows, out, in) weight delta and (rows, out) bias delta."""
+        return {c: (f[0] if c.rank is None else torch.bmm(f[0], f[1]), f[-1]) for c, f in self.factors(x).items()}
 
     def dense_corrections(self, x_row: torch.Tensor) -> dict[str, torch.Tensor]:
         """One row's corrections as dense deltas keyed like ``model.neural.state_dict()``."""

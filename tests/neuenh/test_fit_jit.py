@@ -9,7 +9,7 @@ import torch
 from neuenh.data.samples import sample_materials
 from neuenh.data.synthetic import synthetic_zoo
 from neuenh.fit import Adaptive, FitOptions, LatentAdam, PlainLBFGS, fit_materials
-from neuenh.fit.jit import JitRowKernel, available, row_kernel
+from neuenh.fit.jit import JIT_FACTOR_READS, JitRowKernel, available, row_kernel
 from neuenh.fit.kernel import LayerCorrection, RowKernel, RowSpace
 from neuenh.fit.layout import layout_rows, padded
 from neuenh.materials import MaterialTable
@@ -66,6 +66,47 @@ def test_the_jit_kernel_is_the_torch_kernel_to_float32_rounding(name, surrogate_
     assert kernel(x, layout, grad=False).grad is None
 
 
+CORRECTIONS = {  # dense and low-rank, folded first layers and operator modules, two corrections of one layer
+    "last layers": lambda m: [LayerCorrection(p, len(module.layers) - 1) for p, module in m.neural.items()],
+    "rank 2 everywhere": lambda m: [LayerCorrection(p, i, 2) for p, module in m.neural.items()
+                                    for i in range(len(module.layers))],
+    "dense first and a sum": lambda m: [LayerCorrection("F", 0), LayerCorrection("S*D*F", 0),
+                                        LayerCorrection("F", 1), LayerCorrection("F", 1, 3)],
+}
+
+
+@needs_drjit
+@pytest.mark.parametrize("corrections", CORRECTIONS)
+def test_rows_with_corrections_are_the_torch_kernels_to_float32_rounding(corrections, zoo):
+    """Rows with per-row corrections of the modules' weights, deltas away from zero, with the prior
+    weighed per row and a held-out fold, in one pass and in chunks: the objective, losses and every
+    column of the gradient (analytical, latent, the corrections' factors) within 4x the float32 torch
+    kernel's distance to the float64 one, plus a few ulps."""
+    model = MODELS["F and S*D*F"]()
+    space = RowSpace(model, CORRECTIONS[corrections](model))
+    x = space.from_table(random_table(model, zoo.names, 0), seed=3)
+    x[:, space.base_dim :] += 0.05 * torch.randn(len(x), space.n_corrections, generator=torch.Generator().manual_seed(0))
+    wi, wo, f_r, valid = padded(zoo)
+    train, val = valid.clone(), torch.zeros_like(valid)
+    train[:, ::4], val[:, ::4] = False, valid[:, ::4]
+    layout = layout_rows(wi, wo, f_r, torch.tensor([0, 1, 1]), train[[0, 1, 1]], val[[0, 1, 1]])
+    x = torch.cat([x, x[1:] + 0.1])
+    strength = torch.tensor([1e-2, 1e-1, 1.0])
+    double = copy.deepcopy(model).double()
+    layout64 = layout_rows(wi.double(), wo.double(), f_r.double(), layout.material, layout.train, layout.val)
+    exact = RowKernel(double, RowSpace(double, space.corrections))(x.double(), layout64, prior_strength=strength.double())
+    torch32 = RowKernel(model, space)(x, layout, prior_strength=strength)
+    eps = torch.finfo(torch.float32).eps
+    kernel = JitRowKernel(model, space)
+    assert exact.grad[:, space.base_dim :].abs().max() > 1e-3  # the corrections' gradient is there to compare
+    for chunk_slots in (10_000, 97):
+        jit = kernel(x, layout, prior_strength=strength, chunk_slots=chunk_slots)
+        for field in ("train", "val", "objective", "per_sample", "grad"):
+            ours, theirs, truth = (getattr(r, field).double() for r in (jit, torch32, exact))
+            assert (ours - truth).abs().max() <= 4 * (theirs - truth).abs().max() + 16 * eps * truth.abs().max(), \
+                (field, chunk_slots)
+
+
 @needs_drjit
 def test_a_dark_materials_losses_keep_float32_precision(zoo):
     """Albedos of 0.0025 and a target 1.5x the model: each sample's log-L1 is ~1e-4 of values ~1e-4, which
@@ -116,14 +157,24 @@ def test_the_jit_kernel_is_finite_at_grazing_below_horizon_and_tiny_roughness():
 
 
 @needs_drjit
-def test_a_protocols_kernel_names_the_jit_kernel_only_for_rows_without_corrections():
+def test_a_protocols_kernel_names_the_jit_kernel_where_a_sample_reads_few_correction_factors():
+    """The jit kernel gathers each correction factor per sample: up to ``JIT_FACTOR_READS`` of them it is
+    the faster, above it the torch kernel fits the rows."""
     model = get_model("ggx", state="00010001000", seed=3)
     assert isinstance(row_kernel(model, RowSpace(model), "jit"), JitRowKernel)
     assert type(row_kernel(model, RowSpace(model), "torch")) is RowKernel
-    corrected = RowSpace(model, [LayerCorrection("F", 3)])
-    assert type(row_kernel(model, corrected, "jit")) is RowKernel
-    with pytest.raises(ValueError, match="without module corrections"):
-        JitRowKernel(model, corrected)
+    out, inp = model.neural["F"].layers[3].weight.shape
+    last = RowSpace(model, [LayerCorrection("F", 3)])  # its weights and biases
+    assert JitRowKernel(model, last).factor_reads == out * inp + out
+    assert isinstance(row_kernel(model, last, "jit"), JitRowKernel)
+    first = model.neural["F"].layers[0].weight.shape[0]
+    folded = RowSpace(model, [LayerCorrection("F", 0, 2)])  # U, V's columns of the 6 directions; the bias is per row
+    assert JitRowKernel(model, folded).factor_reads == first * 2 + 2 * 6
+    out, inp = model.neural["F"].layers[1].weight.shape
+    rank = JIT_FACTOR_READS // (out + inp) + 1  # a rank-r delta reads U (out, r), V (r, in) and the bias
+    many = RowSpace(model, [LayerCorrection("F", 1, rank)])
+    assert JitRowKernel(model, many).factor_reads == rank * (out + inp) + out > JIT_FACTOR_READS
+    assert type(row_kernel(model, many, "jit")) is RowKernel
     with pytest.raises(ValueError, match="kernel must be one of torch, jit"):
         row_kernel(model, RowSpace(model), "cuda")
     for protocol in (PlainLBFGS, LatentAdam, Adaptive):
