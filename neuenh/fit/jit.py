@@ -166,13 +166,9 @@ class JitRowKernel:
         for i, c in enumerate(self.space.corrections):
             if c.position in self.modules:
                 self.corrected.setdefault((c.position, c.layer), []).append((i, c))
-        self.factor_reads = 0  # the per-row factors a sample reads (``_sample_factors``' widths)
-        for (position, layer), corrections in self.corrected.items():
-            k = self._row_inputs(position, layer)
-            for _, c in corrections:
-                *matrices, bias = c.shapes(model.neural[position])
-                self.factor_reads += (sum(rows * (columns - (k if j == len(matrices) - 1 else 0))
-                                          for j, (rows, columns) in enumerate(matrices)) + (0 if k else bias[0]))
+        # the per-row factors a sample reads (``row_kernel`` weighs them against JIT_FACTOR_READS)
+        one_row = self.space.factors(torch.zeros(1, self.space.dim))
+        self.factor_reads = sum(f.shape[1] for f in self._sample_factors(one_row).values())
 
     def _row_inputs(self, position: str, layer: int) -> int:
         """How many of a layer's input columns are the row's (folded into its bias per row): the
