@@ -35,35 +35,42 @@ def zoo():
     return sample_materials(synthetic_zoo(2, seed=5), 600, seed=1)
 
 
-@needs_drjit
-@pytest.mark.parametrize("surrogate_eps", [None, 1e-2])
-@pytest.mark.parametrize("name", MODELS)
-def test_the_jit_kernel_is_the_torch_kernel_to_float32_rounding(name, surrogate_eps, zoo):
-    """Losses per row and per sample, the objective and its gradient, with a held-out fold, in one pass
-    and in chunks of slots: each within 4x the float32 torch kernel's own distance to the float64 one
-    (plus a few ulps), so the two differ by rounding alone (the order of sums, fused multiply-adds,
-    Dr.Jit's log)."""
-    model = MODELS[name]()
-    space = RowSpace(model)
-    x = space.from_table(random_table(model, zoo.names, 0))
+def assert_the_torch_kernel_to_float32_rounding(model, space: RowSpace, x: torch.Tensor, zoo, **call) -> None:
+    """Rows ``x`` of both zoo materials and a second row of material 1 (``x[1:] + 0.1``), a held-out fold
+    of every 4th sample, in one pass and in chunks of slots: losses per row and per sample, the objective
+    and its gradient each within 4x the float32 torch kernel's own distance to the float64 one (plus a few
+    ulps), so the two differ by rounding alone (the order of sums, fused multiply-adds, Dr.Jit's log)."""
     wi, wo, f_r, valid = padded(zoo)
     train, val = valid.clone(), torch.zeros_like(valid)
     train[:, ::4], val[:, ::4] = False, valid[:, ::4]
     layout = layout_rows(wi, wo, f_r, torch.tensor([0, 1, 1]), train[[0, 1, 1]], val[[0, 1, 1]])
-    x = torch.cat([x, x[1:] + 0.1])  # a second row of material 1
+    x = torch.cat([x, x[1:] + 0.1])
     double = copy.deepcopy(model).double()
     layout64 = layout_rows(wi.double(), wo.double(), f_r.double(), layout.material, layout.train, layout.val)
-    exact = RowKernel(double, RowSpace(double))(x.double(), layout64, surrogate_eps=surrogate_eps)
-    torch32 = RowKernel(model, space)(x, layout, surrogate_eps=surrogate_eps)
+    call64 = {k: v.double() if isinstance(v, torch.Tensor) else v for k, v in call.items()}
+    exact = RowKernel(double, RowSpace(double, space.corrections))(x.double(), layout64, **call64)
+    torch32 = RowKernel(model, space)(x, layout, **call)
     eps = torch.finfo(torch.float32).eps
     kernel = JitRowKernel(model, space)
+    if space.corrections:
+        assert exact.grad[:, space.base_dim :].abs().max() > 1e-3  # the corrections' gradient is there to compare
     for chunk_slots in (10_000, 97):  # one pass; in chunks of slots (bounded memory, as RowKernel)
-        jit = kernel(x, layout, surrogate_eps=surrogate_eps, chunk_slots=chunk_slots)
+        jit = kernel(x, layout, chunk_slots=chunk_slots, **call)
         for field in ("train", "val", "objective", "per_sample", "grad"):
             ours, theirs, truth = (getattr(r, field).double() for r in (jit, torch32, exact))
             assert (ours - truth).abs().max() <= 4 * (theirs - truth).abs().max() + 16 * eps * truth.abs().max(), \
                 (field, chunk_slots)
-    assert kernel(x, layout, grad=False).grad is None
+    assert kernel(x, layout, grad=False, **call).grad is None
+
+
+@needs_drjit
+@pytest.mark.parametrize("surrogate_eps", [None, 1e-2])
+@pytest.mark.parametrize("name", MODELS)
+def test_the_jit_kernel_is_the_torch_kernel_to_float32_rounding(name, surrogate_eps, zoo):
+    model = MODELS[name]()
+    space = RowSpace(model)
+    assert_the_torch_kernel_to_float32_rounding(model, space, space.from_table(random_table(model, zoo.names, 0)), zoo,
+                                                surrogate_eps=surrogate_eps)
 
 
 CORRECTIONS = {  # dense and low-rank, folded first layers and operator modules, two corrections of one layer
@@ -78,33 +85,13 @@ CORRECTIONS = {  # dense and low-rank, folded first layers and operator modules,
 @needs_drjit
 @pytest.mark.parametrize("corrections", CORRECTIONS)
 def test_rows_with_corrections_are_the_torch_kernels_to_float32_rounding(corrections, zoo):
-    """Rows with per-row corrections of the modules' weights, deltas away from zero, with the prior
-    weighed per row and a held-out fold, in one pass and in chunks: the objective, losses and every
-    column of the gradient (analytical, latent, the corrections' factors) within 4x the float32 torch
-    kernel's distance to the float64 one, plus a few ulps."""
+    """Rows with per-row corrections of the modules' weights, deltas away from zero, the prior weighed
+    per row: every column of the gradient (analytical, latent, the corrections' factors) included."""
     model = MODELS["F and S*D*F"]()
     space = RowSpace(model, CORRECTIONS[corrections](model))
     x = space.from_table(random_table(model, zoo.names, 0), seed=3)
     x[:, space.base_dim :] += 0.05 * torch.randn(len(x), space.n_corrections, generator=torch.Generator().manual_seed(0))
-    wi, wo, f_r, valid = padded(zoo)
-    train, val = valid.clone(), torch.zeros_like(valid)
-    train[:, ::4], val[:, ::4] = False, valid[:, ::4]
-    layout = layout_rows(wi, wo, f_r, torch.tensor([0, 1, 1]), train[[0, 1, 1]], val[[0, 1, 1]])
-    x = torch.cat([x, x[1:] + 0.1])
-    strength = torch.tensor([1e-2, 1e-1, 1.0])
-    double = copy.deepcopy(model).double()
-    layout64 = layout_rows(wi.double(), wo.double(), f_r.double(), layout.material, layout.train, layout.val)
-    exact = RowKernel(double, RowSpace(double, space.corrections))(x.double(), layout64, prior_strength=strength.double())
-    torch32 = RowKernel(model, space)(x, layout, prior_strength=strength)
-    eps = torch.finfo(torch.float32).eps
-    kernel = JitRowKernel(model, space)
-    assert exact.grad[:, space.base_dim :].abs().max() > 1e-3  # the corrections' gradient is there to compare
-    for chunk_slots in (10_000, 97):
-        jit = kernel(x, layout, prior_strength=strength, chunk_slots=chunk_slots)
-        for field in ("train", "val", "objective", "per_sample", "grad"):
-            ours, theirs, truth = (getattr(r, field).double() for r in (jit, torch32, exact))
-            assert (ours - truth).abs().max() <= 4 * (theirs - truth).abs().max() + 16 * eps * truth.abs().max(), \
-                (field, chunk_slots)
+    assert_the_torch_kernel_to_float32_rounding(model, space, x, zoo, prior_strength=torch.tensor([1e-2, 1e-1, 1.0]))
 
 
 @needs_drjit
