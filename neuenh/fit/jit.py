@@ -54,6 +54,7 @@ from .kernel import (
     RowKernel,
     RowLosses,
     RowSpace,
+    dense_deltas,
     row_view,
 )
 from .layout import RowLayout
@@ -188,12 +189,13 @@ class JitRowKernel:
         model = self.model
         return sum(spec.width for spec in model.module_specs) + (model.latent_dim if model.uses_latent else 0)
 
-    def _per_row(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _per_row(self, x: torch.Tensor, deltas: dict) -> dict[str, torch.Tensor]:
         """Everything a sample reads from its row, (rows, width) each, as a differentiable function of
-        ``x``: ``param:NAME``, ``frame`` (9: tangent, bitangent, normal), ``const:POS``, ``bias:POS``."""
+        ``x`` (and its corrections' ``deltas``, ``RowSpace.deltas``): ``param:NAME``, ``frame`` (9: tangent,
+        bitangent, normal), ``const:POS``, ``bias:POS``."""
         model = self.model
         values, latent = self.space.values(x)
-        view = row_view(model, x.shape[0], self.space.deltas(x))  # the rows' own weights where corrected
+        view = row_view(model, x.shape[0], deltas) if deltas else model  # per-row modules where corrected
         out = {f"param:{k}": v for k, v in values.items()}
         frame = frame_of(TORCH, values)
         if frame is not None:
@@ -211,7 +213,7 @@ class JitRowKernel:
         for expr in model.graph.positions:
             expr = chosen.get(expr.name, expr)
             if expr.name in self.modules and self.modules[expr.name][1]:
-                out[f"bias:{expr.name}"] = self._first_bias(view, expr.name, material_input)
+                out[f"bias:{expr.name}"] = self._first_bias(expr.name, material_input, deltas)
             kind = self.const_positions.get(expr.name)
             if kind == "module":
                 value = view.neural[expr.name](material_input)
@@ -226,16 +228,16 @@ class JitRowKernel:
         out.update({f"const:{k}": v for k, v in constants.items()})
         return out
 
-    def _first_bias(self, view, position: str, material_input: torch.Tensor) -> torch.Tensor:
+    def _first_bias(self, position: str, material_input: torch.Tensor, deltas: dict) -> torch.Tensor:
         """(rows, out): a folded module's first-layer bias with the row's inputs folded in, ``b + W[:, :k] m``,
-        with the row's own ``W`` and ``b`` where that layer is corrected (``row_view``)."""
+        plus ``db + dW[:, :k] m`` of each correction of that layer."""
         k = material_input.shape[1]
-        module = view.neural[position]
-        if 0 in module.weights:
-            weight, bias = module.weights[0]
-            return bias + torch.bmm(weight[:, :, :k], material_input.unsqueeze(2)).squeeze(2)
-        first = module.shared.layers[0]
-        return torch.addmm(first.bias, material_input, first.weight[:, :k].t())
+        first = self.model.neural[position].layers[0]
+        bias = torch.addmm(first.bias, material_input, first.weight[:, :k].t())
+        for _, c in self.corrected.get((position, 0), ()):
+            weight, bias_delta = deltas[c]
+            bias = bias + bias_delta + torch.bmm(weight[:, :, :k], material_input.unsqueeze(2)).squeeze(2)
+        return bias
 
     def _sample_factors(self, factors: dict) -> dict[str, torch.Tensor]:
         """(rows, width) each, detached: the factors a sample's corrected layers read, ``corr:I:W``
@@ -254,10 +256,9 @@ class JitRowKernel:
                     out[f"corr:{i}:b"] = f[-1]
         return out
 
-    def _sample_deltas(self, x: torch.Tensor) -> dict[tuple[str, int], tuple[torch.Tensor, torch.Tensor | None]]:
-        """Each corrected layer's summed delta over the columns a sample reads, (rows, out, in) and its
-        bias delta (rows, out) (None for a folded first layer's), differentiable in ``x``."""
-        deltas = self.space.deltas(x)
+    def _sample_deltas(self, deltas: dict) -> dict[tuple[str, int], tuple[torch.Tensor, torch.Tensor | None]]:
+        """Each corrected layer's summed delta (``RowSpace.deltas``) over the columns a sample reads,
+        (rows, out, in), and its bias delta (rows, out) (None for a folded first layer's)."""
         out = {}
         for (position, layer), corrections in self.corrected.items():
             k = self._row_inputs(position, layer)
@@ -281,7 +282,7 @@ class JitRowKernel:
             name: [dr.gather(Float, source, row + (first + j) * n_rows) for j in range(width)]
             for name, (first, width) in columns.items()}
         lane = gather(table, self._columns)
-        factor = {name: [dr.detach(v) for v in values] for name, values in gather(factor_table, self._factor_columns).items()}
+        factor = gather(factor_table, self._factor_columns)  # no derivative: factor_table's is never enabled
 
         def vec(values):
             return values[0] if len(values) == 1 else (Array3f(*values) if len(values) == 3 else tuple(values))
@@ -390,12 +391,9 @@ class JitRowKernel:
         train = (per * layout.train).sum(1) / layout.train.sum(1).double().clamp_min(1e-12)
         objective = (fitted * layout.train).sum(1) / weight.double()
         if prior_strength is not None and self.space.corrections:
-            with torch.enable_grad() if grad else torch.no_grad():
-                leaf = x.clone().requires_grad_(grad)
-                penalty = prior_strength * self.space.prior(leaf)
-                if grad:
-                    g = g + torch.autograd.grad(penalty.sum(), leaf)[0]
-            objective = objective + penalty.detach().double()
+            penalty, g_penalty = self.space.penalty(x, prior_strength, grad)
+            objective = objective + penalty.double()
+            g = g + g_penalty if grad else g
         val_weight = layout.val.sum(1).double()
         val = torch.where(val_weight > 0, (per * layout.val).sum(1) / val_weight.clamp_min(1e-12), torch.nan)
         return RowLosses(train, val, objective, g, per)
@@ -410,16 +408,18 @@ class JitRowKernel:
         rows, slots = layout.rows, layout.slots
         with torch.enable_grad() if grad else torch.no_grad():
             leaf = x.clone().requires_grad_(grad)
-            per_row = self._per_row(leaf)
+            factors = self.space.factors(leaf)
+            deltas = dense_deltas(factors)
+            per_row = self._per_row(leaf, deltas)
             if self._columns is None:  # the same names and widths at every call
                 self._columns = _column_map(dict(sorted(per_row.items())))
             values = torch.cat([per_row[name] for name in self._columns], dim=1)  # (rows, columns)
             table = Float(values.detach().t().contiguous().reshape(-1))
-            factors = self._sample_factors(self.space.factors(leaf))
+            sample_factors = self._sample_factors(factors)
             if self._factor_columns is None:
-                self._factor_columns = _column_map(factors)
-            factor_table = Float(torch.cat([factors[name] for name in self._factor_columns], dim=1).t().contiguous()
-                                 .reshape(-1) if factors else torch.zeros(1))
+                self._factor_columns = _column_map(sample_factors)
+            factor_table = Float(torch.cat([sample_factors[name] for name in self._factor_columns], dim=1).t()
+                                 .contiguous().reshape(-1) if sample_factors else torch.zeros(1))
             lanes = lambda t: Array3f(*(Float(t[:, j].contiguous()) for j in range(3)))
             row = UInt32(torch.arange(rows, dtype=torch.int32).repeat_interleave(slots))
             w = Float((layout.train / weight[:, None]).reshape(-1).contiguous())
@@ -445,7 +445,7 @@ class JitRowKernel:
                 if self.corrected:  # each corrected layer's per-row gradient: sum over samples of G x^T
                     columns = torch.from_numpy(np.stack([column.numpy() for column in tapped])).reshape(-1, rows, slots)
                     at = 0
-                    for weight_delta, bias_delta in self._sample_deltas(leaf).values():
+                    for weight_delta, bias_delta in self._sample_deltas(deltas).values():
                         n_out, n_in = weight_delta.shape[1:]
                         inputs, adjoint = columns[at : at + n_in], columns[at + n_in : at + n_in + n_out]
                         at += n_in + n_out

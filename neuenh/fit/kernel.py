@@ -169,7 +169,15 @@ class RowSpace:
 
     def deltas(self, x: torch.Tensor) -> dict[LayerCorrection, tuple[torch.Tensor, torch.Tensor]]:
         """Each correction's dense (rows, out, in) weight delta and (rows, out) bias delta."""
-        return {c: (f[0] if c.rank is None else torch.bmm(f[0], f[1]), f[-1]) for c, f in self.factors(x).items()}
+        return dense_deltas(self.factors(x))
+
+    def penalty(self, x: torch.Tensor, strength: torch.Tensor, grad: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(rows,) ``strength * prior(x)`` and, with ``grad``, its gradient (rows, dim) with respect to ``x``."""
+        with torch.enable_grad() if grad else torch.no_grad():
+            leaf = x.detach().clone().requires_grad_(grad)
+            penalty = strength * self.prior(leaf)
+            gradient = torch.autograd.grad(penalty.sum(), leaf)[0] if grad else None
+        return penalty.detach(), gradient
 
     def dense_corrections(self, x_row: torch.Tensor) -> dict[str, torch.Tensor]:
         """One row's corrections as dense deltas keyed like ``model.neural.state_dict()``."""
@@ -188,6 +196,11 @@ class RowSpace:
             scale = float(layer.weight.detach().square().sum() + layer.bias.detach().square().sum())
             total = total + (weight.square().sum((1, 2)) + bias.square().sum(1)) / scale
         return total
+
+
+def dense_deltas(factors: dict[LayerCorrection, list[torch.Tensor]]) -> dict[LayerCorrection, tuple[torch.Tensor, torch.Tensor]]:
+    """``RowSpace.deltas`` from ``RowSpace.factors``: a low-rank delta's ``U V``, a dense one as it is."""
+    return {c: (f[0] if c.rank is None else torch.bmm(f[0], f[1]), f[-1]) for c, f in factors.items()}
 
 
 class _RowModule(nn.Module):
@@ -327,12 +340,9 @@ class RowKernel:
                 g = g_share if g is None else g + g_share
             per_sample = torch.cat(parts, 1)
             if prior:
-                with torch.enable_grad() if grad else torch.no_grad():
-                    leaf = x.clone().requires_grad_(grad)
-                    penalty = prior_strength * self.space.prior(leaf)
-                    if grad:
-                        g = g + torch.autograd.grad(penalty.sum(), leaf)[0]
-                objective = objective + penalty.detach()
+                penalty, g_penalty = self.space.penalty(x, prior_strength, grad)
+                objective = objective + penalty
+                g = g + g_penalty if grad else g
         with torch.no_grad():
             per = per_sample.double()
             train = (per * layout.train).sum(1) / layout.train.sum(1).double().clamp_min(1e-12)
