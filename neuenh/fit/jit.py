@@ -16,9 +16,11 @@ The work is split where it is cheap to split (as ``BRDFModel.forward_indexed`` s
   material);
 * Dr.Jit, per sample: those per-row values gathered, the shading geometry, the term formulas
   (``neuenh.ops``' vocabulary on Dr.Jit arrays) and the modules with their remaining weights as
-  constants, the log-L1 (or its Charbonnier surrogate) and its gradient with respect to every
-  per-row value;
-* torch again: that gradient carried back to the rows ``x`` through the first part.
+  constants, the log-L1 (or its Charbonnier surrogate) and each sample's gradient with respect to
+  its row's values;
+* torch again: those gradients summed over each row's samples, in a fixed order (a scatter into the
+  rows' values would add them in the order the threads ran, and a fit would not repeat), and carried
+  back to the rows ``x`` through the first part.
 
 Rows with module corrections (the adaptive fit's ``last-layer``, ``low-rank``, ``rank-8``, ``full``)
 add each corrected layer's per-row factors (``W`` or ``U V``, and ``b``) to its constant weights in the
@@ -267,13 +269,16 @@ class JitRowKernel:
         return out
 
     # -- the per-sample kernel (Dr.Jit) ------------------------------------------------------------------
-    def _loss(self, table, factor_table, n_rows: int, wi, wo, f_r, row, eps: float | None, taps: dict | None):
+    def _loss(self, table, factor_table, n_rows: int, wi, wo, f_r, row, eps: float | None, taps: dict | None,
+              leaves: list | None):
         """Each sample's loss (log-L1, ``train.log_l1``) and fitted value (the loss, or its Charbonnier
         surrogate with ``eps``, as ``RowKernel``), on Dr.Jit arrays; ``table``: the per-row values, column
         by column (``_columns``: each name's first column and width) of ``n_rows`` rows each;
         ``factor_table`` the same for the corrections' factors (``_factor_columns``), read outside the
         derivative. ``taps``, when given, gets each corrected layer's inputs and the zeros added to its
-        outputs, with their derivative enabled: their gradient is the layer's output adjoint."""
+        outputs, with their derivative enabled: their gradient is the layer's output adjoint. ``leaves``,
+        when given, gets every column's gathered values, with their derivative enabled: their gradient is
+        each sample's share of the row's."""
         import drjit as dr
         from drjit.llvm.ad import Array3f, Float
 
@@ -281,8 +286,12 @@ class JitRowKernel:
         gather = lambda source, columns: {
             name: [dr.gather(Float, source, row + (first + j) * n_rows) for j in range(width)]
             for name, (first, width) in columns.items()}
-        lane = gather(table, self._columns)
+        lane = gather(table, self._columns)  # each sample's copies are leaves (``leaves``): no scatter back
         factor = gather(factor_table, self._factor_columns)  # no derivative: factor_table's is never enabled
+        if leaves is not None:
+            for values in lane.values():
+                dr.enable_grad(values)
+                leaves.extend(values)
 
         def vec(values):
             return values[0] if len(values) == 1 else (Array3f(*values) if len(values) == 3 else tuple(values))
@@ -351,20 +360,19 @@ class JitRowKernel:
         return loss, fitted
 
     def _step(self, table, factor_table, n_rows: int, wi, wo, f_r, row, weight, eps: float | None, grad: bool):
-        """Each sample's loss and fitted value (the loss or its surrogate) and, with ``grad``, the
-        gradient of the weighted sum of the fitted values with respect to every entry of ``table`` and
-        the corrected layers' taps: per layer (``corrected`` order) its inputs, then its output adjoint,
-        a column of samples each."""
+        """Each sample's loss and fitted value (the loss or its surrogate) and, with ``grad``, each
+        sample's gradient of its weighted fitted value with respect to every column of ``table`` (its
+        row's values: ``_pass`` sums them per row) and the corrected layers' taps: per layer
+        (``corrected`` order) its inputs, then its output adjoint, a column of samples each."""
         import drjit as dr
 
-        if grad:
-            dr.enable_grad(table)
         taps = {} if grad and self.corrected else None
-        loss, fitted = self._loss(table, factor_table, n_rows, wi, wo, f_r, row, eps, taps)
+        leaves = [] if grad else None
+        loss, fitted = self._loss(table, factor_table, n_rows, wi, wo, f_r, row, eps, taps, leaves)
         gradient = tapped = None
         if grad:
             dr.backward(fitted * weight)  # every sample seeded with 1: the gradient of their sum, no reduction
-            gradient = dr.grad(table)
+            gradient = [dr.grad(v) for v in leaves]
         if taps:
             tapped = [c for key in self.corrected for c in taps[key][0] + [dr.grad(h) for h in taps[key][1]]]
         loss, fitted = dr.detach(loss), dr.detach(fitted)
@@ -440,7 +448,11 @@ class JitRowKernel:
                     gc.enable()
             g = None
             if grad:
-                cotangent = torch.from_numpy(gradient.numpy()).reshape(values.shape[1], rows).t()
+                # each row's sum over its samples, in torch: a fixed order, where a scatter of every sample's
+                # gradient into the table would add them in the order the threads ran (a run's fit would not
+                # repeat)
+                per_sample = torch.from_numpy(np.stack([column.numpy() for column in gradient]))
+                cotangent = per_sample.reshape(-1, rows, slots).sum(2).t()  # float32: a cascade sum (torch)
                 outputs, cotangents = [values], [cotangent]
                 if self.corrected:  # each corrected layer's per-row gradient: sum over samples of G x^T
                     columns = torch.from_numpy(np.stack([column.numpy() for column in tapped])).reshape(-1, rows, slots)
