@@ -448,9 +448,7 @@ class JitRowKernel:
                     gc.enable()
             g = None
             if grad:
-                # each row's sum over its samples, in torch: a fixed order, where a scatter of every sample's
-                # gradient into the table would add them in the order the threads ran (a run's fit would not
-                # repeat)
+                # each row's sum over its samples, in a fixed order (module doc)
                 per_sample = torch.from_numpy(np.stack([column.numpy() for column in gradient]))
                 cotangent = per_sample.reshape(-1, rows, slots).sum(2).t()  # float32: a cascade sum (torch)
                 outputs, cotangents = [values], [cotangent]
