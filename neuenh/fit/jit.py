@@ -127,6 +127,11 @@ def _column_map(values: dict[str, torch.Tensor]) -> dict[str, tuple[int, int]]:
     return dict(zip(values, zip(itertools.accumulate([0, *widths[:-1]]), widths)))
 
 
+def _sample_columns(columns: list, rows: int, slots: int) -> torch.Tensor:
+    """Dr.Jit arrays of a value per sample as one (columns, rows, slots) tensor."""
+    return torch.from_numpy(np.stack([column.numpy() for column in columns])).reshape(-1, rows, slots)
+
+
 class JitRowKernel:
     """``RowKernel``'s losses and gradients (the same call; module doc), computed by one Dr.Jit kernel a
     step in Dr.Jit's thread pool (all cores unless ``set_jit_threads``). Equal to ``RowKernel``'s up to
@@ -449,11 +454,10 @@ class JitRowKernel:
             g = None
             if grad:
                 # each row's sum over its samples, in a fixed order (module doc)
-                per_sample = torch.from_numpy(np.stack([column.numpy() for column in gradient]))
-                cotangent = per_sample.reshape(-1, rows, slots).sum(2).t()  # float32: a cascade sum (torch)
+                cotangent = _sample_columns(gradient, rows, slots).sum(2).t()  # float32: a cascade sum (torch)
                 outputs, cotangents = [values], [cotangent]
                 if self.corrected:  # each corrected layer's per-row gradient: sum over samples of G x^T
-                    columns = torch.from_numpy(np.stack([column.numpy() for column in tapped])).reshape(-1, rows, slots)
+                    columns = _sample_columns(tapped, rows, slots)
                     at = 0
                     for weight_delta, bias_delta in self._sample_deltas(deltas).values():
                         n_out, n_in = weight_delta.shape[1:]
