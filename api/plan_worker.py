@@ -32,6 +32,7 @@ def run_plan(settings: Settings, base: Path, plan_id: str, progress: Connection)
     os.nice(NICENESS)
     import torch
 
+    from neuenh.fit.jit import set_jit_threads
     from neuenh_service.orchestrator.plans import PlanRunner
     from neuenh_service.storage import SQLitePlanStore
 
@@ -39,6 +40,7 @@ def run_plan(settings: Settings, base: Path, plan_id: str, progress: Connection)
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(settings.plan_cpus)
+    set_jit_threads(settings.plan_cpus)  # the latent fits' kernel (no Mitsuba runs here, which needs more than one)
     keep_freed_memory()  # a plan's fits reuse their freed activations (neuenh.allocator)
     plans, artifacts = SQLitePlanStore(settings.data_dir / "jobs.sqlite"), artifact_store(settings)
     try:

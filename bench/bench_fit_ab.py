@@ -19,7 +19,11 @@ seed 0; ``mirror:N`` draws half of the pairs near the mirror direction, ``unifor
 Materials: every ``len // N``-th NBRDF stand-in of MERL from the ``--offset``-th (``../shared/data/merl_nbrdf``, sorted names;
 never RGL), each fitted with its own training code left out of the model's training codes (the fit's
 screened starts would otherwise start where training left it). The shipped modules did see these
-materials: a paired comparison of two fits, not a measure of unseen-material error. Recorded per fit:
+materials: a paired comparison of two fits, not a measure of unseen-material error. Every stand-in has
+been in some earlier draw, so ``--fresh SEED`` draws new materials of the training sources instead: half
+of ``--materials`` of the synthetic zoo (seed SEED + 5) and half noisy synthetic GGX (SEED + 4, noise 0.1),
+the families the reference search trained on at seeds 5 and 4 — materials no training and no earlier
+rule saw, fitted with every training code. Recorded per fit:
 CPU seconds (``time.process_time``, one thread: what another process on the machine does not add to),
 wall seconds, the held-out log-L1 and the capacity and prior chosen. Ratios are per material against A, then the
 median, the geometric mean and the worst; an arm's worst is printed beside the null's. The JSON file is
@@ -109,6 +113,32 @@ def markdown(results: dict, command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def draw_materials(args, trained) -> tuple[dict, dict]:
+    """{key: a callable returning the material}, {key: the training codes its fits start from}: the
+    stand-ins of the ``--offset`` draw, each without its own code, or ``--fresh``'s new materials with
+    every code (module doc)."""
+    import numpy as np
+
+    if args.fresh is not None:
+        from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
+
+        zoo = synthetic_zoo(args.materials - args.materials // 2, args.fresh + 5)
+        ggx = synthetic_ggx(args.materials // 2, args.fresh + 4, 0.1)
+        drawn = {f"{family}{args.fresh}/{m.name}": m for family, ms in (("zoo", zoo), ("ggx", ggx)) for m in ms}
+        return {key: (lambda m=m: m) for key, m in drawn.items()}, dict.fromkeys(drawn, trained)
+    from neuenh.data.nbrdf import nbrdf_material
+
+    names = sorted(np.load(args.nbrdf)["names"].tolist())
+    step = max(1, len(names) // args.materials)
+    if not 0 <= args.offset < step:
+        raise SystemExit(f"--offset {args.offset}: must be in 0 .. {step - 1} (every {step}th of {len(names)} names)")
+    chosen = names[args.offset :: step][: args.materials]
+    # each material's fits start from the training codes of every other (the same for every case)
+    codes_of = {name: None if trained is None else trained.subset([i for i, t in enumerate(trained.names) if t != name])
+                for name in chosen}
+    return {name: (lambda name=name: nbrdf_material(str(args.nbrdf), name)) for name in chosen}, codes_of
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--arm", action="append", default=[], metavar="NAME:FIELD=VALUE,...",
@@ -119,22 +149,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--offset", type=int, default=0,
                         help="start the every-len//N-th draw of stand-ins at this name (default 0; another draw of "
                              "the same size: 1 .. len//N - 1)")
+    parser.add_argument("--fresh", type=int, metavar="SEED",
+                        help="draw new synthetic materials of the training sources at this seed instead of stand-ins")
     parser.add_argument("--cases", nargs="+", default=["mirror:3000", "uniform:10000"])
     parser.add_argument("--test", type=int, default=1000, help="test pairs per material (default 1,000)")
     parser.add_argument("--null-seed", type=int, default=1, help="the null arm's fit seed (default 1)")
     parser.add_argument("--nbrdf", type=Path, default=NBRDF_WEIGHTS)
     parser.add_argument("--json", type=Path, help="write (and resume) the raw numbers here")
     args = parser.parse_args(argv)
-    if absent(args.nbrdf, "the NBRDF stand-ins of MERL"):
+    if args.fresh is None and absent(args.nbrdf, "the NBRDF stand-ins of MERL"):
         return 0
     cases = {case: parse_case(case) for case in args.cases}
     fitting_process()
     from neuenh.fit.jit import set_jit_threads
 
     set_jit_threads(1)  # the jit kernel's pool one thread too, as torch's (no Mitsuba in this process)
-    import numpy as np
-
-    from neuenh.data.nbrdf import nbrdf_material
     from neuenh.fit import FitOptions, fit_materials
     from neuenh.pretrained import load_model
     from neuenh.study.heldout import draw_fit_test, heldout_log_l1
@@ -149,27 +178,20 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"--arm: two arms share a name ({', '.join(args.arm)})")
     arms = {"A": (base, 0), "null": (base, args.null_seed), **{name: (protocol, 0) for _, name, protocol in variants}}
     config = {"model": args.model, "capacity": args.capacity, "materials": args.materials, "offset": args.offset,
-              "cases": args.cases, "test": args.test, "null_seed": args.null_seed, "arms": args.arm}
+              "fresh": args.fresh, "cases": args.cases, "test": args.test, "null_seed": args.null_seed, "arms": args.arm}
     results = json.loads(args.json.read_text()) if args.json and args.json.exists() else {}
     if results.get("config") != config:
         results = {"config": config, "fits": {}}
     results["machine"] = machine()
     results["arms"] = {"A": f"`{base}`", "null": f"A, fit seed {args.null_seed}",
                        **{name: text.split(":", 1)[1] for text, name, _ in variants}}
-    names = sorted(np.load(args.nbrdf)["names"].tolist())
-    step = max(1, len(names) // args.materials)
-    if not 0 <= args.offset < step:
-        raise SystemExit(f"--offset {args.offset}: must be in 0 .. {step - 1} (every {step}th of {len(names)} names)")
-    chosen = names[args.offset :: step][: args.materials]
-    # each material's fits start from the training codes of every other (the same for every case)
-    codes_of = {name: None if trained is None else trained.subset([i for i, t in enumerate(trained.names) if t != name])
-                for name in chosen}
+    materials, codes_of = draw_materials(args, trained)
     for case, (near_mirror, n) in cases.items():
-        for index, name in enumerate(chosen):
+        for index, (name, material) in enumerate(materials.items()):
             key = f"{case}|{name}"
             if key in results["fits"]:
                 continue
-            fit, test, _ = draw_fit_test(nbrdf_material(str(args.nbrdf), name), n, args.test, 0, near_mirror)
+            fit, test, _ = draw_fit_test(material(), n, args.test, 0, near_mirror)
             order = list(arms)[index % len(arms):] + list(arms)[: index % len(arms)]
             row = {}
             for arm in order:

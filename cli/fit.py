@@ -76,18 +76,19 @@ def configure(p: argparse.ArgumentParser) -> None:
                         "RMSProp lr 1e-3, 1000 epochs, latent capacity")
     p.add_argument("--capacity", default=USER_CAPACITY, metavar="{" + ",".join(CAPACITY_CHOICES) + "}",
                    help=CAPACITY_HELP)
-    p.add_argument("--kernel", choices=("torch", "jit"), default="torch", help=(
-        "the fit's kernel: torch (default), or jit: each step one compiled Dr.Jit kernel (neuenh[export] and "
-        "libLLVM 17+), a latent fit 2-3x faster, the adaptive fit's analytical and latent stages too; the same "
-        "objective to float32 rounding, which moves some materials' end points as a fit's seed does "
-        "(docs/BENCHMARKS.md, 'Stop 65'). Its first fit of a model compiles for a few seconds (cached on disk)"))
+    p.add_argument("--kernel", choices=("torch", "jit"), default=None, help=(
+        "the fit's kernel: torch, or jit: each step one compiled Dr.Jit kernel (neuenh[export] and libLLVM 17+), "
+        "a latent fit 2-3x faster, the adaptive fit's analytical and latent stages too; the same objective to "
+        "float32 rounding, which moves some materials' end points as a fit's seed does. Default: jit for "
+        "--capacity latent where Dr.Jit runs (torch elsewhere), torch for the others (docs/BENCHMARKS.md, "
+        "'Stop 68'). Its first fit of a model compiles for a few seconds (cached on disk)"))
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs of the first-order fits (Adam, RMSProp; default each protocol's own); a plain "
                         "model's L-BFGS iterations per phase unless --lbfgs-iterations")
     p.add_argument("--lbfgs-iterations", type=int, default=None,
                    help="a plain model's L-BFGS iterations per surrogate phase (default 300)")
     p.add_argument("--threads", type=int, default=None, help=(
-        "torch CPU threads, and Dr.Jit's with --kernel jit (default: all); on a machine busy with other work 1 "
+        "torch CPU threads, and Dr.Jit's (default: all); on a machine busy with other work 1 "
         "can be several times faster, since idle threads wait by spinning (docs/BENCHMARKS.md, 'Fit threads')"))
     p.add_argument("--jobs", type=int, default=1, metavar="N", help=(
         "fit the materials in N processes of one thread each (default 1: here). Each process takes a few "
@@ -117,8 +118,7 @@ def run(args) -> int:
 
     if args.threads:
         torch.set_num_threads(args.threads)
-        if args.kernel == "jit":
-            set_jit_threads(args.threads)
+        set_jit_threads(args.threads)  # whichever kernel a protocol's rows take
     if args.jobs < 1:
         raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
     drawn = _check_measurement_args(args)

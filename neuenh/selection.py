@@ -30,7 +30,7 @@ import torch
 
 from .checkpoint import Bundle
 from .data.samples import Samples, TrainingData
-from .fit import FitOptions, fit_materials, losses_at_own_capacity
+from .fit import FitOptions, FitProtocol, fit_materials, losses_at_own_capacity
 from .materials import MaterialTable
 from .model import BRDFModel
 from .train import CandidateResult, FitScoreConfig, TrainConfig, train_candidate
@@ -61,15 +61,21 @@ def split_materials(samples: Samples, fit_samples: int, test_samples: int, seed:
     return samples.subset(torch.cat(fit_rows)), samples.subset(torch.cat(test_rows))
 
 
+def score_protocol(model: BRDFModel, config: FitScoreConfig) -> FitProtocol:
+    """The fit ``fit_score`` gives each held-out material: the users' protocol at ``config``'s capacity and
+    budget, on torch's kernel — the score runs inside a candidate's task, whose CPU share torch's threads
+    keep, where Dr.Jit's pool would take every core of the node."""
+    return FitOptions(capacity=config.capacity, epochs=config.epochs, lbfgs_iterations=config.epochs,
+                      kernel="torch").protocol_for(model)
+
+
 def fit_score(model: BRDFModel, holdout: Samples, config: FitScoreConfig = FitScoreConfig(),
               trained: MaterialTable | None = None) -> FitScore:
     """Score ``model`` on the held-out materials ``holdout`` (module doc); ``trained``: the
     candidate's training materials, whose mean latent code is a start of each fit."""
     start = time.perf_counter()
     fit, test = split_materials(holdout, config.fit_samples, config.test_samples, config.seed)
-    protocol = FitOptions(capacity=config.capacity, epochs=config.epochs,
-                          lbfgs_iterations=config.epochs).protocol_for(model)
-    result = fit_materials(model, fit, protocol, seed=config.seed, trained=trained)
+    result = fit_materials(model, fit, score_protocol(model, config), seed=config.seed, trained=trained)
     losses = losses_at_own_capacity(model, result.materials, test)  # each at the capacity its fit chose
     return FitScore(float(sum(losses) / len(losses)), tuple(losses), time.perf_counter() - start)
 

@@ -370,12 +370,19 @@ class Adaptive(FitProtocol):
         return PlainLBFGS(iterations=self.lbfgs_iterations).fit_rows(
             row_kernel(analytical, space, self.kernel), x0, problems.layout(torch.arange(problems.materials)), also)
 
+    @property
+    def latent_protocol(self) -> LatentAdam:
+        """The latent fit of the validation split and of the latent candidates: this fit's kernel and latent
+        budget, its starts narrowed after a quarter of the epochs as before rule m — its end point is where
+        the corrections start, and the adaptive fit's end points move with it as a lottery does
+        (docs/BENCHMARKS.md, "The latent fit's starts narrowed at half"); a change needs a rule of its own."""
+        return LatentAdam(self.latent_epochs, starts=self.latent_starts, kernel=self.kernel, narrow_at=0.25)
+
     def _latent(self, model: BRDFModel, problems: Rows, material: torch.Tensor, start: MaterialTable | None,
                 trained: MaterialTable | None, seed: int):
         """``LatentAdam``'s fit of every row of ``problems`` (rows of ``material``): (rows, dim), (rows,) losses."""
-        latent = LatentAdam(self.latent_epochs, starts=self.latent_starts, kernel=self.kernel)
         start_rows = None if start is None else start.subset(material.tolist())
-        return latent.fit_rows(model, problems, start_rows, trained, seed)
+        return self.latent_protocol.fit_rows(model, problems, start_rows, trained, seed)
 
     def _corrections(self, model: BRDFModel, layout, starts: torch.Tensor | list[torch.Tensor],
                      entries: list[tuple[str, float]], seed: int) -> tuple[RowKernel, AdamResult]:

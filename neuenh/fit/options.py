@@ -29,8 +29,9 @@ class FitOptions:
     ``capacity`` (models with modules, fast method): ``auto`` chooses per material by validation on
     its own samples (``capacity.Adaptive``), a capacity name fits that capacity only.
     ``epochs``/``lbfgs_iterations``: budgets (module doc), None for each protocol's own.
-    ``kernel`` (fast method): ``torch`` (default) or ``jit``, the fits' compiled Dr.Jit kernel
-    (``neuenh.fit.jit``) for the rows it applies to; "jit" without Dr.Jit is an error here."""
+    ``kernel`` (fast method): ``torch`` or ``jit``, the fits' compiled Dr.Jit kernel (``neuenh.fit.jit``)
+    for the rows it applies to, "jit" without Dr.Jit an error here; None (default): each protocol's own —
+    jit for the latent fit (torch where Dr.Jit is not available), torch for the plain and adaptive fits."""
 
     method: str = "fast"
     # the library's default, not the users' ("auto", ``neuenh.capacities.USER_CAPACITY``): the fits inside
@@ -40,7 +41,7 @@ class FitOptions:
     epochs: int | None = None
     lbfgs_iterations: int | None = None
     starts: str = "analytical"
-    kernel: str = "torch"
+    kernel: str | None = None
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -49,7 +50,7 @@ class FitOptions:
             raise ValueError(f"capacity must be one of {', '.join(CAPACITY_CHOICES)}, got {self.capacity!r}")
         if self.starts not in ("analytical", "paper"):
             raise ValueError(f"fit starts must be 'analytical' or 'paper', got {self.starts!r}")
-        if self.kernel not in KERNELS:
+        if self.kernel is not None and self.kernel not in KERNELS:
             raise ValueError(f"fit kernel must be one of {', '.join(KERNELS)}, got {self.kernel!r}")
         if self.kernel == "jit" and not jit_available():
             raise ValueError("the jit fit kernel needs Dr.Jit's LLVM backend: pip install 'neuenh[export]' and a "
@@ -65,14 +66,14 @@ class FitOptions:
             return PaperRMSProp(**_given(epochs=self.epochs))
         if not model.has_modules:
             # a plain model's only budget: --epochs stands for it unless lbfgs_iterations is given
-            return PlainLBFGS(**_given(iterations=self.lbfgs_iterations or self.epochs), kernel=self.kernel)
+            return PlainLBFGS(**_given(iterations=self.lbfgs_iterations or self.epochs, kernel=self.kernel))
         if self.capacity == "latent":
-            return LatentAdam(**_given(epochs=self.epochs), starts=self.starts, kernel=self.kernel)
+            return LatentAdam(**_given(epochs=self.epochs, kernel=self.kernel), starts=self.starts)
         capacities = {} if self.capacity == "auto" else {"capacities": (self.capacity,)}
         budget = {} if self.epochs is None else {"latent_epochs": self.epochs,
                                                  "correction_epochs": max(1, self.epochs // 2)}
-        return Adaptive(**capacities, **_given(lbfgs_iterations=self.lbfgs_iterations), **budget,
-                        latent_starts=self.starts, kernel=self.kernel)
+        return Adaptive(**capacities, **_given(lbfgs_iterations=self.lbfgs_iterations, kernel=self.kernel), **budget,
+                        latent_starts=self.starts)
 
     def replace(self, **changes) -> "FitOptions":
         return dataclasses.replace(self, **changes)

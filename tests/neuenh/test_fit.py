@@ -386,6 +386,44 @@ def test_a_latent_fit_over_its_cap_fits_a_seeded_draw_of_each_materials_samples(
         LatentAdam(sample_cap=0)
 
 
+
+def test_a_latent_fit_narrows_to_each_materials_best_start_after_the_share_of_epochs_it_is_given(
+        enhanced, two_zoo_materials, monkeypatch):
+    """``narrow_at``: after that share of the epochs each material keeps its start of lowest loss. At 0
+    that is before any step, so the fit is the fit from that start alone, to the bit; at 0.5 of 8 epochs
+    the last stage steps all starts' rows 4 times, then one row a material 4 times."""
+    trained, samples = _codes(enhanced, 6, seed=5), two_zoo_materials
+    first = LatentAdam(epochs=8, screened=2, narrow_at=0.0)
+    space, rows = RowSpace(enhanced), Rows(samples, 1)
+    starts = torch.stack(first.starts_of(enhanced, rows, trained, seed=1))  # (k, m, dim)
+    k, m, _ = starts.shape
+    loss = evaluate_rows(RowKernel(enhanced, space), starts.reshape(k * m, -1),
+                         rows.layout(torch.arange(m).repeat(k))).train.reshape(k, m)
+    best = space.to_table(starts[loss.argmin(0), torch.arange(m)],
+                          MaterialTable(enhanced.specs, samples.names, enhanced.latent_dim))
+    assert first.fit(enhanced, samples, trained=trained, seed=1).losses == \
+        first.fit(enhanced, samples, start=best, seed=1).losses
+
+    steps = []  # the rows of every step of the last stage (its kernel is the last one built)
+
+    class Counting(RowKernel):
+        def __call__(self, x, layout, *, grad=True, **kw):
+            if grad:
+                steps.append(len(x))
+            return super().__call__(x, layout, grad=grad, **kw)
+
+    def counting_kernel(model, space, kernel="torch"):
+        steps.clear()
+        return Counting(model, space)
+
+    monkeypatch.setattr("neuenh.fit.protocols.row_kernel", counting_kernel)
+    half = LatentAdam(epochs=8, screened=2, narrow_at=0.5)
+    assert half.fit(enhanced, samples, trained=trained, seed=1).protocol["narrow_at"] == 0.5
+    assert steps == [k * m] * 4 + [m] * 4
+    for invalid in (1.0, -0.1):
+        with pytest.raises(ValueError, match="invalid latent protocol"):
+            LatentAdam(narrow_at=invalid)
+
 def _codes(model, n, seed):
     """A training table of ``n`` materials with spread-out latent codes (``_random_table``'s)."""
     return random_table(model, tuple(f"t{i}" for i in range(n)), seed)

@@ -195,8 +195,9 @@ def test_a_protocols_kernel_names_the_jit_kernel_where_a_sample_reads_few_correc
 
 
 def test_without_drjit_the_jit_kernel_is_an_error_to_ask_for_and_torch_where_it_is_a_setting(monkeypatch):
-    """A user's ``--kernel jit`` on a machine without Dr.Jit says what to install; a protocol's setting
-    falls back to the torch kernel (a bundle's fits run wherever it is loaded)."""
+    """A user's ``--kernel jit`` on a machine without Dr.Jit says what to install; a protocol's setting —
+    the latent fit's default among them — falls back to the torch kernel (a bundle's fits run wherever it
+    is loaded)."""
     import neuenh.fit.jit as jit
 
     monkeypatch.setitem(jit._STATE, "ok", False)
@@ -205,6 +206,26 @@ def test_without_drjit_the_jit_kernel_is_an_error_to_ask_for_and_torch_where_it_
     model = get_model("ggx", state="00010001000", seed=3)
     assert type(row_kernel(model, RowSpace(model), "jit")) is RowKernel
     assert FitOptions(kernel="torch", capacity="latent").protocol_for(model).kernel == "torch"
+    assert FitOptions(capacity="latent").protocol_for(model).kernel == "jit"  # no error: a default, not an ask
+
+
+def test_each_protocols_default_kernel_and_narrowing_are_the_ones_rule_m_chose():
+    """Rule m (docs/BENCHMARKS.md, "Stop 68"): the latent fit takes the jit kernel and narrows its starts
+    at half the epochs; the plain and adaptive fits keep torch, the adaptive fit's latent stage its
+    narrowing after a quarter, and a search's fit score torch's kernel (inside a candidate's CPU share)."""
+    from neuenh.selection import score_protocol
+    from neuenh.train import FitScoreConfig
+
+    model, plain = get_model("ggx", state="00010001000", seed=3), get_model("ggx")
+    latent = FitOptions(capacity="latent").protocol_for(model)
+    assert (latent.kernel, latent.narrow_at) == ("jit", 0.5) and latent == LatentAdam()
+    assert FitOptions(capacity="latent", kernel="torch").protocol_for(model).kernel == "torch"
+    adaptive = FitOptions(capacity="auto").protocol_for(model)
+    assert adaptive.kernel == "torch" == FitOptions().protocol_for(plain).kernel
+    assert (adaptive.latent_protocol.kernel, adaptive.latent_protocol.narrow_at) == ("torch", 0.25)
+    assert FitOptions(capacity="auto", kernel="jit").protocol_for(model).latent_protocol.kernel == "jit"
+    scored = score_protocol(model, FitScoreConfig())
+    assert isinstance(scored, LatentAdam) and scored.kernel == "torch"
 
 
 @needs_drjit
@@ -220,7 +241,7 @@ def test_an_adam_fit_with_the_jit_kernel_ends_where_the_torch_fit_ends(protocol,
     import dataclasses
 
     model = get_model("ggx", state="00010001000", seed=3)
-    torch_fit = fit_materials(model, zoo, protocol)
+    torch_fit = fit_materials(model, zoo, dataclasses.replace(protocol, kernel="torch"))
     jit_fit = fit_materials(model, zoo, dataclasses.replace(protocol, kernel="jit"))
     assert jit_fit.losses == pytest.approx(torch_fit.losses, rel=1e-2)
     capacities = lambda fit: [fit.materials.as_params(i).capacity for i in range(len(zoo.names))]
