@@ -160,10 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.fresh is None and absent(args.nbrdf, "the NBRDF stand-ins of MERL"):
         return 0
     cases = {case: parse_case(case) for case in args.cases}
-    fitting_process()
-    from neuenh.fit.jit import set_jit_threads
-
-    set_jit_threads(1)  # the jit kernel's pool one thread too, as torch's (no Mitsuba in this process)
+    fitting_process()  # one torch thread and one Dr.Jit thread
     from neuenh.fit import FitOptions, fit_materials
     from neuenh.pretrained import load_model
     from neuenh.study.heldout import draw_fit_test, heldout_log_l1

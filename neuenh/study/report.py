@@ -157,9 +157,11 @@ def _measure(s: StudySettings, path: Path) -> MaterialResult:
     import torch
 
     from ..data.measured import load_measured
+    from ..fit.jit import set_jit_threads
     from .comparison import RenderSetup, compare_material
 
     torch.set_num_threads(1)
+    set_jit_threads(1)  # the latent fits' kernel: one thread too, as the fit processes of `neuenh fit --jobs`
     material, contenders = load_measured(path), build_contenders(s)
     c = compare_material(material, contenders, s.fit_samples, s.test_samples, seed=s.seed,
                          setup=RenderSetup(s.size, s.samples, s.seed, s.scene), eval_pairs=s.eval_pairs)
