@@ -80,8 +80,9 @@ def configure(p: argparse.ArgumentParser) -> None:
         "the fit's kernel: torch, or jit: each step one compiled Dr.Jit kernel (neuenh[export] and libLLVM 17+), "
         "a latent fit 2-3x faster, the adaptive fit's analytical and latent stages too; the same objective to "
         "float32 rounding, which moves some materials' end points as a fit's seed does. Default: jit for "
-        "--capacity latent where Dr.Jit runs (torch elsewhere), torch for the others (docs/BENCHMARKS.md, "
-        "'Stop 68'). Its first fit of a model compiles for a few seconds (cached on disk)"))
+        "--capacity latent fits of at least 200,000 measurement-epochs where Dr.Jit runs, torch for smaller ones "
+        "and for the other capacities (docs/BENCHMARKS.md, 'Stop 68'). A model's first jit fit on a machine "
+        "compiles (the shipped model: ~15 s), later ones read Dr.Jit's disk cache"))
     p.add_argument("--epochs", type=int, default=None,
                    help="epochs of the first-order fits (Adam, RMSProp; default each protocol's own); a plain "
                         "model's L-BFGS iterations per phase unless --lbfgs-iterations")

@@ -61,8 +61,16 @@ from .kernel import (
 )
 from .layout import RowLayout
 
-# A fit protocol's ``kernel``: "torch" (``RowKernel``), "jit" (``JitRowKernel`` where it is faster, else torch).
-KERNELS = ("torch", "jit")
+# A fit protocol's ``kernel``: "torch" (``RowKernel``), "jit" (``JitRowKernel`` where it is faster, else torch),
+# "auto" (jit for fits of at least ``JIT_MIN_WORK``, torch for smaller ones).
+KERNELS = ("torch", "jit", "auto")
+# Measurement-epochs (``FitProtocol.work``) from which "auto" takes the jit kernel. The kernel holds the modules'
+# weights as constants, so each model's first fit on a machine compiles (the shipped model's latent fit: 14 s of
+# CPU, then read from Dr.Jit's disk cache in 0.4 s), which a fit saves back at ~3 us a measurement-epoch (its
+# 3,000-sample fit, 900,000 of them: 5.6 s on torch, 2.7 s on jit; docs/BENCHMARKS.md, "Stop 68"). Below this
+# (a fit of ~700 samples at 300 epochs, about a second on torch) the fit is a quick look or a test's, and a compile
+# would cost more than every such fit of that model saves.
+JIT_MIN_WORK = 200_000
 # Per-row correction factors a sample may read for the jit kernel to be the faster: each is a gather per
 # sample, and a step of the shipped model's rows (one thread, 4 x 3,000 and 8 x 10,000 slots) took, jit over
 # torch, 0.20-0.32 without corrections, 0.34-0.40 with its last layers (198 a sample), 0.60-0.85 at rank 2
@@ -71,12 +79,15 @@ JIT_FACTOR_READS = 2000
 _STATE: dict[str, Any] = {}
 
 
-def row_kernel(model, space: RowSpace, kernel: str = "torch"):
+def row_kernel(model, space: RowSpace, kernel: str = "torch", work: int | None = None):
     """The kernel a fit protocol's ``kernel`` names for ``model``'s rows in ``space``: ``JitRowKernel``
-    for "jit" when Dr.Jit is ``available()`` and a sample reads at most ``JIT_FACTOR_READS`` of the rows'
-    correction factors, else ``RowKernel``."""
+    for "jit", and for "auto" when the fit's ``work`` (measurement-epochs) is at least ``JIT_MIN_WORK``,
+    when Dr.Jit is ``available()`` and a sample reads at most ``JIT_FACTOR_READS`` of the rows'
+    correction factors; else ``RowKernel``."""
     if kernel not in KERNELS:
         raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
+    if kernel == "auto":
+        kernel = "jit" if work is not None and work >= JIT_MIN_WORK else "torch"
     if kernel == "jit" and available():
         jit = JitRowKernel(model, space)
         if jit.factor_reads <= JIT_FACTOR_READS:

@@ -31,7 +31,8 @@ class FitOptions:
     ``epochs``/``lbfgs_iterations``: budgets (module doc), None for each protocol's own.
     ``kernel`` (fast method): ``torch`` or ``jit``, the fits' compiled Dr.Jit kernel (``neuenh.fit.jit``)
     for the rows it applies to, "jit" without Dr.Jit an error here; None (default): each protocol's own —
-    jit for the latent fit (torch where Dr.Jit is not available), torch for the plain and adaptive fits."""
+    "auto" for the latent fit (jit for fits of at least ``jit.JIT_MIN_WORK`` measurement-epochs where Dr.Jit
+    is available, else torch), torch for the plain and adaptive fits."""
 
     method: str = "fast"
     # the library's default, not the users' ("auto", ``neuenh.capacities.USER_CAPACITY``): the fits inside

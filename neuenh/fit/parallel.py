@@ -37,7 +37,7 @@ from .run import fit_materials
 
 
 def _start_worker(jit: bool) -> None:
-    """A fit process: one torch thread (and one Dr.Jit thread for ``jit``, the protocol's kernel), and
+    """A fit process: one torch thread (and one Dr.Jit thread for ``jit``, a protocol's kernel not torch), and
     freed activations kept for the next step (``neuenh.allocator``)."""
     torch.set_num_threads(1)
     if jit:
@@ -68,7 +68,7 @@ def fit_in_processes(model: BRDFModel, samples: Samples, protocol: FitProtocol, 
         return fit_materials(model, samples, protocol, trained=trained, encoder=encoder, seed=seed, progress=progress)
     context = multiprocessing.get_context("spawn")  # no forked copy of this process's threads and locks
     with ProcessPoolExecutor(len(groups), mp_context=context, initializer=_start_worker,
-                             initargs=(getattr(protocol, "kernel", "torch") == "jit",)) as pool:
+                             initargs=(getattr(protocol, "kernel", "torch") != "torch",)) as pool:
         futures = {pool.submit(fit_materials, model, samples.select(group), protocol, trained=trained,
                                encoder=encoder, seed=seed): len(group) for group in groups}
         done = 0

@@ -309,11 +309,11 @@ class LatentAdam(FitProtocol):
     screen_samples: int = 1000
     sample_cap: int | None = 20_000
     # Rule m (docs/BENCHMARKS.md, "Stop 68"): on 20 new training-source materials, the jit kernel (``row_kernel``:
-    # torch where Dr.Jit is not available) with the starts narrowed at half the epochs took 0.46x / 0.49x the CPU
+    # torch where Dr.Jit is not available, and "auto" below ``JIT_MIN_WORK``: a compile per model and machine) with the starts narrowed at half the epochs took 0.46x / 0.49x the CPU
     # time of torch's kernel narrowing after a quarter (mirror 3,000 / uniform 10,000), at held-out geometric means
     # 0.944 / 0.966; from half on the narrowing keeps the start that running every start to its end keeps, so an
     # end point depends less on the kernels' rounding, which alone failed rule l.
-    kernel: str = "jit"  # neuenh.fit.jit.KERNELS: every stage's rows
+    kernel: str = "auto"  # neuenh.fit.jit.KERNELS: every stage's rows (auto: by the fit's work, ``JIT_MIN_WORK``)
     narrow_at: float = 0.5  # the share of the epochs after which each material keeps its best start
 
     def __post_init__(self) -> None:
@@ -344,6 +344,10 @@ class LatentAdam(FitProtocol):
         return FitResult(table, losses.tolist(), time.perf_counter() - start_time,
                          {**self.describe(), "encoder_start": encoded is not None})
 
+    def _kernel(self, model: BRDFModel, space: RowSpace, rows: Rows) -> RowKernel:
+        """Every stage's kernel, chosen by the whole fit's work (its materials' samples times ``epochs``)."""
+        return row_kernel(model, space, self.kernel, work=int(rows.valid.sum()) * self.epochs)
+
     def starts_of(self, model: BRDFModel, rows: Rows, trained: MaterialTable | None, seed: int,
                   train: torch.Tensor | None = None) -> list[torch.Tensor]:
         """The starting rows (m, dim) of every material (class doc); ``train`` (m, slots): the
@@ -355,7 +359,7 @@ class LatentAdam(FitProtocol):
             return [paper]
         analytical = model.enhance(model.analytical_state(), seed)
         a_space = RowSpace(analytical)
-        a_kernel = row_kernel(analytical, a_space, self.kernel)
+        a_kernel = self._kernel(analytical, a_space, rows)
         layout = rows.layout(torch.arange(m), train)
         base = adam_rows(a_kernel, a_space.from_table(paper_start(analytical, rows.names)), layout,
                          Adam(self.epochs, self.lr)).x
@@ -370,7 +374,7 @@ class LatentAdam(FitProtocol):
         like = torch.cat([torch.cat([base, latent], 1) if space.latent else base for latent in latents])
         imitate = rows.layout(torch.arange(m).repeat(k), None if train is None else train.repeat(k, 1)).with_targets(
             imitated_f.reshape(m, -1, 3).repeat(k, 1, 1))
-        imitated = adam_rows(row_kernel(model, space, self.kernel), like, imitate, Adam(max(1, self.epochs // 3), self.lr)).x
+        imitated = adam_rows(self._kernel(model, space, rows), like, imitate, Adam(max(1, self.epochs // 3), self.lr)).x
         return [paper, *imitated.reshape(k, m, -1), *self.screened_starts(model, rows, trained, base, train)]
 
     def screened_starts(self, model: BRDFModel, rows: Rows, trained: MaterialTable | None, base: torch.Tensor,
@@ -383,22 +387,23 @@ class LatentAdam(FitProtocol):
             return []
         usable = rows.valid if train is None else rows.valid & train
         subset = rows.as_problems(torch.arange(rows.materials), usable & (usable.cumsum(1) <= self.screen_samples))
-        screened = self.screened_codes(model, subset, trained, base)  # (m, k, dim)
+        kernel = self._kernel(model, space, rows)  # the whole fit's, not the subset's
+        screened = self.screened_codes(model, subset, trained, base, kernel=kernel)  # (m, k, dim)
         m, k, dim = screened.shape
-        race = adam_rows(row_kernel(model, space, self.kernel), screened.reshape(m * k, dim),
+        race = adam_rows(kernel, screened.reshape(m * k, dim),
                          subset.layout(torch.arange(m).repeat_interleave(k)), Adam(max(1, self.epochs // 4), self.lr))
         winner = race.train.reshape(m, k).nan_to_num(torch.inf).argmin(1)
         return [race.x.reshape(m, k, dim)[torch.arange(m), winner]]
 
     def screened_codes(self, model: BRDFModel, rows: Rows, trained: MaterialTable, base: torch.Tensor,
-                       slots_at_once: int = SCREEN_SLOTS) -> torch.Tensor:
+                       slots_at_once: int = SCREEN_SLOTS, kernel: RowKernel | None = None) -> torch.Tensor:
         """(m, k, dim): for each material of ``rows``, its analytical fit ``base`` (m, analytical
         dim) beside each of the ``screened`` training codes of lowest loss on all its samples as they
         are (no step taken), lowest first (k = at most ``screened``). The codes are scored in groups of
         at most ``slots_at_once`` codes × samples, so a bundle of many training materials screens in
-        bounded memory."""
-        space = RowSpace(model)
-        kernel, codes = row_kernel(model, space, self.kernel), trained.latent_codes().float()
+        bounded memory; ``kernel``: the fit's (default: chosen by ``rows``' work)."""
+        kernel = kernel or self._kernel(model, RowSpace(model), rows)
+        codes = trained.latent_codes().float()
         group = max(1, slots_at_once // rows.wi.shape[1])
         best = []
         for i in range(rows.materials):  # one material at a time: a row per code, on its slots
@@ -423,7 +428,7 @@ class LatentAdam(FitProtocol):
         material = torch.arange(m).repeat(k)
         layout = rows.layout(material, None if train is None else train.repeat(k, 1),
                              None if val is None else val.repeat(k, 1))
-        kernel = row_kernel(model, space, self.kernel)
+        kernel = self._kernel(model, space, rows)
         result = adam_rows(kernel, torch.cat(starts), layout, Adam(self.epochs, self.lr),
                            groups=material if k > 1 else None, narrow_at=self.narrow_at)
         return result.x, result.train

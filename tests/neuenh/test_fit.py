@@ -412,7 +412,7 @@ def test_a_latent_fit_narrows_to_each_materials_best_start_after_the_share_of_ep
                 steps.append(len(x))
             return super().__call__(x, layout, grad=grad, **kw)
 
-    def counting_kernel(model, space, kernel="torch"):
+    def counting_kernel(model, space, kernel="torch", work=None):
         steps.clear()
         return Counting(model, space)
 

@@ -9,7 +9,7 @@ import torch
 from neuenh.data.samples import sample_materials
 from neuenh.data.synthetic import synthetic_zoo
 from neuenh.fit import Adaptive, FitOptions, LatentAdam, PlainLBFGS, fit_materials
-from neuenh.fit.jit import JIT_FACTOR_READS, JitRowKernel, available, row_kernel, set_jit_threads
+from neuenh.fit.jit import JIT_FACTOR_READS, JIT_MIN_WORK, JitRowKernel, available, row_kernel, set_jit_threads
 from neuenh.fit.kernel import LayerCorrection, RowKernel, RowSpace
 from neuenh.fit.layout import layout_rows, padded
 from neuenh.materials import MaterialTable
@@ -206,19 +206,21 @@ def test_without_drjit_the_jit_kernel_is_an_error_to_ask_for_and_torch_where_it_
     model = get_model("ggx", state="00010001000", seed=3)
     assert type(row_kernel(model, RowSpace(model), "jit")) is RowKernel
     assert FitOptions(kernel="torch", capacity="latent").protocol_for(model).kernel == "torch"
-    assert FitOptions(capacity="latent").protocol_for(model).kernel == "jit"  # no error: a default, not an ask
+    assert FitOptions(capacity="latent").protocol_for(model).kernel == "auto"  # no error: a default, not an ask
+    assert type(row_kernel(model, RowSpace(model), "auto", work=10**9)) is RowKernel
 
 
 def test_each_protocols_default_kernel_and_narrowing_are_the_ones_rule_m_chose():
-    """Rule m (docs/BENCHMARKS.md, "Stop 68"): the latent fit takes the jit kernel and narrows its starts
-    at half the epochs; the plain and adaptive fits keep torch, the adaptive fit's latent stage its
+    """Rule m (docs/BENCHMARKS.md, "Stop 68"): the latent fit takes the jit kernel ("auto": for fits of at
+    least ``JIT_MIN_WORK``, below which a model's compile costs more than its fits save) and narrows its
+    starts at half the epochs; the plain and adaptive fits keep torch, the adaptive fit's latent stage its
     narrowing after a quarter, and a search's fit score torch's kernel (inside a candidate's CPU share)."""
     from neuenh.selection import score_protocol
     from neuenh.train import FitScoreConfig
 
     model, plain = get_model("ggx", state="00010001000", seed=3), get_model("ggx")
     latent = FitOptions(capacity="latent").protocol_for(model)
-    assert (latent.kernel, latent.narrow_at) == ("jit", 0.5) and latent == LatentAdam()
+    assert (latent.kernel, latent.narrow_at) == ("auto", 0.5) and latent == LatentAdam()
     assert FitOptions(capacity="latent", kernel="torch").protocol_for(model).kernel == "torch"
     adaptive = FitOptions(capacity="auto").protocol_for(model)
     assert adaptive.kernel == "torch" == FitOptions().protocol_for(plain).kernel
@@ -226,6 +228,24 @@ def test_each_protocols_default_kernel_and_narrowing_are_the_ones_rule_m_chose()
     assert FitOptions(capacity="auto", kernel="jit").protocol_for(model).latent_protocol.kernel == "jit"
     scored = score_protocol(model, FitScoreConfig())
     assert isinstance(scored, LatentAdam) and scored.kernel == "torch"
+
+
+@needs_drjit
+def test_the_auto_kernel_is_jit_from_a_fits_work_of_jit_min_work_on(monkeypatch):
+    """"auto" by the fit's measurement-epochs: torch below ``JIT_MIN_WORK`` (a test's or a quick look's fit,
+    where a compile would cost more than it saves), jit from it on, torch without a work to go by."""
+    model = get_model("ggx", state="00010001000", seed=3)
+    space = RowSpace(model)
+    assert type(row_kernel(model, space, "auto", work=JIT_MIN_WORK - 1)) is RowKernel
+    assert isinstance(row_kernel(model, space, "auto", work=JIT_MIN_WORK), JitRowKernel)
+    assert type(row_kernel(model, space, "auto")) is RowKernel
+    samples = sample_materials(synthetic_zoo(1, seed=5), 700, seed=1)
+    steps, original = [], JitRowKernel.__call__
+    monkeypatch.setattr(JitRowKernel, "__call__", lambda self, *a, **k: steps.append(1) or original(self, *a, **k))
+    fit_materials(model, samples, LatentAdam(epochs=JIT_MIN_WORK // 700 - 1, screened=0))
+    assert not steps, "a fit under JIT_MIN_WORK ran jit steps"
+    fit_materials(model, samples, LatentAdam(epochs=JIT_MIN_WORK // 700 + 1, screened=0))
+    assert steps, "a fit of JIT_MIN_WORK ran no jit step"
 
 
 @needs_drjit
