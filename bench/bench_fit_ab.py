@@ -175,7 +175,8 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"--arm: two arms share a name ({', '.join(args.arm)})")
     arms = {"A": (base, 0), "null": (base, args.null_seed), **{name: (protocol, 0) for _, name, protocol in variants}}
     config = {"model": args.model, "capacity": args.capacity, "materials": args.materials, "offset": args.offset,
-              "fresh": args.fresh, "cases": args.cases, "test": args.test, "null_seed": args.null_seed, "arms": args.arm}
+              "fresh": args.fresh, "cases": args.cases, "test": args.test, "null_seed": args.null_seed,
+              "arms": args.arm}
     results = json.loads(args.json.read_text()) if args.json and args.json.exists() else {}
     if results.get("config") != config:
         results = {"config": config, "fits": {}}

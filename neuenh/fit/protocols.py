@@ -308,11 +308,12 @@ class LatentAdam(FitProtocol):
     screened: int = 8
     screen_samples: int = 1000
     sample_cap: int | None = 20_000
-    # Rule m (docs/BENCHMARKS.md, "Stop 68"): on 20 new training-source materials, the jit kernel (``row_kernel``:
-    # torch where Dr.Jit is not available, and "auto" below ``JIT_MIN_WORK``: a compile per model and machine) with the starts narrowed at half the epochs took 0.46x / 0.49x the CPU
-    # time of torch's kernel narrowing after a quarter (mirror 3,000 / uniform 10,000), at held-out geometric means
-    # 0.944 / 0.966; from half on the narrowing keeps the start that running every start to its end keeps, so an
-    # end point depends less on the kernels' rounding, which alone failed rule l.
+    # Rule m (docs/BENCHMARKS.md, "Stop 68"): on 20 new training-source materials, the jit kernel with the starts
+    # narrowed at half the epochs took 0.46x / 0.49x the CPU time of torch's kernel narrowing after a quarter
+    # (mirror 3,000 / uniform 10,000), at held-out geometric means 0.944 / 0.966; from half on the narrowing keeps
+    # the start that running every start to its end keeps, so an end point depends less on the kernels' rounding,
+    # which alone failed rule l. "auto": jit from ``JIT_MIN_WORK`` on (a model's first jit fit on a machine
+    # compiles), torch below it and where Dr.Jit is not available.
     kernel: str = "auto"  # neuenh.fit.jit.KERNELS: every stage's rows (auto: by the fit's work, ``JIT_MIN_WORK``)
     narrow_at: float = 0.5  # the share of the epochs after which each material keeps its best start
 
