@@ -68,7 +68,7 @@ KERNELS = ("torch", "jit", "auto")
 # weights as constants, so each model's first fit on a machine compiles (the shipped model's latent fit: 14 s of
 # CPU, then read from Dr.Jit's disk cache in 0.4 s), which a fit saves back at ~3 us a measurement-epoch (its
 # 3,000-sample fit, 900,000 of them: 5.6 s on torch, 2.7 s on jit; docs/BENCHMARKS.md, "Stop 68"). Below this
-# (a fit of ~700 samples at 300 epochs, about a second on torch) the fit is a quick look or a test's, and a compile
+# (a fit of ~700 samples at 300 epochs, a second or two on torch) the fit is a quick look or a test's, and a compile
 # would cost more than every such fit of that model saves.
 JIT_MIN_WORK = 200_000
 # Per-row correction factors a sample may read for the jit kernel to be the faster: each is a gather per
