@@ -279,8 +279,9 @@ class LatentAdam(FitProtocol):
     then start the fit to the measurements, stacked as rows of one batch; after ``narrow_at`` (half)
     of the epochs each material keeps its lowest-loss start — from half on, the start that running
     every start to its end keeps (docs/BENCHMARKS.md, "The latent fit's starts narrowed at half").
-    ``kernel``: the rows' kernel, jit by default (``neuenh.fit.jit.row_kernel``; torch where Dr.Jit
-    is not available). With the model's ``encoder`` (a bundle's:
+    ``kernel``: every stage's rows' kernel (``neuenh.fit.jit.row_kernel``), by default "auto": jit for
+    a fit of at least ``JIT_MIN_WORK`` measurement-epochs, torch for smaller ones and where Dr.Jit is
+    not available. With the model's ``encoder`` (a bundle's:
     ``neuenh.encoder``), its prediction from the material's samples is one start more, last. Measured
     on 26 held-out training-source materials it lowered 8 of them (by up to 35 %) on either protocol,
     but on the uniform one raised two by 13 % and 34 %, so the shipped model carries none
