@@ -226,6 +226,9 @@ def test_each_protocols_default_kernel_and_narrowing_are_the_ones_rule_m_chose()
     assert adaptive.kernel == "torch" == FitOptions().protocol_for(plain).kernel
     assert (adaptive.latent_protocol.kernel, adaptive.latent_protocol.narrow_at) == ("torch", 0.25)
     assert FitOptions(capacity="auto", kernel="jit").protocol_for(model).latent_protocol.kernel == "jit"
+    assert Adaptive(latent_narrow_at=0.5).latent_protocol.narrow_at == 0.5  # rule n's arm (failed: Stop 68)
+    with pytest.raises(ValueError, match="invalid adaptive protocol"):
+        Adaptive(latent_narrow_at=1.0)
     scored = score_protocol(model, FitScoreConfig())
     assert isinstance(scored, LatentAdam) and scored.kernel == "torch"
 
