@@ -11,24 +11,22 @@ process that started it (Linux ``PR_SET_PDEATHSIG``), so a killed service leaves
 
 from __future__ import annotations
 
-import ctypes
 import logging
 import os
-import signal
 from multiprocessing.connection import Connection
 from pathlib import Path
 
 from neuenh.allocator import keep_freed_memory
+from neuenh.processes import die_with_parent
 
 from .settings import Settings
 
 NICENESS = 10  # the API's event loop and the job threads go first when the CPUs are busy
-_PR_SET_PDEATHSIG = 1
 
 
 def run_plan(settings: Settings, base: Path, plan_id: str, progress: Connection) -> None:
     """The process's entry point (``multiprocessing``): plan ``plan_id`` to its end (DONE, FAILED)."""
-    _die_with_parent()
+    die_with_parent()
     os.nice(NICENESS)
     import torch
 
@@ -50,12 +48,3 @@ def run_plan(settings: Settings, base: Path, plan_id: str, progress: Connection)
         progress.close()
         plans.close()
         artifacts.close()
-
-
-def _die_with_parent() -> None:
-    """SIGKILL this process when the one that started it dies (Linux; elsewhere nothing)."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
-    except (OSError, AttributeError):
-        pass

@@ -30,6 +30,7 @@ from ..data.samples import Samples
 from ..encoder import MaterialEncoder
 from ..materials import MaterialTable
 from ..model import BRDFModel
+from ..processes import die_with_parent
 from .jit import set_jit_threads
 from .protocols import FitProtocol
 from .result import FitResult
@@ -38,7 +39,8 @@ from .run import fit_materials
 
 def _start_worker(jit: bool) -> None:
     """A fit process: one torch thread (and one Dr.Jit thread for ``jit``, a protocol's kernel not torch), and
-    freed activations kept for the next step (``neuenh.allocator``)."""
+    freed activations kept for the next step (``neuenh.allocator``); it ends with the process that started it."""
+    die_with_parent()
     torch.set_num_threads(1)
     if jit:
         set_jit_threads(1)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..files import atomic_write
+from ..processes import die_with_parent
 from .registry import (ANALYTICAL, BASELINES, EFFICIENCY_CONTENDERS, ENCODED, ENHANCED, ENHANCED_ADAPTIVE, OTHER_ENHANCED,
                        contender_infos)
 from .summary import MaterialResult, StudySummary
@@ -84,8 +85,8 @@ def run_study(settings: StudySettings) -> StudySummary:
     provenance = bundle.provenance if bundle else {}
     encoded = bundle is not None and bundle.encoder is not None
     materials = []
-    with concurrent.futures.ProcessPoolExecutor(max_workers=settings.jobs,
-                                                mp_context=multiprocessing.get_context("fork")) as pool:
+    fork = multiprocessing.get_context("fork")
+    with concurrent.futures.ProcessPoolExecutor(settings.jobs, mp_context=fork, initializer=die_with_parent) as pool:
         for future in concurrent.futures.as_completed([pool.submit(_measure, settings, p) for p in paths]):
             m = future.result()
             materials.append(m)
