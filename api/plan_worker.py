@@ -28,17 +28,15 @@ def run_plan(settings: Settings, base: Path, plan_id: str, progress: Connection)
     """The process's entry point (``multiprocessing``): plan ``plan_id`` to its end (DONE, FAILED)."""
     die_with_parent()
     os.nice(NICENESS)
-    import torch
 
-    from neuenh.fit.jit import set_jit_threads
+    from neuenh.fit.jit import set_fit_threads
     from neuenh_service.orchestrator.plans import PlanRunner
     from neuenh_service.storage import SQLitePlanStore
 
     from .stores import artifact_store
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    torch.set_num_threads(settings.plan_cpus)
-    set_jit_threads(settings.plan_cpus)  # the latent fits' kernel (no Mitsuba runs here, which needs more than one)
+    set_fit_threads(settings.plan_cpus)  # no Mitsuba runs here (it needs more than one Dr.Jit thread)
     keep_freed_memory()  # a plan's fits reuse their freed activations (neuenh.allocator)
     plans, artifacts = SQLitePlanStore(settings.data_dir / "jobs.sqlite"), artifact_store(settings)
     try:

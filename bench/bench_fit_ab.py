@@ -114,7 +114,7 @@ def markdown(results: dict, command: str) -> str:
 
 
 def draw_materials(args, trained) -> tuple[dict, dict]:
-    """{key: a callable returning the material}, {key: the training codes its fits start from}: the
+    """{key: material}, {key: the training codes its fits start from}: the
     stand-ins of the ``--offset`` draw, each without its own code, or ``--fresh``'s new materials with
     every code (module doc)."""
     import numpy as np
@@ -125,7 +125,7 @@ def draw_materials(args, trained) -> tuple[dict, dict]:
         zoo = synthetic_zoo(args.materials - args.materials // 2, args.fresh + 5)
         ggx = synthetic_ggx(args.materials // 2, args.fresh + 4, 0.1)
         drawn = {f"{family}{args.fresh}/{m.name}": m for family, ms in (("zoo", zoo), ("ggx", ggx)) for m in ms}
-        return {key: (lambda m=m: m) for key, m in drawn.items()}, dict.fromkeys(drawn, trained)
+        return drawn, dict.fromkeys(drawn, trained)
     from neuenh.data.nbrdf import nbrdf_material
 
     names = sorted(np.load(args.nbrdf)["names"].tolist())
@@ -136,7 +136,7 @@ def draw_materials(args, trained) -> tuple[dict, dict]:
     # each material's fits start from the training codes of every other (the same for every case)
     codes_of = {name: None if trained is None else trained.subset([i for i, t in enumerate(trained.names) if t != name])
                 for name in chosen}
-    return {name: (lambda name=name: nbrdf_material(str(args.nbrdf), name)) for name in chosen}, codes_of
+    return {name: nbrdf_material(str(args.nbrdf), name) for name in chosen}, codes_of
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -189,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
             key = f"{case}|{name}"
             if key in results["fits"]:
                 continue
-            fit, test, _ = draw_fit_test(material(), n, args.test, 0, near_mirror)
+            fit, test, _ = draw_fit_test(material, n, args.test, 0, near_mirror)
             order = list(arms)[index % len(arms):] + list(arms)[: index % len(arms)]
             row = {}
             for arm in order:

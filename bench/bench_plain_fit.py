@@ -120,10 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if absent(args.rgl, "the RGL materials of ../shared"):
         return 0
-    fitting_process()
-    from neuenh.fit.jit import set_jit_threads
-
-    set_jit_threads(1)  # the jit kernel's pool one thread too, as torch's (no Mitsuba in this process)
+    fitting_process()  # one torch and one Dr.Jit thread
     wait_quiet(args.max_wait, 0.3)
     if args.before:
         write_json(args.json, run(args.rgl, with_nbrdf=False))

@@ -70,13 +70,10 @@ def fitting_process() -> None:
     """This process as the ``neuenh`` command and the service's workers run fits and training: one torch
     thread and one Dr.Jit thread (the latent fit's kernel; no Mitsuba may run in it then), freed memory
     kept for the next step (``neuenh.allocator``)."""
-    import torch
-
     from neuenh.allocator import keep_freed_memory
-    from neuenh.fit.jit import set_jit_threads
+    from neuenh.fit.jit import set_fit_threads
 
-    torch.set_num_threads(1)
-    set_jit_threads(1)
+    set_fit_threads(1)
     keep_freed_memory()
 
 

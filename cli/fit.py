@@ -109,17 +109,14 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    import torch
-
     from neuenh.checkpoint import Bundle
     from neuenh.fit import FitOptions, fit_in_processes
-    from neuenh.fit.jit import set_jit_threads
+    from neuenh.fit.jit import set_fit_threads
     from neuenh.pretrained import load_for_fitting
     from neuenh.study.heldout import heldout_log_l1, predict_f_r, write_predictions
 
     if args.threads:
-        torch.set_num_threads(args.threads)
-        set_jit_threads(args.threads)  # whichever kernel a protocol's rows take
+        set_fit_threads(args.threads)
     if args.jobs < 1:
         raise ValueError(f"--jobs must be at least 1, got {args.jobs}")
     drawn = _check_measurement_args(args)

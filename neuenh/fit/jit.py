@@ -107,18 +107,29 @@ def available() -> bool:
             _STATE["ok"] = bool(dr.has_backend(dr.JitBackend.LLVM))
         except (ImportError, RuntimeError, OSError):
             _STATE["ok"] = False
+        if _STATE["ok"] and "threads" in _STATE:
+            dr.set_thread_count(_STATE["threads"])
     return _STATE["ok"]
 
 
 def set_jit_threads(threads: int) -> None:
-    """Dr.Jit's thread pool, in which the jit kernel runs, to ``threads`` (when Dr.Jit is available).
-    Process-wide: set it where the process is the fit's own (``neuenh fit --threads``, a fit's worker
-    processes); Mitsuba in the same process needs more than one (with one, its EXR reader waits on a
-    task of the pool forever)."""
-    if available():
+    """Dr.Jit's thread pool, in which the jit kernel runs, to ``threads``: now if Dr.Jit is initialised,
+    else when ``available()`` first initialises it, so a process that never takes the jit kernel never
+    imports Dr.Jit. Process-wide: set it where the process is the fit's own (``neuenh fit --threads``, a
+    fit's worker processes); Mitsuba in the same process needs more than one (with one, its EXR reader
+    waits on a task of the pool forever)."""
+    _STATE["threads"] = threads
+    if _STATE.get("ok"):
         import drjit as dr
 
         dr.set_thread_count(threads)
+
+
+def set_fit_threads(threads: int) -> None:
+    """A process's fits to ``threads``: torch's and Dr.Jit's (``set_jit_threads``), whichever kernel its
+    protocols' rows take."""
+    torch.set_num_threads(threads)
+    set_jit_threads(threads)
 
 
 def _log1p(x):

@@ -23,7 +23,6 @@ from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import numpy as np
-import torch
 
 from ..allocator import keep_freed_memory
 from ..data.samples import Samples
@@ -31,19 +30,17 @@ from ..encoder import MaterialEncoder
 from ..materials import MaterialTable
 from ..model import BRDFModel
 from ..processes import die_with_parent
-from .jit import set_jit_threads
+from .jit import set_fit_threads
 from .protocols import FitProtocol
 from .result import FitResult
 from .run import fit_materials
 
 
-def _start_worker(jit: bool) -> None:
-    """A fit process: one torch thread (and one Dr.Jit thread for ``jit``, a protocol's kernel not torch), and
-    freed activations kept for the next step (``neuenh.allocator``); it ends with the process that started it."""
+def _start_worker() -> None:
+    """A fit process: one torch and one Dr.Jit thread, freed activations kept for the next step
+    (``neuenh.allocator``); it ends with the process that started it."""
     die_with_parent()
-    torch.set_num_threads(1)
-    if jit:
-        set_jit_threads(1)
+    set_fit_threads(1)
     keep_freed_memory()
 
 
@@ -69,8 +66,7 @@ def fit_in_processes(model: BRDFModel, samples: Samples, protocol: FitProtocol, 
     if len(groups) <= 1:  # nothing to split: this process fits it
         return fit_materials(model, samples, protocol, trained=trained, encoder=encoder, seed=seed, progress=progress)
     context = multiprocessing.get_context("spawn")  # no forked copy of this process's threads and locks
-    with ProcessPoolExecutor(len(groups), mp_context=context, initializer=_start_worker,
-                             initargs=(getattr(protocol, "kernel", "torch") != "torch",)) as pool:
+    with ProcessPoolExecutor(len(groups), mp_context=context, initializer=_start_worker) as pool:
         futures = {pool.submit(fit_materials, model, samples.select(group), protocol, trained=trained,
                                encoder=encoder, seed=seed): len(group) for group in groups}
         done = 0

@@ -155,14 +155,11 @@ def build_contenders(s: StudySettings, names: tuple[str, ...] | None = None) -> 
 
 def _measure(s: StudySettings, path: Path) -> MaterialResult:
     """One material, in a worker process: every contender fitted, measured and rendered."""
-    import torch
-
     from ..data.measured import load_measured
-    from ..fit.jit import set_jit_threads
+    from ..fit.jit import set_fit_threads
     from .comparison import RenderSetup, compare_material
 
-    torch.set_num_threads(1)
-    set_jit_threads(1)  # the latent fits' kernel: one thread too, as the fit processes of `neuenh fit --jobs`
+    set_fit_threads(1)  # as the fit processes of `neuenh fit --jobs`
     material, contenders = load_measured(path), build_contenders(s)
     c = compare_material(material, contenders, s.fit_samples, s.test_samples, seed=s.seed,
                          setup=RenderSetup(s.size, s.samples, s.seed, s.scene), eval_pairs=s.eval_pairs)

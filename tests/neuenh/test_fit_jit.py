@@ -194,6 +194,20 @@ def test_a_protocols_kernel_names_the_jit_kernel_where_a_sample_reads_few_correc
             protocol(kernel="cuda")
 
 
+@needs_drjit
+def test_fit_threads_reach_drjit_only_once_a_fit_takes_it():
+    """``set_fit_threads``: torch's threads at once; Dr.Jit's without importing it (a torch fit's
+    process never loads it), applied when the jit kernel first initialises Dr.Jit."""
+    import subprocess
+    import sys
+
+    script = ("import sys, torch; from neuenh.fit.jit import available, set_fit_threads; set_fit_threads(1); "
+              "print(torch.get_num_threads(), 'drjit' in sys.modules); available(); import drjit as dr; "
+              "print(dr.thread_count())")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.split() == ["1", "False", "1"], out.stdout + out.stderr
+
+
 def test_without_drjit_the_jit_kernel_is_an_error_to_ask_for_and_torch_where_it_is_a_setting(monkeypatch):
     """A user's ``--kernel jit`` on a machine without Dr.Jit says what to install; a protocol's setting —
     the latent fit's default among them — falls back to the torch kernel (a bundle's fits run wherever it
