@@ -100,11 +100,16 @@ def test_fit_with_the_shipped_enhanced_ggx_out_of_the_box(table, tmp_path):
 
 
 @pytest.mark.skipif(not jit_available(), reason="Dr.Jit's LLVM backend is not available (neuenh[export]; libLLVM 17+)")
-def test_the_jit_kernel_fits_as_the_torch_kernel_does_and_repeats_itself(table):
+def test_the_jit_kernel_fits_as_the_torch_kernel_does_and_repeats_itself(table, tmp_path):
     """``--kernel jit``: the same protocol (named in the report) on the compiled kernel, ending where the
     torch kernel's fit ends (3 epochs: rounding has not yet moved an end point; test_fit_jit.py), and a
-    second run ends exactly where the first did (the kernel's sums have a fixed order)."""
-    runs = [neuenh_here("fit", "--model", "enhanced-ggx", table, "--capacity", "latent", "--epochs", "3",
+    second run ends exactly where the first did (the kernel's sums have a fixed order). A bundle of small
+    modules: the shipped model's kernel builds for ~8-15 s on a new machine (``ggx_states.small_ggx``)."""
+    from neuenh.checkpoint import Bundle
+    from ggx_states import small_ggx
+
+    Bundle(small_ggx("00010001000", seed=1)).save(tmp_path / "small")
+    runs = [neuenh_here("fit", "--model", tmp_path / "small", table, "--capacity", "latent", "--epochs", "3",
                         "--kernel", kernel, "--json") for kernel in ("torch", "jit", "jit")]
     assert [out.returncode for out in runs] == [0, 0, 0], [out.stderr for out in runs]
     reports = [json.loads(out.stdout) for out in runs]
