@@ -242,8 +242,11 @@ def test_each_protocols_default_kernel_and_narrowing_are_the_ones_rule_m_chose()
     assert (adaptive.latent_protocol.kernel, adaptive.latent_protocol.narrow_at) == ("torch", 0.25)
     assert FitOptions(capacity="auto", kernel="jit").protocol_for(model).latent_protocol.kernel == "jit"
     assert Adaptive(latent_narrow_at=0.5).latent_protocol.narrow_at == 0.5  # rule n's arm (failed: Stop 68)
-    with pytest.raises(ValueError, match="invalid adaptive protocol"):
-        Adaptive(latent_narrow_at=1.0)
+    assert Adaptive(latent_kernel="auto").latent_protocol.kernel == "auto"  # the latent stage's own kernel (rule o)
+    assert Adaptive(kernel="jit", latent_kernel="torch").latent_protocol.kernel == "torch"
+    for invalid in ({"latent_narrow_at": 1.0}, {"latent_kernel": "fast"}):
+        with pytest.raises(ValueError, match="invalid adaptive protocol"):
+            Adaptive(**invalid)
     scored = score_protocol(model, FitScoreConfig())
     assert isinstance(scored, LatentAdam) and scored.kernel == "torch"
 
