@@ -187,7 +187,7 @@ class Adaptive(FitProtocol):
     correction_lr: float = 0.01
     standard_errors: float = 0.0
     validation_cap: int | None = 20_000
-    kernel: str = "torch"  # neuenh.fit.jit.KERNELS: every stage's rows (``row_kernel`` says where jit applies)
+    kernel: str = "torch"  # neuenh.fit.jit.KERNELS: every stage's rows (the latent ones: ``latent_kernel`` if set)
     latent_narrow_at: float = 0.25  # its latent fits' ``LatentAdam.narrow_at`` (``latent_protocol``)
     latent_kernel: str | None = None  # its latent fits' kernel (``latent_protocol``); None: ``kernel``
 
@@ -375,10 +375,11 @@ class Adaptive(FitProtocol):
 
     @property
     def latent_protocol(self) -> LatentAdam:
-        """The latent fit of the validation split and of the latent candidates: this fit's kernel, latent
-        budget and ``latent_narrow_at`` — a quarter, as before rule m: its end point is where the corrections
-        start, and the adaptive fit's end points move with it as a lottery does (docs/BENCHMARKS.md, "The
-        latent fit's starts narrowed at half"); a change needs a rule of its own."""
+        """The latent fit of the validation split and of the latent candidates: ``latent_kernel`` (None: this
+        fit's kernel; rule o's jit failed, docs/BENCHMARKS.md "Stop 70"), the latent budget and
+        ``latent_narrow_at`` — a quarter, as before rule m: its end point is where the corrections start, and
+        the adaptive fit's end points move with it as a lottery does (docs/BENCHMARKS.md, "The latent fit's
+        starts narrowed at half"); a change needs a rule of its own."""
         return LatentAdam(self.latent_epochs, starts=self.latent_starts, kernel=self.latent_kernel or self.kernel,
                           narrow_at=self.latent_narrow_at)
 
