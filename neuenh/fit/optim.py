@@ -53,20 +53,26 @@ class AdamResult:
 
 def adam_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, run: Adam, *,
               free: torch.Tensor | None = None, prior_strength: torch.Tensor | None = None,
-              groups: torch.Tensor | None = None, narrow_at: float = 0.25, seed: int = 0) -> AdamResult:
+              groups: torch.Tensor | None = None, narrow_at: float = 0.25, seed: int = 0,
+              narrowed_layout: RowLayout | None = None) -> AdamResult:
     """Adam over every row of ``x`` (rows, dim) on ``layout`` (module doc).
 
     ``free`` (dim,) or (rows, dim) bool: the columns that move (default all). ``groups`` (rows,): rows with the
     same id are starts of one problem; after ``narrow_at`` of the epochs each group keeps its row of
-    lowest fit loss (with its moments) and the others are dropped."""
+    lowest fit loss (with its moments) and the others are dropped. ``narrowed_layout``: the same rows
+    on more of their samples (e.g. ``layout`` is its first slots, a random subset): each group's
+    best is chosen on it, and the kept rows run on it from then on (needs ``groups``)."""
     x = x.detach().float().clone()
     rows = torch.arange(len(x))
     moment1, moment2 = torch.zeros_like(x), torch.zeros_like(x)
     narrow = int(narrow_at * run.epochs) if groups is not None else -1
+    if narrowed_layout is not None and (groups is None or narrowed_layout.rows != layout.rows):
+        raise ValueError("a narrowed layout needs groups of starts and the layout's rows")
     generator = torch.Generator().manual_seed(seed)
     step = 0
     for epoch in range(run.epochs):
         if epoch == narrow:
+            layout = layout if narrowed_layout is None else narrowed_layout
             keep = _best_of_groups(kernel, x, layout, groups, prior_strength)
             x, moment1, moment2, rows = x[keep], moment1[keep], moment2[keep], rows[keep]
             layout = layout.select(keep)

@@ -296,7 +296,13 @@ class LatentAdam(FitProtocol):
     A material with more than ``sample_cap`` samples is fitted to a seeded random ``sample_cap`` of
     them (None: all): its few dozen parameters end where 100,000 samples put them from about 20,000
     on, while the fit's time grows with every sample (docs/BENCHMARKS.md, "Latent fits of many
-    samples")."""
+    samples").
+
+    ``coarse_slots`` (None: off): the starts are made and raced on at most that many of each
+    material's samples — the analytical fit, the imitations and the stacked starts up to the
+    narrowing see each row's first ``coarse_slots`` slots, a random subset (``layout.padded``) —
+    and only the start each material keeps runs on all of them, as ``PlainLBFGS``'s warm-up start
+    does: the starts only choose a basin, while every start costs its samples."""
 
     name: ClassVar[str] = "latent"
     # Its fastest block (0.8x the time of blocks of 72,000-100,000): its four starts a material take 512 bytes a
@@ -317,11 +323,13 @@ class LatentAdam(FitProtocol):
     # compiles), torch below it and where Dr.Jit is not available.
     kernel: str = "auto"  # neuenh.fit.jit.KERNELS: every stage's rows (auto: by the fit's work, ``JIT_MIN_WORK``)
     narrow_at: float = 0.5  # the share of the epochs after which each material keeps its best start
+    coarse_slots: int | None = None  # the starts' samples per material until the narrowing (class doc)
 
     def __post_init__(self) -> None:
         if (self.epochs < 1 or self.lr <= 0 or self.starts not in ("analytical", "paper") or self.screened < 0
                 or self.screen_samples < 1 or (self.sample_cap is not None and self.sample_cap < 1)
-                or self.kernel not in KERNELS or not 0 <= self.narrow_at < 1):
+                or self.kernel not in KERNELS or not 0 <= self.narrow_at < 1
+                or (self.coarse_slots is not None and self.coarse_slots < 1)):
             raise ValueError(f"invalid latent protocol {self} (starts: 'analytical' or 'paper')")
 
     @property
@@ -350,6 +358,10 @@ class LatentAdam(FitProtocol):
         """Every stage's kernel, chosen by the whole fit's work (its materials' samples times ``epochs``)."""
         return row_kernel(model, space, self.kernel, work=int(rows.valid.sum()) * self.epochs)
 
+    def _coarse(self, layout):
+        """The first ``coarse_slots`` slots of ``layout``'s rows (class doc); ``layout`` itself when it has no more."""
+        return layout if self.coarse_slots is None else layout.chunk(0, min(layout.slots, self.coarse_slots))
+
     def starts_of(self, model: BRDFModel, rows: Rows, trained: MaterialTable | None, seed: int,
                   train: torch.Tensor | None = None) -> list[torch.Tensor]:
         """The starting rows (m, dim) of every material (class doc); ``train`` (m, slots): the
@@ -362,7 +374,7 @@ class LatentAdam(FitProtocol):
         analytical = model.enhance(model.analytical_state(), seed)
         a_space = RowSpace(analytical)
         a_kernel = self._kernel(analytical, a_space, rows)
-        layout = rows.layout(torch.arange(m), train)
+        layout = self._coarse(rows.layout(torch.arange(m), train))
         base = adam_rows(a_kernel, a_space.from_table(paper_start(analytical, rows.names)), layout,
                          Adam(self.epochs, self.lr)).x
         with torch.no_grad():
@@ -374,8 +386,8 @@ class LatentAdam(FitProtocol):
             latents.append(mean.reshape(1, -1).expand(m, -1))
         k = len(latents)
         like = torch.cat([torch.cat([base, latent], 1) if space.latent else base for latent in latents])
-        imitate = rows.layout(torch.arange(m).repeat(k), None if train is None else train.repeat(k, 1)).with_targets(
-            imitated_f.reshape(m, -1, 3).repeat(k, 1, 1))
+        imitate = self._coarse(rows.layout(torch.arange(m).repeat(k), None if train is None else train.repeat(k, 1))
+                               ).with_targets(imitated_f.reshape(m, -1, 3).repeat(k, 1, 1))
         imitated = adam_rows(self._kernel(model, space, rows), like, imitate, Adam(max(1, self.epochs // 3), self.lr)).x
         return [paper, *imitated.reshape(k, m, -1), *self.screened_starts(model, rows, trained, base, train)]
 
@@ -431,7 +443,9 @@ class LatentAdam(FitProtocol):
         layout = rows.layout(material, None if train is None else train.repeat(k, 1),
                              None if val is None else val.repeat(k, 1))
         kernel = self._kernel(model, space, rows)
-        result = adam_rows(kernel, torch.cat(starts), layout, Adam(self.epochs, self.lr),
-                           groups=material if k > 1 else None, narrow_at=self.narrow_at)
+        coarse = self._coarse(layout) if k > 1 else layout
+        result = adam_rows(kernel, torch.cat(starts), coarse, Adam(self.epochs, self.lr),
+                           groups=material if k > 1 else None, narrow_at=self.narrow_at,
+                           narrowed_layout=None if coarse is layout else layout)
         return result.x, result.train
 

@@ -55,6 +55,7 @@ PROTOCOLS = {
     "paper": lambda: PaperRMSProp(epochs=8),
     "plain": lambda: PlainLBFGS(iterations=8, warmup_epochs=4),
     "latent": lambda: LatentAdam(epochs=9),
+    "latent-coarse": lambda: LatentAdam(epochs=9, coarse_slots=200),  # starts on 200 of the 600 samples
     "adaptive": lambda: Adaptive(latent_epochs=6, correction_epochs=4, lbfgs_iterations=5, priors=(1e-2,), folds=2),
 }
 
@@ -69,7 +70,7 @@ class TestProtocolContract:
         for key, value in enhanced.state_dict().items():
             assert torch.equal(value, before[key])
         assert all(p.requires_grad for p in enhanced.parameters())
-        assert result.materials.names == samples.names and result.protocol["name"] == name
+        assert result.materials.names == samples.names and result.protocol["name"] == name.split("-")[0]
         assert result.losses_on(enhanced, samples) == pytest.approx(result.losses, rel=1e-4)
 
     def test_a_material_does_not_depend_on_the_others_fitted_beside_it(self, name, enhanced, two_zoo_materials):
@@ -423,6 +424,62 @@ def test_a_latent_fit_narrows_to_each_materials_best_start_after_the_share_of_ep
     for invalid in (1.0, -0.1):
         with pytest.raises(ValueError, match="invalid latent protocol"):
             LatentAdam(narrow_at=invalid)
+
+def test_a_coarse_latent_fit_races_its_starts_on_its_first_slots_and_runs_the_kept_one_on_all(
+        enhanced, two_zoo_materials, monkeypatch):
+    """``coarse_slots``: every stage before the narrowing steps on each row's first ``coarse_slots``
+    slots (a random subset), the start each material keeps on all its slots, chosen by its loss on
+    all of them; with at least as many slots as samples it is the fit without, to the bit."""
+    trained, samples = _codes(enhanced, 6, seed=5), two_zoo_materials  # 600 samples of each material
+    plain = LatentAdam(epochs=8, screened=2).fit(enhanced, samples, trained=trained, seed=1)
+    assert LatentAdam(epochs=8, screened=2, coarse_slots=600).fit(enhanced, samples, trained=trained,
+                                                                  seed=1).losses == plain.losses
+    steps = []  # (rows, slots) of every step
+
+    class Counting(RowKernel):
+        def __call__(self, x, layout, *, grad=True, **kw):
+            if grad:
+                steps.append((len(x), layout.slots))
+            return super().__call__(x, layout, grad=grad, **kw)
+
+    monkeypatch.setattr("neuenh.fit.protocols.row_kernel", lambda model, space, kernel="torch", work=None:
+                        Counting(model, space))
+    coarse = LatentAdam(epochs=8, screened=2, screen_samples=100, coarse_slots=250)
+    result = coarse.fit(enhanced, samples, trained=trained, seed=1)
+    m, k = len(samples.names), 4  # starts: the paper's, two imitations, the screened codes' winner
+    assert steps[-8:] == [(k * m, 250)] * 4 + [(m, 600)] * 4  # the last stage: all starts, then the kept ones
+    assert {slots for _, slots in steps[:-8]} == {250, coarse.screen_samples}, steps  # the starts' stages, the race
+    assert result.losses_on(enhanced, samples) == pytest.approx(result.losses, rel=1e-4)
+    with pytest.raises(ValueError, match="invalid latent protocol"):
+        LatentAdam(coarse_slots=0)
+
+
+def test_stacked_adam_narrowed_onto_more_slots_chooses_there_and_needs_starts():
+    """``narrowed_layout``: each group's best is its best on that layout, not on the one stepped before
+    (here its first slots, fitted to other targets: there the other start is the better one)."""
+    materials = synthetic_ggx(1, seed=4, noise_sigma=0.0)
+    samples = sample_materials(materials, 400, seed=2)
+    model = get_model("ggx")
+    space = RowSpace(model)
+    truth = {s.name: torch.as_tensor([materials[0].metadata["params"][s.name]], dtype=torch.float64) for s in model.specs}
+    true = space.from_table(MaterialTable(model.specs, samples.names, model.latent_dim,
+                                          {s.name: s.to_raw(truth[s.name]).float() for s in model.specs}))
+    other = space.from_table(MaterialTable(model.specs, samples.names, model.latent_dim))
+    wi, wo, f_r, valid = padded(samples)
+    material = torch.tensor([0, 0])
+    full = layout_rows(wi, wo, f_r, material, valid[material], torch.zeros(2, valid.shape[1], dtype=torch.bool))
+    kernel = RowKernel(model, space)
+    values, _ = space.values(other)
+    as_other = model.forward_indexed(full.wi[:400], full.wo[:400], values, None, full.select([0]).grid).detach()
+    stepped = full.with_targets(as_other.repeat(2, 1)).chunk(0, 50)  # where the other start fits best
+    starts = torch.cat([true, other])
+    assert evaluate_rows(kernel, starts, stepped).train.argmin() == 1
+    assert evaluate_rows(kernel, starts, full).train.argmin() == 0
+    result = adam_rows(kernel, starts, stepped, Adam(1, 1e-9), groups=material, narrow_at=0.0, narrowed_layout=full)
+    assert result.rows.tolist() == [0] and float(result.train[0]) < 1e-4
+    with pytest.raises(ValueError, match="narrowed layout"):
+        adam_rows(kernel, starts, stepped, Adam(1, 1e-3), narrowed_layout=full)
+
 
 def _codes(model, n, seed):
     """A training table of ``n`` materials with spread-out latent codes (``_random_table``'s)."""
