@@ -190,6 +190,7 @@ class Adaptive(FitProtocol):
     kernel: str = "torch"  # neuenh.fit.jit.KERNELS: every stage's rows (the latent ones: ``latent_kernel`` if set)
     latent_narrow_at: float = 0.25  # its latent fits' ``LatentAdam.narrow_at`` (``latent_protocol``)
     latent_kernel: str | None = None  # its latent fits' kernel (``latent_protocol``); None: ``kernel``
+    latent_coarse_slots: int | None = None  # its latent fits' ``LatentAdam.coarse_slots`` (``latent_protocol``)
 
     def __post_init__(self) -> None:
         unknown = [c for c in self.capacities if c not in CAPACITIES]
@@ -198,7 +199,8 @@ class Adaptive(FitProtocol):
         if (self.folds < 2 or not 1 <= self.validation_folds <= self.folds or not self.priors
                 or any(p < 0 for p in self.priors) or self.correction_epochs < 1 or self.standard_errors < 0
                 or (self.validation_cap is not None and self.validation_cap < self.folds) or self.kernel not in KERNELS
-                or self.latent_kernel not in (None, *KERNELS) or not 0 <= self.latent_narrow_at < 1):
+                or self.latent_kernel not in (None, *KERNELS) or not 0 <= self.latent_narrow_at < 1
+                or (self.latent_coarse_slots is not None and self.latent_coarse_slots < 1)):
             raise ValueError(f"invalid adaptive protocol {self}")
 
     @property
@@ -379,9 +381,10 @@ class Adaptive(FitProtocol):
         fit's kernel; rule o's jit failed, docs/BENCHMARKS.md "Stop 70"), the latent budget and
         ``latent_narrow_at`` — a quarter, as before rule m: its end point is where the corrections start, and
         the adaptive fit's end points move with it as a lottery does (docs/BENCHMARKS.md, "The latent fit's
-        starts narrowed at half"); a change needs a rule of its own."""
+        starts narrowed at half"); a change needs a rule of its own. ``latent_coarse_slots``: its starts' samples
+        (``LatentAdam.coarse_slots``), None (all) unless set."""
         return LatentAdam(self.latent_epochs, starts=self.latent_starts, kernel=self.latent_kernel or self.kernel,
-                          narrow_at=self.latent_narrow_at)
+                          narrow_at=self.latent_narrow_at, coarse_slots=self.latent_coarse_slots)
 
     def _latent(self, model: BRDFModel, problems: Rows, material: torch.Tensor, start: MaterialTable | None,
                 trained: MaterialTable | None, seed: int):

@@ -244,7 +244,9 @@ def test_each_protocols_default_kernel_and_narrowing_are_the_ones_rule_m_chose()
     assert Adaptive(latent_narrow_at=0.5).latent_protocol.narrow_at == 0.5  # rule n's arm (failed: Stop 68)
     assert Adaptive(latent_kernel="auto").latent_protocol.kernel == "auto"  # the latent stage's own kernel (rule o)
     assert Adaptive(kernel="jit", latent_kernel="torch").latent_protocol.kernel == "torch"
-    for invalid in ({"latent_narrow_at": 1.0}, {"latent_kernel": "fast"}):
+    assert adaptive.latent_protocol.coarse_slots is None  # every sample for every start
+    assert Adaptive(latent_coarse_slots=3000).latent_protocol.coarse_slots == 3000
+    for invalid in ({"latent_narrow_at": 1.0}, {"latent_kernel": "fast"}, {"latent_coarse_slots": 0}):
         with pytest.raises(ValueError, match="invalid adaptive protocol"):
             Adaptive(**invalid)
     scored = score_protocol(model, FitScoreConfig())
