@@ -336,8 +336,15 @@ class LatentAdam(FitProtocol):
     def budget_epochs(self) -> int:
         return self.epochs
 
-    def work(self, samples: Samples) -> int:  # at most sample_cap of each material's samples
-        return samples.count_at_most(self.sample_cap) * self.epochs
+    def work(self, samples: Samples) -> int:
+        """At most ``sample_cap`` of each material's samples for every epoch; with ``coarse_slots``, at
+        most that many of them until the narrowing."""
+        every = samples.count_at_most(self.sample_cap)
+        if self.coarse_slots is None:
+            return every * self.epochs
+        coarse = samples.count_at_most(min(self.coarse_slots, self.sample_cap or self.coarse_slots))
+        narrowed = int(self.narrow_at * self.epochs)
+        return coarse * narrowed + every * (self.epochs - narrowed)
 
     def fit(self, model, samples, *, start=None, trained=None, encoder=None, seed=0) -> FitResult:
         _check(model, samples, start)

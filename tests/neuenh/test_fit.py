@@ -349,6 +349,8 @@ def test_options_name_one_protocol_with_its_own_budget():
     (PaperRMSProp(epochs=5), 400 * 5),
     (LatentAdam(epochs=9, sample_cap=None), 400 * 9),
     (LatentAdam(epochs=9, sample_cap=150), (150 + 100) * 9),  # at most 150 of each material's
+    (LatentAdam(epochs=10, coarse_slots=200), (200 + 100) * 5 + 400 * 5),  # 200 of each until the narrowing at half
+    (LatentAdam(epochs=10, sample_cap=150, coarse_slots=200), (150 + 100) * 10),
     (Adaptive(latent_epochs=10), (400 + 400) * 10),  # one validation fold, then the fit of all
     (Adaptive(latent_epochs=10, validation_folds=3), (3 * 400 + 400) * 10),
     (Adaptive(latent_epochs=10, validation_cap=150), ((150 + 100) + 400) * 10),  # chooses on at most 150
