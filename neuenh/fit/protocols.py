@@ -298,11 +298,13 @@ class LatentAdam(FitProtocol):
     on, while the fit's time grows with every sample (docs/BENCHMARKS.md, "Latent fits of many
     samples").
 
-    ``coarse_slots`` (None: off): the starts are made and raced on at most that many of each
-    material's samples — the analytical fit, the imitations and the stacked starts up to the
-    narrowing see each row's first ``coarse_slots`` slots, a random subset (``layout.padded``) —
-    and only the start each material keeps runs on all of them, as ``PlainLBFGS``'s warm-up start
-    does: the starts only choose a basin, while every start costs its samples."""
+    ``coarse_slots`` (None: off): the starts are raced on at most that many of each material's
+    samples — up to the narrowing, the stacked starts see each row's first ``coarse_slots`` slots, a
+    random subset (``layout.padded``) — and only the start each material keeps, chosen by its loss
+    on all of them, runs on all of them: the race only chooses a basin, while every start costs its
+    samples. The starts themselves (the analytical fit and the imitations) are made on every sample:
+    made on the subset too, they cost two of rule q's 20 materials ~1.5x their held-out error
+    (docs/BENCHMARKS.md, "Stop 71")."""
 
     name: ClassVar[str] = "latent"
     # Its fastest block (0.8x the time of blocks of 72,000-100,000): its four starts a material take 512 bytes a
@@ -365,10 +367,6 @@ class LatentAdam(FitProtocol):
         """Every stage's kernel, chosen by the whole fit's work (its materials' samples times ``epochs``)."""
         return row_kernel(model, space, self.kernel, work=int(rows.valid.sum()) * self.epochs)
 
-    def _coarse(self, layout):
-        """The first ``coarse_slots`` slots of ``layout``'s rows (class doc); ``layout`` itself when it has no more."""
-        return layout if self.coarse_slots is None else layout.chunk(0, min(layout.slots, self.coarse_slots))
-
     def starts_of(self, model: BRDFModel, rows: Rows, trained: MaterialTable | None, seed: int,
                   train: torch.Tensor | None = None) -> list[torch.Tensor]:
         """The starting rows (m, dim) of every material (class doc); ``train`` (m, slots): the
@@ -381,7 +379,7 @@ class LatentAdam(FitProtocol):
         analytical = model.enhance(model.analytical_state(), seed)
         a_space = RowSpace(analytical)
         a_kernel = self._kernel(analytical, a_space, rows)
-        layout = self._coarse(rows.layout(torch.arange(m), train))
+        layout = rows.layout(torch.arange(m), train)
         base = adam_rows(a_kernel, a_space.from_table(paper_start(analytical, rows.names)), layout,
                          Adam(self.epochs, self.lr)).x
         with torch.no_grad():
@@ -393,8 +391,8 @@ class LatentAdam(FitProtocol):
             latents.append(mean.reshape(1, -1).expand(m, -1))
         k = len(latents)
         like = torch.cat([torch.cat([base, latent], 1) if space.latent else base for latent in latents])
-        imitate = self._coarse(rows.layout(torch.arange(m).repeat(k), None if train is None else train.repeat(k, 1))
-                               ).with_targets(imitated_f.reshape(m, -1, 3).repeat(k, 1, 1))
+        imitate = rows.layout(torch.arange(m).repeat(k), None if train is None else train.repeat(k, 1)).with_targets(
+            imitated_f.reshape(m, -1, 3).repeat(k, 1, 1))
         imitated = adam_rows(self._kernel(model, space, rows), like, imitate, Adam(max(1, self.epochs // 3), self.lr)).x
         return [paper, *imitated.reshape(k, m, -1), *self.screened_starts(model, rows, trained, base, train)]
 
@@ -450,7 +448,7 @@ class LatentAdam(FitProtocol):
         layout = rows.layout(material, None if train is None else train.repeat(k, 1),
                              None if val is None else val.repeat(k, 1))
         kernel = self._kernel(model, space, rows)
-        coarse = self._coarse(layout) if k > 1 else layout
+        coarse = layout if self.coarse_slots is None or k == 1 else layout.chunk(0, min(layout.slots, self.coarse_slots))
         result = adam_rows(kernel, torch.cat(starts), coarse, Adam(self.epochs, self.lr),
                            groups=material if k > 1 else None, narrow_at=self.narrow_at,
                            narrowed_layout=None if coarse is layout else layout)

@@ -429,9 +429,10 @@ def test_a_latent_fit_narrows_to_each_materials_best_start_after_the_share_of_ep
 
 def test_a_coarse_latent_fit_races_its_starts_on_its_first_slots_and_runs_the_kept_one_on_all(
         enhanced, two_zoo_materials, monkeypatch):
-    """``coarse_slots``: every stage before the narrowing steps on each row's first ``coarse_slots``
-    slots (a random subset), the start each material keeps on all its slots, chosen by its loss on
-    all of them; with at least as many slots as samples it is the fit without, to the bit."""
+    """``coarse_slots``: the stacked starts step on each row's first ``coarse_slots`` slots (a random
+    subset) until the narrowing, the start each material keeps on all its slots, chosen by its loss on
+    all of them; the starts are made on all of them; with at least as many slots as samples it is the
+    fit without, to the bit."""
     trained, samples = _codes(enhanced, 6, seed=5), two_zoo_materials  # 600 samples of each material
     plain = LatentAdam(epochs=8, screened=2).fit(enhanced, samples, trained=trained, seed=1)
     assert LatentAdam(epochs=8, screened=2, coarse_slots=600).fit(enhanced, samples, trained=trained,
@@ -450,7 +451,7 @@ def test_a_coarse_latent_fit_races_its_starts_on_its_first_slots_and_runs_the_ke
     result = coarse.fit(enhanced, samples, trained=trained, seed=1)
     m, k = len(samples.names), 4  # starts: the paper's, two imitations, the screened codes' winner
     assert steps[-8:] == [(k * m, 250)] * 4 + [(m, 600)] * 4  # the last stage: all starts, then the kept ones
-    assert {slots for _, slots in steps[:-8]} == {250, coarse.screen_samples}, steps  # the starts' stages, the race
+    assert {slots for _, slots in steps[:-8]} == {600, coarse.screen_samples}, steps  # the starts, their screen
     assert result.losses_on(enhanced, samples) == pytest.approx(result.losses, rel=1e-4)
     with pytest.raises(ValueError, match="invalid latent protocol"):
         LatentAdam(coarse_slots=0)
