@@ -381,8 +381,8 @@ class Adaptive(FitProtocol):
         fit's kernel; rule o's jit failed, docs/BENCHMARKS.md "Stop 70"), the latent budget and
         ``latent_narrow_at`` — a quarter, as before rule m: its end point is where the corrections start, and
         the adaptive fit's end points move with it as a lottery does (docs/BENCHMARKS.md, "The latent fit's
-        starts narrowed at half"); a change needs a rule of its own. ``latent_coarse_slots``: its starts' samples
-        (``LatentAdam.coarse_slots``), None (all) unless set."""
+        starts narrowed at half"); a change needs a rule of its own. ``latent_coarse_slots``: its starts'
+        race's samples (``LatentAdam.coarse_slots``), None (all) unless set."""
         return LatentAdam(self.latent_epochs, starts=self.latent_starts, kernel=self.latent_kernel or self.kernel,
                           narrow_at=self.latent_narrow_at, coarse_slots=self.latent_coarse_slots)
 

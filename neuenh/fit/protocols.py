@@ -325,7 +325,7 @@ class LatentAdam(FitProtocol):
     # compiles), torch below it and where Dr.Jit is not available.
     kernel: str = "auto"  # neuenh.fit.jit.KERNELS: every stage's rows (auto: by the fit's work, ``JIT_MIN_WORK``)
     narrow_at: float = 0.5  # the share of the epochs after which each material keeps its best start
-    coarse_slots: int | None = None  # the starts' samples per material until the narrowing (class doc)
+    coarse_slots: int | None = None  # the race's samples per material until the narrowing (class doc)
 
     def __post_init__(self) -> None:
         if (self.epochs < 1 or self.lr <= 0 or self.starts not in ("analytical", "paper") or self.screened < 0
