@@ -55,7 +55,7 @@ PROTOCOLS = {
     "paper": lambda: PaperRMSProp(epochs=8),
     "plain": lambda: PlainLBFGS(iterations=8, warmup_epochs=4),
     "latent": lambda: LatentAdam(epochs=9),
-    "latent-coarse": lambda: LatentAdam(epochs=9, coarse_slots=200),  # starts on 200 of the 600 samples
+    "latent-coarse": lambda: LatentAdam(epochs=9, coarse_slots=200),  # its starts race on 200 of the 600 samples
     "adaptive": lambda: Adaptive(latent_epochs=6, correction_epochs=4, lbfgs_iterations=5, priors=(1e-2,), folds=2),
 }
 
