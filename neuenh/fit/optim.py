@@ -54,8 +54,9 @@ class AdamResult:
 def adam_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, run: Adam, *,
               free: torch.Tensor | None = None, prior_strength: torch.Tensor | None = None,
               groups: torch.Tensor | None = None, narrow_at: float = 0.25, seed: int = 0,
-              narrowed_layout: RowLayout | None = None) -> AdamResult:
-    """Adam over every row of ``x`` (rows, dim) on ``layout`` (module doc).
+              narrowed_layout: RowLayout | None = None, lr_scale: torch.Tensor | None = None) -> AdamResult:
+    """Adam over every row of ``x`` (rows, dim) on ``layout`` (module doc); ``lr_scale`` (rows,): each
+    row's factor on the run's learning rate (default 1: several runs of one schedule as one batch).
 
     ``free`` (dim,) or (rows, dim) bool: the columns that move (default all). ``groups`` (rows,): rows with the
     same id are starts of one problem; after ``narrow_at`` of the epochs each group keeps its row of
@@ -78,6 +79,7 @@ def adam_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, run: Adam, 
             layout = layout.select(keep)
             prior_strength = None if prior_strength is None else prior_strength[keep]
             free = free[keep] if free is not None and free.ndim == 2 else free
+            lr_scale = None if lr_scale is None else lr_scale[keep]
             groups = None
         rate = run.lr * (run.final_ratio + (1 - run.final_ratio) * 0.5 * (1 + math.cos(math.pi * epoch / run.epochs)))
         for batch in layout.minibatches(run.batch_slots or layout.slots, generator):
@@ -87,7 +89,8 @@ def adam_rows(kernel: RowKernel, x: torch.Tensor, layout: RowLayout, run: Adam, 
             moment1.mul_(ADAM_BETAS[0]).add_(grad, alpha=1 - ADAM_BETAS[0])
             moment2.mul_(ADAM_BETAS[1]).addcmul_(grad, grad, value=1 - ADAM_BETAS[1])
             denom = (moment2 / (1 - ADAM_BETAS[1] ** step)).sqrt_().add_(ADAM_EPS)
-            x = x - (rate / (1 - ADAM_BETAS[0] ** step)) * moment1 / denom
+            size = rate / (1 - ADAM_BETAS[0] ** step)
+            x = x - (size if lr_scale is None else size * lr_scale[:, None]) * moment1 / denom
     final = kernel(x, layout, grad=False, prior_strength=prior_strength)
     return AdamResult(x, rows, final.train)
 

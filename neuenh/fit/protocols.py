@@ -22,7 +22,8 @@ The protocols:
   minibatches of ``batch_size`` samples, from the paper's start (range means, latent 0.5).
 * ``PlainLBFGS`` — for analytical models: row-wise L-BFGS on a Charbonnier surrogate
   (``optim.lbfgs_rows``), at most ``iterations`` per surrogate phase, from the paper's start and
-  from where ``warmup_epochs`` Adam epochs took it, side by side; each material keeps the lower.
+  from where ``warmup_epochs`` Adam epochs took it (one start per ``warmup_lrs``), side by side; each
+  material keeps the lowest.
   The warm-up and the warm-up start's first phase see a random subset of ``coarse_slots`` samples.
 * ``LatentAdam`` — an enhanced model's latent code and analytical parameters by row-wise Adam
   (``epochs``, lr ``lr`` with cosine decay), from several starts stacked as rows of one batch and
@@ -193,14 +194,14 @@ def _copy(table: MaterialTable) -> MaterialTable:
 @dataclass(frozen=True)
 class PlainLBFGS(FitProtocol):
     """Row-wise L-BFGS (at most ``iterations`` per surrogate phase) from the paper's start (or
-    ``start``) and, as rows of the same batch, from where ``warmup_epochs`` Adam epochs (lr
-    ``warmup_lr``) took it; each material keeps the end point of lower loss. Both always run: a
-    first end point can be a wrong minimum that nothing in its own numbers flags (docs/BENCHMARKS.md,
-    "Issue 24's latent and plain fits"). Meant for analytical models (an enhanced model's landscape
+    ``start``) and, as rows of the same batch, from where ``warmup_epochs`` Adam epochs took it, one
+    warm-up start for each lr of ``warmup_lrs`` (the warm-ups as rows of one batch); each material
+    keeps the end point of lowest loss. All always run: a first end point can be a wrong minimum that
+    nothing in its own numbers flags (docs/BENCHMARKS.md, "Issue 24's latent and plain fits"). Meant for analytical models (an enhanced model's landscape
     is rough for L-BFGS).
 
     The given starts (``first``, and ``also`` in ``fit_rows``) run every phase on every sample. The
-    warm-up start only diversifies the basins tried, so it and its first surrogate phase
+    warm-up starts only diversify the basins tried, so they and their first surrogate phase
     (``SURROGATE_EPS[0]``, which settles the basin) see at most ``coarse_slots`` of each row's
     samples — its first slots, a random subset since rows keep their samples shuffled with the valid
     ones first (``layout.padded``, ``layout.compacted``); its last phase sees all of them. A material's
@@ -210,13 +211,13 @@ class PlainLBFGS(FitProtocol):
     name: ClassVar[str] = "plain"
     iterations: int = 300
     warmup_epochs: int = 100
-    warmup_lr: float = 0.05
+    warmup_lrs: tuple[float, ...] = (0.05,)
     coarse_slots: int = 2000
     kernel: str = "torch"  # neuenh.fit.jit.KERNELS
 
     def __post_init__(self) -> None:
-        if (self.iterations < 1 or self.warmup_epochs < 0 or self.warmup_lr <= 0 or self.coarse_slots < 1
-                or self.kernel not in KERNELS):
+        if (self.iterations < 1 or self.warmup_epochs < 0 or not self.warmup_lrs
+                or any(lr <= 0 for lr in self.warmup_lrs) or self.coarse_slots < 1 or self.kernel not in KERNELS):
             raise ValueError(f"invalid plain protocol {self}")
 
     @property
@@ -237,21 +238,25 @@ class PlainLBFGS(FitProtocol):
 
     def fit_rows(self, kernel: RowKernel, first: torch.Tensor, layout, also: torch.Tensor | None = None
                  ) -> tuple[torch.Tensor, "RowLosses"]:
-        """Every row of ``layout`` from ``first`` (rows, dim), from its Adam warm-up and from
+        """Every row of ``layout`` from ``first`` (rows, dim), from its Adam warm-ups and from
         ``also`` (rows, dim) when given (e.g. a fit of part of the same samples), each row keeping
         the end point of lowest fit loss: (rows, dim) and their losses."""
+        r, warmups = layout.rows, len(self.warmup_lrs)
         coarse = layout.chunk(0, min(layout.slots, self.coarse_slots))
-        warmed = adam_rows(kernel, first, coarse, Adam(self.warmup_epochs, self.warmup_lr)).x
+        coarse_warmups = coarse.select(torch.arange(r).repeat(warmups))  # the warm-ups as rows of one batch
+        lrs = torch.tensor(self.warmup_lrs)
+        warmed = adam_rows(kernel, first.repeat(warmups, 1), coarse_warmups, Adam(self.warmup_epochs, self.warmup_lrs[0]),
+                           lr_scale=None if warmups == 1 else (lrs / lrs[0]).repeat_interleave(r)).x
         given = [first] + ([] if also is None else [also])
-        r, k = layout.rows, len(given) + 1
-        every = layout.select(torch.arange(r).repeat(k))  # rows: first, warmed, also
+        k = len(given) + warmups
+        every = layout.select(torch.arange(r).repeat(k))  # rows: first, warmed (one per lr), also
         if coarse is layout:  # no subset: every start's first phase in one batch
             x, _ = lbfgs_rows(kernel, torch.cat([first, warmed, *given[1:]]), every, self.iterations,
                               SURROGATE_EPS[:1])
         else:
-            settled = lbfgs_rows(kernel, torch.cat(given), layout.select(torch.arange(r).repeat(k - 1)),
+            settled = lbfgs_rows(kernel, torch.cat(given), layout.select(torch.arange(r).repeat(len(given))),
                                  self.iterations, SURROGATE_EPS[:1])[0]
-            warm = lbfgs_rows(kernel, warmed, coarse, self.iterations, SURROGATE_EPS[:1])[0]
+            warm = lbfgs_rows(kernel, warmed, coarse_warmups, self.iterations, SURROGATE_EPS[:1])[0]
             x = torch.cat([settled[:r], warm, settled[r:]])
         x, _ = lbfgs_rows(kernel, x, every, self.iterations, SURROGATE_EPS[1:])
         x = x.float()
