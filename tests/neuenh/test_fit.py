@@ -299,6 +299,24 @@ def test_plain_lbfgs_warms_up_on_a_subset_and_is_never_worse_than_its_start_alon
     assert result.protocol["coarse_slots"] == 64
 
 
+def test_each_warmup_lr_of_a_plain_fit_is_one_more_start():
+    """``warmup_lrs``: one warm-up start per lr (one Adam batch), all beside the paper's start, each
+    material keeping the lowest end point; an empty or non-positive lr is refused. On the last of
+    these materials the lr 0.3 warm-up alone ends in a basin 3.6x above the lr 0.05 one's, so the fit
+    with both must end below half of it. (Not "no worse than either alone" to a tight tolerance: the
+    starts as rows of other batches round differently, which moved an end point here by 3 %.)"""
+    samples = sample_materials(synthetic_ggx(3, seed=22, noise_sigma=0.1), 400, seed=1)
+    model = get_model("ggx")
+    fit = lambda lrs: fit_materials(model, samples, PlainLBFGS(iterations=100, warmup_epochs=30, coarse_slots=100,
+                                                               warmup_lrs=lrs))
+    both, far = fit((0.3, 0.05)), fit((0.3,))
+    assert both.losses[2] < 0.5 * far.losses[2]
+    assert both.protocol["warmup_lrs"] == (0.3, 0.05)
+    for invalid in ((), (0.05, 0.0)):
+        with pytest.raises(ValueError, match="invalid plain protocol"):
+            PlainLBFGS(warmup_lrs=invalid)
+
+
 def test_plain_lbfgs_beats_the_paper_protocol_at_the_same_budget(clean_ggx):
     _, samples = clean_ggx
     model = get_model("ggx")
@@ -455,6 +473,21 @@ def test_a_coarse_latent_fit_races_its_starts_on_its_first_slots_and_runs_the_ke
     assert result.losses_on(enhanced, samples) == pytest.approx(result.losses, rel=1e-4)
     with pytest.raises(ValueError, match="invalid latent protocol"):
         LatentAdam(coarse_slots=0)
+
+
+def test_adam_rows_scale_each_rows_learning_rate():
+    """``lr_scale``: one batch of two copies of a start, the second at a quarter of the lr. Adam's
+    first step is lr * m / (sqrt(v) + eps) with m and v the same for both copies, so the second
+    copy moves a quarter as far, up to float32's rounding of x - step (x of order one: ~6e-8)."""
+    samples = sample_materials(synthetic_ggx(1, seed=4, noise_sigma=0.1), 300, seed=2)
+    model = get_model("ggx")
+    space = RowSpace(model)
+    start = space.from_table(MaterialTable(model.specs, samples.names, model.latent_dim))
+    layout = Rows(samples, 0).layout(torch.tensor([0, 0]))
+    moved = adam_rows(RowKernel(model, space), start.repeat(2, 1), layout, Adam(1, 0.1),
+                      lr_scale=torch.tensor([1.0, 0.25])).x - start
+    assert moved[0].abs().max() > 0.05
+    assert moved[1].tolist() == pytest.approx((0.25 * moved[0]).tolist(), abs=1e-6)
 
 
 def test_stacked_adam_narrowed_onto_more_slots_chooses_there_and_needs_starts():
