@@ -23,7 +23,9 @@ materials: a paired comparison of two fits, not a measure of unseen-material err
 been in some earlier draw, so ``--fresh SEED`` draws new materials of the training sources instead: half
 of ``--materials`` of the synthetic zoo (seed SEED + 5) and half noisy synthetic GGX (SEED + 4, noise 0.1),
 the families the reference search trained on at seeds 5 and 4 — materials no training and no earlier
-rule saw, fitted with every training code. Recorded per fit:
+rule saw, fitted with every training code; ``--fresh-family zoo`` draws them all from the zoo (for a plain GGX
+model, whose fits of noisy GGX end at their rounding floor, held-out ~1e-5, where a ratio of two fits swings
+x0.01-x9000 with the seed alone: docs/BENCHMARKS.md, "Stop 73"). Recorded per fit:
 CPU seconds (``time.process_time``, one thread: what another process on the machine does not add to),
 wall seconds, the held-out log-L1 and the capacity and prior chosen. Ratios are per material against A, then the
 median, the geometric mean and the worst; an arm's worst is printed beside the null's. The JSON file is
@@ -122,8 +124,9 @@ def draw_materials(args, trained) -> tuple[dict, dict]:
     if args.fresh is not None:
         from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
 
-        zoo = synthetic_zoo(args.materials - args.materials // 2, args.fresh + 5)
-        ggx = synthetic_ggx(args.materials // 2, args.fresh + 4, 0.1)
+        n_ggx = 0 if args.fresh_family == "zoo" else args.materials // 2
+        zoo = synthetic_zoo(args.materials - n_ggx, args.fresh + 5)
+        ggx = synthetic_ggx(n_ggx, args.fresh + 4, 0.1) if n_ggx else []
         drawn = {f"{family}{args.fresh}/{m.name}": m for family, ms in (("zoo", zoo), ("ggx", ggx)) for m in ms}
         return drawn, dict.fromkeys(drawn, trained)
     from neuenh.data.nbrdf import nbrdf_material
@@ -151,6 +154,8 @@ def main(argv: list[str] | None = None) -> int:
                              "the same size: 1 .. len//N - 1)")
     parser.add_argument("--fresh", type=int, metavar="SEED",
                         help="draw new synthetic materials of the training sources at this seed instead of stand-ins")
+    parser.add_argument("--fresh-family", choices=("both", "zoo"), default="both",
+                        help="--fresh's materials: half zoo and half noisy GGX (default), or all zoo")
     parser.add_argument("--cases", nargs="+", default=["mirror:3000", "uniform:10000"])
     parser.add_argument("--test", type=int, default=1000, help="test pairs per material (default 1,000)")
     parser.add_argument("--null-seed", type=int, default=1, help="the null arm's fit seed (default 1)")
@@ -175,8 +180,8 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"--arm: two arms share a name ({', '.join(args.arm)})")
     arms = {"A": (base, 0), "null": (base, args.null_seed), **{name: (protocol, 0) for _, name, protocol in variants}}
     config = {"model": args.model, "capacity": args.capacity, "materials": args.materials, "offset": args.offset,
-              "fresh": args.fresh, "cases": args.cases, "test": args.test, "null_seed": args.null_seed,
-              "arms": args.arm}
+              "fresh": args.fresh, "fresh_family": args.fresh_family, "cases": args.cases, "test": args.test,
+              "null_seed": args.null_seed, "arms": args.arm}
     results = json.loads(args.json.read_text()) if args.json and args.json.exists() else {}
     if results.get("config") != config:
         results = {"config": config, "fits": {}}
