@@ -229,7 +229,9 @@ def test_each_protocols_default_kernel_and_narrowing_are_the_ones_rule_m_chose()
     """Rule m (docs/BENCHMARKS.md, "Stop 68"): the latent fit takes the jit kernel ("auto": for fits of at
     least ``JIT_MIN_WORK``, below which a model's compile costs more than its fits save) and narrows its
     starts at half the epochs; the plain and adaptive fits keep torch, the adaptive fit's latent stage its
-    narrowing after a quarter, and a search's fit score torch's kernel (inside a candidate's CPU share)."""
+    narrowing after a quarter, and a search's fit score torch's kernel (inside a candidate's CPU share).
+    The plain fit keeps its one warm-up start (rules t-v, "Stop 73", failed). Needs no Dr.Jit: these are
+    the protocols' settings, not their kernels."""
     from neuenh.selection import score_protocol
     from neuenh.train import FitScoreConfig
 
@@ -239,8 +241,9 @@ def test_each_protocols_default_kernel_and_narrowing_are_the_ones_rule_m_chose()
     assert FitOptions(capacity="latent", kernel="torch").protocol_for(model).kernel == "torch"
     adaptive = FitOptions(capacity="auto").protocol_for(model)
     assert adaptive.kernel == "torch" == FitOptions().protocol_for(plain).kernel
+    assert FitOptions().protocol_for(plain).warmup_lrs == (0.05,)
     assert (adaptive.latent_protocol.kernel, adaptive.latent_protocol.narrow_at) == ("torch", 0.25)
-    assert FitOptions(capacity="auto", kernel="jit").protocol_for(model).latent_protocol.kernel == "jit"
+    assert Adaptive(kernel="jit").latent_protocol.kernel == "jit"
     assert Adaptive(latent_narrow_at=0.5).latent_protocol.narrow_at == 0.5  # rule n's arm (failed: Stop 68)
     assert Adaptive(latent_kernel="auto").latent_protocol.kernel == "auto"  # the latent stage's own kernel (rule o)
     assert Adaptive(kernel="jit", latent_kernel="torch").latent_protocol.kernel == "torch"
