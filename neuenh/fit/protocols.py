@@ -24,7 +24,7 @@ The protocols:
   (``optim.lbfgs_rows``), at most ``iterations`` per surrogate phase, from the paper's start and
   from where ``warmup_epochs`` Adam epochs took it (one start per ``warmup_lrs``), side by side; each
   material keeps the lowest.
-  The warm-up and the warm-up start's first phase see a random subset of ``coarse_slots`` samples.
+  The warm-ups and the warm-up starts' first phase see a random subset of ``coarse_slots`` samples.
 * ``LatentAdam`` — an enhanced model's latent code and analytical parameters by row-wise Adam
   (``epochs``, lr ``lr`` with cosine decay), from several starts stacked as rows of one batch and
   narrowed to each material's best after half the epochs (class doc).
@@ -194,11 +194,12 @@ def _copy(table: MaterialTable) -> MaterialTable:
 @dataclass(frozen=True)
 class PlainLBFGS(FitProtocol):
     """Row-wise L-BFGS (at most ``iterations`` per surrogate phase) from the paper's start (or
-    ``start``) and, as rows of the same batch, from where ``warmup_epochs`` Adam epochs took it, one
-    warm-up start for each lr of ``warmup_lrs`` (the warm-ups as rows of one batch); each material
-    keeps the end point of lowest loss. All always run: a first end point can be a wrong minimum that
-    nothing in its own numbers flags (docs/BENCHMARKS.md, "Issue 24's latent and plain fits"). Meant for analytical models (an enhanced model's landscape
-    is rough for L-BFGS).
+    ``start``) and, as rows of the same batch, from where ``warmup_epochs`` Adam epochs took it: one
+    warm-up start for each lr of ``warmup_lrs`` (with a second one, the jit kernel's fits were lower on
+    the whole at about half today's CPU, but failed their rules: docs/BENCHMARKS.md, "Stop 73"). Each
+    material keeps the end point of lowest loss. All always run: a first end point can be a wrong
+    minimum that nothing in its own numbers flags (docs/BENCHMARKS.md, "Issue 24's latent and plain
+    fits"). Meant for analytical models (an enhanced model's landscape is rough for L-BFGS).
 
     The given starts (``first``, and ``also`` in ``fit_rows``) run every phase on every sample. The
     warm-up starts only diversify the basins tried, so they and their first surrogate phase
