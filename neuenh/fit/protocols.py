@@ -244,10 +244,13 @@ class PlainLBFGS(FitProtocol):
         the end point of lowest fit loss: (rows, dim) and their losses."""
         r, warmups = layout.rows, len(self.warmup_lrs)
         coarse = layout.chunk(0, min(layout.slots, self.coarse_slots))
-        coarse_warmups = coarse.select(torch.arange(r).repeat(warmups))  # the warm-ups as rows of one batch
-        lrs = torch.tensor(self.warmup_lrs)
-        warmed = adam_rows(kernel, first.repeat(warmups, 1), coarse_warmups, Adam(self.warmup_epochs, self.warmup_lrs[0]),
-                           lr_scale=None if warmups == 1 else (lrs / lrs[0]).repeat_interleave(r)).x
+        if warmups == 1:  # no copies of the rows (the adaptive fit runs this on all its folds' rows)
+            coarse_warmups, starts, lr_scale = coarse, first, None
+        else:  # the warm-ups as rows of one batch, lr block by block
+            coarse_warmups, starts = coarse.select(torch.arange(r).repeat(warmups)), first.repeat(warmups, 1)
+            lr_scale = (torch.tensor(self.warmup_lrs) / self.warmup_lrs[0]).repeat_interleave(r)
+        warmed = adam_rows(kernel, starts, coarse_warmups, Adam(self.warmup_epochs, self.warmup_lrs[0]),
+                           lr_scale=lr_scale).x
         given = [first] + ([] if also is None else [also])
         k = len(given) + warmups
         every = layout.select(torch.arange(r).repeat(k))  # rows: first, warmed (one per lr), also
