@@ -196,7 +196,7 @@ class PlainLBFGS(FitProtocol):
     """Row-wise L-BFGS (at most ``iterations`` per surrogate phase) from the paper's start (or
     ``start``) and, as rows of the same batch, from where ``warmup_epochs`` Adam epochs took it: one
     warm-up start for each lr of ``warmup_lrs`` (with a second one, the jit kernel's fits were lower on
-    the whole at about half today's CPU, but failed their rules: docs/BENCHMARKS.md, "Stop 73"). Each
+    the whole at about half today's CPU, but failed their rules: docs/BENCHMARKS.md, "Stop 73", "Stop 74"). Each
     material keeps the end point of lowest loss. All always run: a first end point can be a wrong
     minimum that nothing in its own numbers flags (docs/BENCHMARKS.md, "Issue 24's latent and plain
     fits"). Meant for analytical models (an enhanced model's landscape is rough for L-BFGS).
