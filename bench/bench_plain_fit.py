@@ -32,16 +32,16 @@ SECTION = "## Plain fits against NBRDF and before (issue 24)"
 RGL = ROOT.parent / "shared" / "data" / "rgl"
 CASES = (("uniform", 10_000), ("mirror", 10_000), ("mirror", 3_000))
 N_TEST = 10_000
+OTHER_KERNEL = ("plain GGX (torch)", "plain GGX (jit)")
 
 
 def run(rgl: Path, with_nbrdf: bool = True) -> dict:
     """{case: {fit: {material: (held-out log-L1, seconds)}}} for every case of CASES, fit "plain GGX"
-    (the default protocol) and, ``with_nbrdf``, "NBRDF" and, where Dr.Jit is available, "plain GGX (jit)"
-    (the default protocol with the compiled kernel, ``neuenh.fit.jit``)."""
-    import dataclasses
-
+    (the default protocol) and, ``with_nbrdf``, "NBRDF" and the default fit on the other kernel where
+    Dr.Jit is available: "plain GGX (torch)" when the default is the compiled kernel (``neuenh.fit.jit``),
+    else "plain GGX (jit)"."""
     from neuenh.data import load_measured
-    from neuenh.fit import default_protocol, fit_materials
+    from neuenh.fit import FitOptions, default_protocol, fit_materials
     from neuenh.models import get_model
     from neuenh.study.efficiency import PROTOCOLS
     from neuenh.study.heldout import draw_fit_test, heldout_log_l1
@@ -49,11 +49,12 @@ def run(rgl: Path, with_nbrdf: bool = True) -> dict:
 
     ggx = get_model("ggx")
     fits = {"plain GGX": default_protocol(ggx)}
-    if with_nbrdf:  # the run of this checkout (not --before's): the jit kernel beside the default
+    if with_nbrdf:  # the run of this checkout (not --before's): the other kernel beside the default
         from neuenh.fit.jit import available
 
         if available():
-            fits["plain GGX (jit)"] = dataclasses.replace(fits["plain GGX"], kernel="jit")
+            other = "torch" if fits["plain GGX"].kernel == "jit" else "jit"
+            fits[f"plain GGX ({other})"] = FitOptions(kernel=other).protocol_for(ggx)
     out: dict = {}
     for path in sorted(rgl.glob("*.bsdf")):
         material = load_measured(path)
@@ -84,10 +85,10 @@ def markdown_section(env: dict, now: dict, before: dict | None, command: str) ->
              "Plain GGX fitted by the default protocol to each RGL material (the visible 8), beside NBRDF's fit "
              "of the same samples in the same run and, *before*, the default plain fit of the checkout "
              "`--before-rev` names, run first; wall time of the fit, held-out log-L1 on 10,000 test pairs drawn "
-             "the same way; *jit*: the default protocol with the compiled Dr.Jit kernel (`kernel=\"jit\"`, "
+             "the same way; *torch* or *jit*: the default fit on the kernel the default does not use (`FitOptions(kernel=…)`, "
              "`neuenh.fit.jit`), its held-out error against the default's. Ratios per material, then the median "
              "[worst].", "",
-             "| case | fit | median s | time / NBRDF | median held-out | held-out / before (jit: / default) |",
+             "| case | fit | median s | time / NBRDF | median held-out | held-out / before (torch, jit: / default) |",
              "|---|---|---:|---:|---:|---:|"]
     for case, fits in now.items():
         nbrdf = fits["NBRDF"]
@@ -95,7 +96,7 @@ def markdown_section(env: dict, now: dict, before: dict | None, command: str) ->
         rows_of = [("plain GGX (before)", old)] if old else []
         for label, rows in [*rows_of, *fits.items()]:
             time_ratio = [rows[m][1] / nbrdf[m][1] for m in rows]
-            reference = old if label == "plain GGX" else fits.get("plain GGX") if label == "plain GGX (jit)" else None
+            reference = old if label == "plain GGX" else fits["plain GGX"] if label in OTHER_KERNEL else None
             held = [rows[m][0] / reference[m][0] for m in rows] if reference else None
             lines.append(f"| {case} | {label} | {statistics.median(t for _, t in rows.values()):.2f} | "
                          f"{statistics.median(time_ratio):.2f} [{max(time_ratio):.2f}] | "

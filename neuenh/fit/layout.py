@@ -61,6 +61,17 @@ class RowLayout:
         return RowLayout(self.wi[flat], self.wo[flat], self.f_r[flat], self.train[:, lo:hi].contiguous(),
                          self.val[:, lo:hi].contiguous(), self.material) if width < self.slots else self
 
+    def windows(self, lows: Sequence[int], width: int) -> "RowLayout":
+        """Every row once per entry of ``lows``, block ``k`` (rows ``k * rows ..``) its slots
+        ``lows[k] .. lows[k] + width``: another subset of every row in each block."""
+        if any(lo < 0 or lo + width > self.slots for lo in lows) or width < 1:
+            raise ValueError(f"windows {list(lows)} of {width} slots do not fit in {self.slots} slots")
+        rows = torch.arange(self.rows).repeat(len(lows))
+        slots = torch.tensor(lows, dtype=torch.long).repeat_interleave(self.rows)[:, None] + torch.arange(width)
+        flat = (rows[:, None] * self.slots + slots).reshape(-1)
+        return RowLayout(self.wi[flat], self.wo[flat], self.f_r[flat], self.train[rows[:, None], slots],
+                         self.val[rows[:, None], slots], self.material[rows])
+
     def with_targets(self, f_r: torch.Tensor) -> "RowLayout":
         """The same rows and weights fitted to other values (e.g. another model's predictions)."""
         return RowLayout(self.wi, self.wo, f_r.reshape(self.f_r.shape), self.train, self.val, self.material)

@@ -239,6 +239,61 @@ def test_compacting_keeps_each_rows_own_slots_in_order_at_the_front():
         compacted(wi, wo, f_r, torch.zeros_like(keep))
 
 
+def test_windows_are_each_rows_slots_from_each_low_block_by_block():
+    """``RowLayout.windows`` against a plain loop over blocks and rows; windows past the slots refused."""
+    generator = torch.Generator().manual_seed(0)
+    wi, wo, f_r = (torch.randn(2, 9, 3, generator=generator) for _ in range(3))
+    valid = torch.rand(2, 9, generator=generator) < 0.7
+    layout = layout_rows(wi, wo, f_r, torch.tensor([1, 0]), valid, ~valid)
+    got = layout.windows([0, 5, 2], 4)
+    assert got.rows == 6 and got.slots == 4 and got.material.tolist() == [1, 0] * 3
+    for block, low in enumerate((0, 5, 2)):
+        for r, m in enumerate((1, 0)):
+            row, slots = block * 2 + r, slice(low, low + 4)
+            # weights are the row's own (layout_rows), samples its material's
+            assert torch.equal(got.train[row], valid[r, slots].float()) and torch.equal(got.val[row], (~valid)[r, slots].float())
+            for flat, whole in ((got.wi, wi), (got.wo, wo), (got.f_r, f_r)):
+                assert torch.equal(flat.reshape(6, 4, 3)[row], whole[m, slots])
+    with pytest.raises(ValueError, match="do not fit in 9 slots"):
+        layout.windows([0, 6], 4)
+
+
+class _WarmupSpy(RowKernel):
+    """A real kernel that keeps the layouts of its calls."""
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        self.layouts = []
+
+    def __call__(self, x, layout, **kwargs):
+        self.layouts.append(layout)
+        return super().__call__(x, layout, **kwargs)
+
+
+@pytest.mark.parametrize("lrs, subsets, lows", [((0.05, 0.2, 0.05), True, [0, 100, 200]),
+                                                 ((0.05, 0.2, 0.05, 0.05), True, [0, 100, 200]),
+                                                 ((0.05, 0.2, 0.05), False, [0, 0])])
+def test_each_warmup_on_its_own_subset_sees_its_own_slots_inside_the_fewest_samples(lrs, subsets, lows):
+    """``warmup_subsets``: warm-up ``k`` (its Adam epochs and its first L-BFGS phase) reads every
+    row's slots from ``k * coarse_slots``, kept inside the samples of the row with fewest (300 here:
+    a window past them would read padding); without it every warm-up reads the first slots. A
+    warm-up at another's lr on the same slots (the fourth, the third without subsets) is dropped."""
+    samples = sample_materials(synthetic_ggx(2, seed=23, noise_sigma=0.1), 400, seed=1)
+    samples = samples.subset(torch.arange(len(samples))[:700])  # material 1 keeps 300 of its 400
+    model = get_model("ggx")
+    space = RowSpace(model)
+    layout = Rows(samples, 0).layout(torch.arange(2))
+    first = space.from_table(MaterialTable(model.specs, samples.names, model.latent_dim))
+    kernel = _WarmupSpy(model, space)
+    PlainLBFGS(iterations=5, warmup_epochs=3, coarse_slots=100, warmup_lrs=lrs, warmup_subsets=subsets
+               ).fit_rows(kernel, first, layout)
+    coarse = [seen for seen in kernel.layouts if seen.slots == 100]  # L-BFGS also steps fewer rows, the unsettled
+    warm = [seen for seen in coarse if seen.rows == 2 * len(lows)]
+    assert len(warm) >= 3 + 1 and max(seen.rows for seen in coarse) == 2 * len(lows)  # Adam's epochs, the phase
+    for seen in warm:
+        assert torch.equal(seen.wi, layout.windows(lows, 100).wi)
+
+
 # -- what each protocol promises -------------------------------------------------------------------
 def _quarter_turn_canonical(params: dict) -> dict:
     """GGX parameters with ``t_theta`` in (-pi/4, pi/4]: a quarter turn of the tangent frame with
