@@ -2,7 +2,8 @@
 training-source materials (issues 23 and 24).
 
     python bench/bench_fit_ab.py --arm NAME:FIELD=VALUE[,FIELD=VALUE...] [--arm ...] [--capacity auto]
-                                 [--model SPEC] [--materials 20] [--cases mirror:3000 uniform:10000]
+                                 [--model SPEC] [--materials 20] [--fresh SEED | --visible DIR]
+                                 [--cases mirror:3000 uniform:10000]
                                  [--test 1000] [--null-seeds 1 [2 ...]] [--json OUT.json]
 
 Every arm fits every material of every case in one process of one torch thread, the arms in an order
@@ -29,7 +30,9 @@ of ``--materials`` of the synthetic zoo (seed SEED + 5) and half noisy synthetic
 the families the reference search trained on at seeds 5 and 4 — materials no training and no earlier
 rule saw, fitted with every training code; ``--fresh-family zoo`` draws them all from the zoo (for a plain GGX
 model, whose fits of noisy GGX end at their rounding floor, held-out ~1e-5, where a ratio of two fits swings
-x0.01-x9000 with the seed alone: docs/BENCHMARKS.md, "Stop 73"). Recorded per fit:
+x0.01-x9000 with the seed alone: docs/BENCHMARKS.md, "Stop 73"). ``--visible DIR`` fits the RGL materials of
+DIR (the visible 8) instead, for a veto judged like a rule's draw, each material against its own seed spread — a
+plain fit's end point on one of them moves 1.6x with the seed (docs/BENCHMARKS.md, "Stop 76"). Recorded per fit:
 CPU seconds (``time.process_time``, one thread: what another process on the machine does not add to),
 wall seconds, the held-out log-L1 and the capacity and prior chosen. Ratios are per material against A, then the
 median, the geometric mean and the worst; an arm's worst is printed beside the null's and against each
@@ -144,6 +147,13 @@ def draw_materials(args, trained) -> tuple[dict, dict]:
     every code (module doc)."""
     import numpy as np
 
+    if args.visible is not None:
+        from neuenh.data import load_measured
+
+        drawn = {path.stem: load_measured(path) for path in sorted(args.visible.glob("*.bsdf"))}
+        if not drawn:
+            raise SystemExit(f"--visible {args.visible}: no .bsdf files there")
+        return drawn, dict.fromkeys(drawn, trained)
     if args.fresh is not None:
         from neuenh.data.synthetic import synthetic_ggx, synthetic_zoo
 
@@ -179,6 +189,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="draw new synthetic materials of the training sources at this seed instead of stand-ins")
     parser.add_argument("--fresh-family", choices=("both", "zoo"), default="both",
                         help="--fresh's materials: half zoo and half noisy GGX (default), or all zoo")
+    parser.add_argument("--visible", type=Path, metavar="DIR",
+                        help="fit the RGL materials of DIR instead (the visible 8, ../shared/data/rgl): a veto's "
+                             "materials, never a rule's draw")
     parser.add_argument("--cases", nargs="+", default=["mirror:3000", "uniform:10000"])
     parser.add_argument("--test", type=int, default=1000, help="test pairs per material (default 1,000)")
     parser.add_argument("--null-seeds", type=int, nargs="+", default=[1],
@@ -186,7 +199,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--nbrdf", type=Path, default=NBRDF_WEIGHTS)
     parser.add_argument("--json", type=Path, help="write (and resume) the raw numbers here")
     args = parser.parse_args(argv)
-    if args.fresh is None and absent(args.nbrdf, "the NBRDF stand-ins of MERL"):
+    if args.fresh is not None and args.visible is not None:
+        raise SystemExit("--fresh and --visible: choose one draw")
+    if args.visible is not None and absent(args.visible, "the RGL materials of ../shared"):
+        return 0
+    if args.fresh is None and args.visible is None and absent(args.nbrdf, "the NBRDF stand-ins of MERL"):
         return 0
     cases = {case: parse_case(case) for case in args.cases}
     fitting_process()  # one torch thread and one Dr.Jit thread
@@ -208,7 +225,8 @@ def main(argv: list[str] | None = None) -> int:
     arms = {"A": (base, 0), **{name: (base, seed) for name, seed in nulls.items()},
             **{name: (protocol, 0) for _, name, protocol in variants}}
     config = {"model": args.model, "capacity": args.capacity, "materials": args.materials, "offset": args.offset,
-              "fresh": args.fresh, "fresh_family": args.fresh_family, "cases": args.cases, "test": args.test,
+              "fresh": args.fresh, "fresh_family": args.fresh_family, "visible": args.visible and str(args.visible),
+              "cases": args.cases, "test": args.test,
               "null_seeds": args.null_seeds, "arms": args.arm}
     results = json.loads(args.json.read_text()) if args.json and args.json.exists() else {}
     if results.get("config") != config:
