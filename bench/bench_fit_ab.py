@@ -4,7 +4,7 @@ training-source materials (issues 23 and 24).
     python bench/bench_fit_ab.py --arm NAME:FIELD=VALUE[,FIELD=VALUE...] [--arm ...] [--capacity auto]
                                  [--model SPEC] [--materials 20] [--fresh SEED | --visible DIR]
                                  [--cases mirror:3000 uniform:10000]
-                                 [--test 1000] [--null-seeds 1 [2 ...]] [--json OUT.json]
+                                 [--test 1000] [--null-seeds 1 [2 ...]] [--arm-seeds] [--json OUT.json]
 
 Every arm fits every material of every case in one process of one torch thread, the arms in an order
 rotated from material to material, on the same fit and test samples (``study.heldout.draw_fit_test``,
@@ -19,7 +19,10 @@ seed 0; ``mirror:N`` draws half of the pairs near the mirror direction, ``unifor
   1.05); an arm's column "over own spread" is its largest ratio over that bound, with how many
   materials exceed it — the worst material against what the seed alone does to that same material,
   where the plain "worst" compares it with the null's worst over all materials;
-* each ``--arm``: A with the protocol's dataclass fields replaced (e.g. ``X:correction_epochs=100``).
+* each ``--arm``: A with the protocol's dataclass fields replaced (e.g. ``X:correction_epochs=100``);
+  with ``--arm-seeds`` also at every null seed (arms ``NAME@SEED``), and a second table compares, per
+  material, the arm's median held-out error over the seeds with A's over the same seeds (A and the nulls):
+  a change's typical end point against the protocol's, where a single seed's ratio carries both seed spreads.
 
 Materials: every ``len // N``-th NBRDF stand-in of MERL from the ``--offset``-th (``../shared/data/merl_nbrdf``, sorted names;
 never RGL), each fitted with its own training code left out of the model's training codes (the fit's
@@ -124,6 +127,22 @@ def summary(results: dict, case: str, arm: str) -> dict | None:
     return out
 
 
+def seed_median_summary(results: dict, case: str, arm: str) -> dict | None:
+    """Per material of ``case``, the median held-out error of ``arm`` over its seeds (``arm`` and every
+    ``arm@SEED``) over A's median over the same seeds (A and the nulls): the median, geometric mean,
+    worst and best of those ratios, and on how many materials it is below 1; None before any material."""
+    rows = [r for key, r in results["fits"].items() if key.split("|")[0] == case]
+    if not rows:
+        return None
+    mine = [arm, *(a for a in results["arms"] if a.startswith(arm + "@"))]
+    theirs = ["A", *(a for a in results["arms"] if a.startswith("null"))]
+    held = [statistics.median(r[a]["loss"] for a in mine) / statistics.median(r[a]["loss"] for a in theirs)
+            for r in rows]
+    return {"materials": len(rows), "seeds": len(mine), "median": statistics.median(held),
+            "geo": math.exp(statistics.fmean(math.log(h) for h in held)), "worst": max(held), "best": min(held),
+            "lower": sum(h < 1 for h in held)}
+
+
 def markdown(results: dict, command: str) -> str:
     lines = [f"Command: `{command}`  ", machine_line(results["machine"]) + "  ",
              f"Model: {results['config']['model']}, capacity `{results['config']['capacity']}`; arms: "
@@ -132,12 +151,23 @@ def markdown(results: dict, command: str) -> str:
              "| over own spread (materials above) |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for case in results["config"]["cases"]:
-        for arm in (a for a in results["arms"] if a != "A"):
+        for arm in (a for a in results["arms"] if a != "A" and "@" not in a):
             s = summary(results, case, arm)
             if s is not None:
                 spread = "—" if s["over_spread"] is None else f"{s['over_spread']:.3f} ({s['above_spread']})"
                 lines.append(f"| {case} | {arm} | {s['materials']} | {s['cpu']:.3f} | {s['median']:.4f} | {s['geo']:.4f} | "
                              f"{s['worst']:.3f} | {s['best']:.3f} | {s['lower']} | {spread} |")
+    seeded = [a for a in results["arms"] if any(b.startswith(a + "@") for b in results["arms"])]
+    if seeded:
+        lines += ["", "Per material, the arm's median held-out error over its seeds / A's over the same seeds:", "",
+                  "| case | arm / A | materials | seeds | median | geometric mean | worst | best | lower on |",
+                  "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+        for case in results["config"]["cases"]:
+            for arm in seeded:
+                s = seed_median_summary(results, case, arm)
+                if s is not None:
+                    lines.append(f"| {case} | {arm} | {s['materials']} | {s['seeds']} | {s['median']:.4f} | "
+                                 f"{s['geo']:.4f} | {s['worst']:.3f} | {s['best']:.3f} | {s['lower']} |")
     return "\n".join(lines) + "\n"
 
 
@@ -196,6 +226,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--test", type=int, default=1000, help="test pairs per material (default 1,000)")
     parser.add_argument("--null-seeds", type=int, nargs="+", default=[1],
                         help="the null arms' fit seeds, one arm each (default 1; A's is 0)")
+    parser.add_argument("--arm-seeds", action="store_true",
+                        help="fit every --arm at every null seed too, and compare seed medians (module doc)")
     parser.add_argument("--nbrdf", type=Path, default=NBRDF_WEIGHTS)
     parser.add_argument("--json", type=Path, help="write (and resume) the raw numbers here")
     args = parser.parse_args(argv)
@@ -223,17 +255,21 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"--null-seeds {args.null_seeds}: distinct seeds other than A's 0")
     nulls = dict(zip(null_arms(args.null_seeds), args.null_seeds))
     arms = {"A": (base, 0), **{name: (base, seed) for name, seed in nulls.items()},
-            **{name: (protocol, 0) for _, name, protocol in variants}}
+            **{name: (protocol, 0) for _, name, protocol in variants},
+            **{f"{name}@{seed}": (protocol, seed) for _, name, protocol in variants if args.arm_seeds
+               for seed in args.null_seeds}}
     config = {"model": args.model, "capacity": args.capacity, "materials": args.materials, "offset": args.offset,
               "fresh": args.fresh, "fresh_family": args.fresh_family, "visible": args.visible and str(args.visible),
               "cases": args.cases, "test": args.test,
-              "null_seeds": args.null_seeds, "arms": args.arm}
+              "null_seeds": args.null_seeds, "arms": args.arm, "arm_seeds": args.arm_seeds}
     results = json.loads(args.json.read_text()) if args.json and args.json.exists() else {}
     if results.get("config") != config:
         results = {"config": config, "fits": {}}
     results["machine"] = machine()
     results["arms"] = {"A": f"`{base}`", **{name: f"A, fit seed {seed}" for name, seed in nulls.items()},
-                       **{name: text.split(":", 1)[1] for text, name, _ in variants}}
+                       **{name: text.split(":", 1)[1] for text, name, _ in variants},
+                       **{f"{name}@{seed}": f"{name}, fit seed {seed}" for _, name, _ in variants if args.arm_seeds
+                          for seed in args.null_seeds}}
     materials, codes_of = draw_materials(args, trained)
     for case, (near_mirror, n) in cases.items():
         for index, (name, material) in enumerate(materials.items()):

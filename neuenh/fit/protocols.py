@@ -197,8 +197,8 @@ class PlainLBFGS(FitProtocol):
     ``start``) and, as rows of the same batch, from where ``warmup_epochs`` Adam epochs took it: one
     warm-up start for each lr of ``warmup_lrs`` (with a second one, the jit kernel's fits were lower on
     the whole at about half today's CPU, but failed their rules; with a third and ``warmup_subsets``, they
-    passed a fresh draw and missed the visible 8 on one material: docs/BENCHMARKS.md, "Stop 73", "Stop 74",
-    "Stop 76"); a warm-up at another's lr on the same slots is dropped. Each material keeps the end point
+    passed two fresh draws and missed the visible 8 on one material: docs/BENCHMARKS.md, "Stop 73", "Stop 74",
+    "Stop 76", "Stop 77"); a warm-up at another's lr on the same slots is dropped. Each material keeps the end point
     of lowest loss. All always run: a first end point can be a wrong
     minimum that nothing in its own numbers flags (docs/BENCHMARKS.md, "Issue 24's latent and plain
     fits"). Meant for analytical models (an enhanced model's landscape is rough for L-BFGS).
