@@ -89,4 +89,4 @@ report: $(STAMP)
 	$(VENV)/bin/neuenh report --efficiency
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info .inductor-cache

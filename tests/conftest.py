@@ -1,5 +1,6 @@
 import os
 from collections import Counter
+from pathlib import Path
 
 # One intra-op thread for the suite and every process it starts (CLI runs, `neuenh serve`, plan
 # workers, Ray workers inherit the environment): the tests' tensors are small, and on a 2-core
@@ -7,6 +8,12 @@ from collections import Counter
 # tests/cli/test_fit_cli.py took 173 s with torch's default of two threads and 71 s with one
 # while a search shared the cores (docs/BENCHMARKS.md, "Fit threads"). Set before torch loads.
 os.environ["OMP_NUM_THREADS"] = "1"
+# torch.compile's on-disk cache (inductor's) inside the checkout, unless one is chosen: its default,
+# /tmp/torchinductor_$USER, is shared by every checkout and process on the machine, and it reads back
+# a kernel cached under another ATEN_CPU_CAPABILITY without noticing (stop 77: a cache written
+# natively gave the compiled training step NaN losses under avx2, one written under avx2 aborted the
+# process natively), so a suite would depend on what else ran here (docs/BENCHMARKS.md, "Test suite time").
+os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".inductor-cache"))
 
 import pytest  # noqa: E402
 import torch  # noqa: E402
