@@ -198,12 +198,14 @@ class PlainLBFGS(FitProtocol):
     warm-up start for each lr of ``warmup_lrs`` (with a second one, the jit kernel's fits were lower on
     the whole at about half today's CPU, but failed their rules; with a third and ``warmup_subsets``, they
     passed two fresh draws and missed the visible 8 on one material: docs/BENCHMARKS.md, "Stop 73", "Stop 74",
-    "Stop 76", "Stop 77"); a warm-up at another's lr on the same slots is dropped. Each material keeps the end point
-    of lowest loss. All always run: a first end point can be a wrong
-    minimum that nothing in its own numbers flags (docs/BENCHMARKS.md, "Issue 24's latent and plain
+    "Stop 76", "Stop 77"); a warm-up at another's lr on the same slots is dropped. ``jitter_starts`` more starts
+    run beside the given one on every sample, each it moved by ``jitter`` * N(0, 1) on its raw values (the jit
+    kernel with one passed a fresh draw and missed the visible 8 on one material: "Stop 78"). Each material
+    keeps the end point of lowest loss. All always run: a first end point can be a wrong minimum that
+    nothing in its own numbers flags (docs/BENCHMARKS.md, "Issue 24's latent and plain
     fits"). Meant for analytical models (an enhanced model's landscape is rough for L-BFGS).
 
-    The given starts (``first``, and ``also`` in ``fit_rows``) run every phase on every sample. The
+    The given starts (``first``, its jittered copies and ``also`` in ``fit_rows``) run every phase on every sample. The
     warm-up starts only diversify the basins tried, so they and their first surrogate phase
     (``SURROGATE_EPS[0]``, which settles the basin) see at most ``coarse_slots`` of each row's
     samples — its first slots, a random subset since rows keep their samples shuffled with the valid
@@ -218,11 +220,14 @@ class PlainLBFGS(FitProtocol):
     warmup_lrs: tuple[float, ...] = (0.05,)
     coarse_slots: int = 2000
     warmup_subsets: bool = False  # each warm-up start (and its first phase) on its own coarse subset
+    jitter_starts: int = 0  # more starts on all samples: ``first`` plus ``jitter`` * N(0, 1) on its raw values
+    jitter: float = 0.01
     kernel: str = "torch"  # neuenh.fit.jit.KERNELS
 
     def __post_init__(self) -> None:
         if (self.iterations < 1 or self.warmup_epochs < 0 or not self.warmup_lrs
-                or any(lr <= 0 for lr in self.warmup_lrs) or self.coarse_slots < 1 or self.kernel not in KERNELS):
+                or any(lr <= 0 for lr in self.warmup_lrs) or self.coarse_slots < 1 or self.jitter_starts < 0
+                or not self.jitter > 0 or self.kernel not in KERNELS):
             raise ValueError(f"invalid plain protocol {self}")
 
     @property
@@ -260,9 +265,11 @@ class PlainLBFGS(FitProtocol):
             coarse_warmups, starts = layout.windows(lows, width), first.repeat(warmups, 1)
             lr_scale = (torch.tensor(lrs) / lrs[0]).repeat_interleave(r)
         warmed = adam_rows(kernel, starts, coarse_warmups, Adam(self.warmup_epochs, lrs[0]), lr_scale=lr_scale).x
-        given = [first] + ([] if also is None else [also])
+        noise = torch.Generator().manual_seed(0)  # the same jittered starts at every call
+        jittered = [first + self.jitter * torch.randn(first.shape, generator=noise) for _ in range(self.jitter_starts)]
+        given = [first, *jittered] + ([] if also is None else [also])
         k = len(given) + warmups
-        every = layout.select(torch.arange(r).repeat(k))  # rows: first, warmed (one per lr), also
+        every = layout.select(torch.arange(r).repeat(k))  # rows: first, warmed (one per lr), jittered, also
         if coarse is layout:  # no subset: every start's first phase in one batch
             x, _ = lbfgs_rows(kernel, torch.cat([first, warmed, *given[1:]]), every, self.iterations,
                               SURROGATE_EPS[:1])

@@ -259,14 +259,15 @@ def test_windows_are_each_rows_slots_from_each_low_block_by_block():
 
 
 class _WarmupSpy(RowKernel):
-    """A real kernel that keeps the layouts of its calls."""
+    """A real kernel that keeps the layouts and the rows of its calls."""
 
     def __init__(self, *args):
         super().__init__(*args)
-        self.layouts = []
+        self.layouts, self.xs = [], []
 
     def __call__(self, x, layout, **kwargs):
         self.layouts.append(layout)
+        self.xs.append(x.detach().float().clone())
         return super().__call__(x, layout, **kwargs)
 
 
@@ -292,6 +293,31 @@ def test_each_warmup_on_its_own_subset_sees_its_own_slots_inside_the_fewest_samp
     assert len(warm) >= 3 + 1 and max(seen.rows for seen in coarse) == 2 * len(lows)  # Adam's epochs, the phase
     for seen in warm:
         assert torch.equal(seen.wi, layout.windows(lows, 100).wi)
+
+
+@pytest.mark.parametrize("jitter_starts", [1, 2])
+def test_each_jittered_start_is_one_more_start_on_every_sample(jitter_starts):
+    """``jitter_starts``: the given start's first L-BFGS phase on all samples runs beside that many
+    copies of it moved by ``jitter`` * N(0, 1) on every raw value (below 6 sigma, the 24 values of
+    2 materials x 12 columns all moved), the same copies at every call; 0 (the default) adds none."""
+    samples = sample_materials(synthetic_ggx(2, seed=23, noise_sigma=0.1), 400, seed=1)
+    model = get_model("ggx")
+    space = RowSpace(model)
+    layout = Rows(samples, 0).layout(torch.arange(2))
+    first = space.from_table(MaterialTable(model.specs, samples.names, model.latent_dim))
+    protocol = PlainLBFGS(iterations=5, warmup_epochs=3, coarse_slots=100, jitter_starts=jitter_starts, jitter=0.02)
+    given = []
+    for _ in range(2):
+        kernel = _WarmupSpy(model, space)
+        protocol.fit_rows(kernel, first, layout)
+        # the rows of the first call on all 400 slots: the given starts' first phase
+        given.append(next(x for x, seen in zip(kernel.xs, kernel.layouts) if seen.slots == 400))
+    assert torch.equal(given[0], given[1]) and len(given[0]) == 2 * (1 + jitter_starts)
+    assert torch.equal(given[0][:2], first)
+    moved = (given[0][2:] - first.repeat(jitter_starts, 1)).abs()
+    assert bool((moved > 0).all()) and float(moved.max()) < 6 * 0.02
+    with pytest.raises(ValueError, match="invalid plain protocol"):
+        PlainLBFGS(jitter_starts=-1)
 
 
 # -- what each protocol promises -------------------------------------------------------------------
