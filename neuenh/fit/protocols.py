@@ -199,7 +199,7 @@ class PlainLBFGS(FitProtocol):
     the whole at about half today's CPU, but failed their rules; with a third and ``warmup_subsets``, they
     passed two fresh draws and missed the visible 8 on one material: docs/BENCHMARKS.md, "Stop 73", "Stop 74",
     "Stop 76", "Stop 77"); a warm-up at another's lr on the same slots is dropped. ``jitter_starts`` more starts
-    run beside the given one on every sample, each it moved by ``jitter`` * N(0, 1) on its raw values (the jit
+    run beside the given one on every sample, each the given one moved by ``jitter`` * N(0, 1) (the jit
     kernel with one passed a fresh draw and missed the visible 8 on one material: "Stop 78"). Each material
     keeps the end point of lowest loss. All always run: a first end point can be a wrong minimum that
     nothing in its own numbers flags (docs/BENCHMARKS.md, "Issue 24's latent and plain
