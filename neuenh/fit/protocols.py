@@ -199,7 +199,7 @@ class PlainLBFGS(FitProtocol):
     the whole at about half today's CPU, but failed their rules; with a third and ``warmup_subsets``, they
     passed two fresh draws and missed the visible 8 on one material: docs/BENCHMARKS.md, "Stop 73", "Stop 74",
     "Stop 76", "Stop 77"); a warm-up at another's lr on the same slots is dropped. ``jitter_starts`` more starts
-    run beside the given one on every sample, each the given one moved by ``jitter`` * N(0, 1) (the jit
+    run beside the given one on every sample, each the given one moved by ``jitter`` * N(0, 1), one offset for every row (the jit
     kernel with one passed a fresh draw and missed the visible 8 on one material: "Stop 78"). Each material
     keeps the end point of lowest loss. All always run: a first end point can be a wrong minimum that
     nothing in its own numbers flags (docs/BENCHMARKS.md, "Issue 24's latent and plain
@@ -265,8 +265,11 @@ class PlainLBFGS(FitProtocol):
             coarse_warmups, starts = layout.windows(lows, width), first.repeat(warmups, 1)
             lr_scale = (torch.tensor(lrs) / lrs[0]).repeat_interleave(r)
         warmed = adam_rows(kernel, starts, coarse_warmups, Adam(self.warmup_epochs, lrs[0]), lr_scale=lr_scale).x
-        noise = torch.Generator().manual_seed(0)  # the same jittered starts at every call
-        jittered = [first + self.jitter * torch.randn(first.shape, generator=noise) for _ in range(self.jitter_starts)]
+        # one offset per jittered start, the same at every call and for every row: a material's starts do not
+        # depend on the materials fitted beside it
+        noise = torch.Generator().manual_seed(0)
+        jittered = [first + self.jitter * torch.randn(1, first.shape[1], generator=noise)
+                    for _ in range(self.jitter_starts)]
         given = [first, *jittered] + ([] if also is None else [also])
         k = len(given) + warmups
         every = layout.select(torch.arange(r).repeat(k))  # rows: first, warmed (one per lr), jittered, also

@@ -258,7 +258,7 @@ def test_windows_are_each_rows_slots_from_each_low_block_by_block():
         layout.windows([0, 6], 4)
 
 
-class _WarmupSpy(RowKernel):
+class _CallSpy(RowKernel):
     """A real kernel that keeps the layouts and the rows of its calls."""
 
     def __init__(self, *args):
@@ -285,7 +285,7 @@ def test_each_warmup_on_its_own_subset_sees_its_own_slots_inside_the_fewest_samp
     space = RowSpace(model)
     layout = Rows(samples, 0).layout(torch.arange(2))
     first = space.from_table(MaterialTable(model.specs, samples.names, model.latent_dim))
-    kernel = _WarmupSpy(model, space)
+    kernel = _CallSpy(model, space)
     PlainLBFGS(iterations=5, warmup_epochs=3, coarse_slots=100, warmup_lrs=lrs, warmup_subsets=subsets
                ).fit_rows(kernel, first, layout)
     coarse = [seen for seen in kernel.layouts if seen.slots == 100]  # L-BFGS also steps fewer rows, the unsettled
@@ -298,8 +298,9 @@ def test_each_warmup_on_its_own_subset_sees_its_own_slots_inside_the_fewest_samp
 @pytest.mark.parametrize("jitter_starts", [0, 1, 2])
 def test_each_jittered_start_is_one_more_start_on_every_sample(jitter_starts):
     """``jitter_starts``: the given start's first L-BFGS phase on all samples runs beside that many
-    copies of it moved by ``jitter`` * N(0, 1) on every raw value (below 6 sigma, the 24 values of
-    2 materials x 12 columns all moved), the same copies at every call; 0 (the default) adds none."""
+    copies of it moved by ``jitter`` * N(0, 1) on every raw value (below 6 sigma, each of the 12
+    columns moved), every material by the same offset (its starts do not depend on the materials
+    beside it), the same copies at every call; 0 (the default) adds none."""
     samples = sample_materials(synthetic_ggx(2, seed=23, noise_sigma=0.1), 400, seed=1)
     model = get_model("ggx")
     space = RowSpace(model)
@@ -308,7 +309,7 @@ def test_each_jittered_start_is_one_more_start_on_every_sample(jitter_starts):
     protocol = PlainLBFGS(iterations=5, warmup_epochs=3, coarse_slots=100, jitter_starts=jitter_starts, jitter=0.02)
     given = []
     for _ in range(2):
-        kernel = _WarmupSpy(model, space)
+        kernel = _CallSpy(model, space)
         protocol.fit_rows(kernel, first, layout)
         # the rows of the first call on all 400 slots: the given starts' first phase
         given.append(next(x for x, seen in zip(kernel.xs, kernel.layouts) if seen.slots == 400))
@@ -317,6 +318,8 @@ def test_each_jittered_start_is_one_more_start_on_every_sample(jitter_starts):
     if jitter_starts:
         moved = (given[0][2:] - first.repeat(jitter_starts, 1)).abs()
         assert bool((moved > 0).all()) and float(moved.max()) < 6 * 0.02
+        offsets = (given[0][2:] - first.repeat(jitter_starts, 1)).reshape(jitter_starts, 2, -1)
+        assert torch.allclose(offsets[:, 0], offsets[:, 1], rtol=0, atol=4 * torch.finfo(torch.float32).eps)
     with pytest.raises(ValueError, match="invalid plain protocol"):
         PlainLBFGS(jitter_starts=-1)
 
