@@ -68,6 +68,8 @@ test: $(STAMP) browser compiler gl mitsuba
 ISSUE13_MODEL := e388c1a
 # bench_plain_fit runs the plain fit as it was before issue 24's warm-up subset and L-BFGS restart beside today's.
 PLAIN_FIT_BEFORE := 0709a17
+# bench_fit_compile runs the jit kernel as it was before its code read no count of rows (stop 81) beside today's.
+FIT_COMPILE_BEFORE := f3c8d3c
 bench: $(STAMP)
 	$(PY) bench/bench_core.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_data.py --write docs/BENCHMARKS.md
@@ -77,6 +79,7 @@ bench: $(STAMP)
 	$(PY) bench/bench_fit.py --model build/issue13-model --before-rev 351a26c --write docs/BENCHMARKS.md
 	$(PY) bench/bench_plain_fit.py --before-rev $(PLAIN_FIT_BEFORE) --write docs/BENCHMARKS.md
 	$(PY) bench/bench_fit_memory.py --write docs/BENCHMARKS.md
+	$(PY) bench/bench_fit_compile.py --before-rev $(FIT_COMPILE_BEFORE) --write docs/BENCHMARKS.md
 	$(PY) bench/bench_search.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_api.py --write docs/BENCHMARKS.md
 	$(PY) bench/bench_cluster.py --write docs/BENCHMARKS.md

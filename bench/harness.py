@@ -26,7 +26,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -212,6 +212,22 @@ def run_at_revision(rev: str, script: Path, argv: list[str]) -> dict:
         out = Path(tmp) / "before.json"
         subprocess.run([sys.executable, str(copy), *argv, "--json", str(out), "--max-wait", "0"], check=True)
         return json.loads(out.read_text())
+
+
+def before_and_now(args, script: Path, run: Callable[[bool], Any], before_argv: list[str]) -> tuple[Any, Any] | None:
+    """A bench's numbers beside those of the revision ``args.before_rev`` names, measured in the same run.
+    Inside that revision's checkout (``args.before``, the flag ``run_at_revision`` passes on): ``run(True)``
+    written to ``args.json``, and None. Else ``(before, now)``: ``script`` run there first with
+    ``--before`` and ``before_argv`` (None without ``--before-rev``), then ``run(False)``, both also
+    written to ``args.json`` when given."""
+    if args.before:
+        write_json(args.json, run(True))
+        return None
+    before = run_at_revision(args.before_rev, script, ["--before", *before_argv]) if args.before_rev else None
+    now = run(False)
+    if args.json:
+        write_json(args.json, {"now": now, "before": before})
+    return before, now
 
 
 def cpu_info() -> dict:

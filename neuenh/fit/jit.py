@@ -65,11 +65,11 @@ from .layout import RowLayout
 # "auto" (jit for fits of at least ``JIT_MIN_WORK``, torch for smaller ones).
 KERNELS = ("torch", "jit", "auto")
 # Measurement-epochs (``FitProtocol.work``) from which "auto" takes the jit kernel. The kernel holds the modules'
-# weights as constants, so each model's first fit on a machine compiles (the shipped model's latent fit: 14 s of
-# CPU, then read from Dr.Jit's disk cache in 0.4 s), which a fit saves back at ~3 us a measurement-epoch (its
-# 3,000-sample fit, 900,000 of them: 5.6 s on torch, 2.7 s on jit; docs/BENCHMARKS.md, "Stop 68"). Below this
-# (a fit of ~700 samples at 300 epochs, a second or two on torch) the fit is a quick look or a test's, and a compile
-# would cost more than every such fit of that model saves.
+# weights as constants, so each model's first fit on a machine compiles (the shipped model's latent fit: four kernels,
+# ~4 s, for any number of materials; then read from Dr.Jit's disk cache), which a fit saves back at ~3 us a
+# measurement-epoch (its 3,000-sample fit, 900,000 of them: 5.6 s on torch, 2.7 s on jit; docs/BENCHMARKS.md,
+# "Stop 68"). Below this (a fit of ~700 samples at 300 epochs, a second or two on torch) the fit is a quick look or a
+# test's, and a compile would cost more than every such fit of that model saves.
 JIT_MIN_WORK = 200_000
 # Per-row correction factors a sample may read for the jit kernel to be the faster: each is a gather per
 # sample, and a step of the shipped model's rows (one thread, 4 x 3,000 and 8 x 10,000 slots) took, jit over
@@ -296,23 +296,27 @@ class JitRowKernel:
         return out
 
     # -- the per-sample kernel (Dr.Jit) ------------------------------------------------------------------
-    def _loss(self, table, factor_table, n_rows: int, wi, wo, f_r, row, eps: float | None, taps: dict | None,
+    def _loss(self, table, factor_table, wi, wo, f_r, row, eps: float | None, taps: dict | None,
               leaves: list | None):
         """Each sample's loss (log-L1, ``train.log_l1``) and fitted value (the loss, or its Charbonnier
-        surrogate with ``eps``, as ``RowKernel``), on Dr.Jit arrays; ``table``: the per-row values, column
-        by column (``_columns``: each name's first column and width) of ``n_rows`` rows each;
-        ``factor_table`` the same for the corrections' factors (``_factor_columns``), read outside the
-        derivative. ``taps``, when given, gets each corrected layer's inputs and the zeros added to its
-        outputs, with their derivative enabled: their gradient is the layer's output adjoint. ``leaves``,
+        surrogate with ``eps``, as ``RowKernel``), on Dr.Jit arrays; ``table``: the per-row values, row
+        by row (``_columns``: each name's first column and width in a row); ``factor_table`` the same
+        for the corrections' factors (``_factor_columns``), read outside the derivative. ``taps``, when
+        given, gets each corrected layer's inputs and the zeros added to its outputs, with their
+        derivative enabled: their gradient is the layer's output adjoint. ``leaves``,
         when given, gets every column's gathered values, with their derivative enabled: their gradient is
         each sample's share of the row's."""
         import drjit as dr
         from drjit.llvm.ad import Array3f, Float
 
         xp = DrJitArrayOps()
-        gather = lambda source, columns: {
-            name: [dr.gather(Float, source, row + (first + j) * n_rows) for j in range(width)]
-            for name, (first, width) in columns.items()}
+        def gather(source, columns: dict[str, tuple[int, int]]) -> dict[str, list]:
+            # row-major, so the kernel's code reads no count of rows: one compiled kernel serves fits of
+            # any number of rows and starts (a count in it cost a compile of seconds for each one)
+            start = row * sum(width for _, width in columns.values())
+            return {name: [dr.gather(Float, source, start + (first + j)) for j in range(width)]
+                    for name, (first, width) in columns.items()}
+
         lane = gather(table, self._columns)  # each sample's copies are leaves (``leaves``): no scatter back
         factor = gather(factor_table, self._factor_columns)  # no derivative: factor_table's is never enabled
         if leaves is not None:
@@ -386,7 +390,7 @@ class JitRowKernel:
             fitted += (dr.abs(r) if eps is None else dr.sqrt(r * r + eps * eps) - eps) / 3.0
         return loss, fitted
 
-    def _step(self, table, factor_table, n_rows: int, wi, wo, f_r, row, weight, eps: float | None, grad: bool):
+    def _step(self, table, factor_table, wi, wo, f_r, row, weight, eps: float | None, grad: bool):
         """Each sample's loss and fitted value (the loss or its surrogate) and, with ``grad``, each
         sample's gradient of its weighted fitted value with respect to every column of ``table`` (its
         row's values: ``_pass`` sums them per row) and the corrected layers' taps: per layer
@@ -395,7 +399,7 @@ class JitRowKernel:
 
         taps = {} if grad and self.corrected else None
         leaves = [] if grad else None
-        loss, fitted = self._loss(table, factor_table, n_rows, wi, wo, f_r, row, eps, taps, leaves)
+        loss, fitted = self._loss(table, factor_table, wi, wo, f_r, row, eps, taps, leaves)
         gradient = tapped = None
         if grad:
             dr.backward(fitted * weight)  # every sample seeded with 1: the gradient of their sum, no reduction
@@ -449,11 +453,11 @@ class JitRowKernel:
             if self._columns is None:  # the same names and widths at every call
                 self._columns = _column_map(dict(sorted(per_row.items())))
             values = torch.cat([per_row[name] for name in self._columns], dim=1)  # (rows, columns)
-            table = Float(values.detach().t().contiguous().reshape(-1))
+            table = Float(values.detach().contiguous().reshape(-1))  # row by row (``_loss``)
             sample_factors = self._sample_factors(factors)
             if self._factor_columns is None:
                 self._factor_columns = _column_map(sample_factors)
-            factor_table = Float(torch.cat([sample_factors[name] for name in self._factor_columns], dim=1).t()
+            factor_table = Float(torch.cat([sample_factors[name] for name in self._factor_columns], dim=1)
                                  .contiguous().reshape(-1) if sample_factors else torch.zeros(1))
             lanes = lambda t: Array3f(*(Float(t[:, j].contiguous()) for j in range(3)))
             row = UInt32(torch.arange(rows, dtype=torch.int32).repeat_interleave(slots))
@@ -462,7 +466,7 @@ class JitRowKernel:
             # reverse pass is bound to the sizes it saw)
             key = (eps, grad, rows, slots)
             if key not in self._frozen:
-                self._frozen[key] = dr.freeze(lambda t, c, a, b, y, r, ww: self._step(t, c, rows, a, b, y, r, ww, eps, grad))
+                self._frozen[key] = dr.freeze(lambda t, c, a, b, y, r, ww: self._step(t, c, a, b, y, r, ww, eps, grad))
             # Python's cycle collector stays out of the call: an array it frees while a step is being
             # recorded enqueues a host function, which a recording cannot hold (Dr.Jit aborts the process).
             collecting = gc.isenabled()

@@ -96,6 +96,38 @@ def test_rows_with_corrections_are_the_torch_kernels_to_float32_rounding(correct
 
 
 @needs_drjit
+@pytest.mark.parametrize("corrections", [None, "last layers"])
+def test_one_compiled_kernel_serves_every_number_of_rows_and_slots(corrections, zoo):
+    """A fit calls its kernel on layouts of many shapes (each stage's starts, the narrowing, several
+    materials at once): the compiled code reads no count of rows or slots, so a layout of another shape
+    launches only kernels already compiled (with a count in the code, every shape compiled anew: on the
+    shipped model 15 compiles and 28 s for a first latent fit of one material, docs/BENCHMARKS.md)."""
+    import drjit as dr
+
+    model = MODELS["F and S*D*F"]()
+    space = RowSpace(model, CORRECTIONS[corrections](model) if corrections else ())
+    x = space.from_table(random_table(model, zoo.names, 0), seed=3)
+    wi, wo, f_r, valid = padded(zoo)
+    kernel = JitRowKernel(model, space)
+
+    def launched(rows: list[int], slots: int) -> set[str]:
+        layout = layout_rows(wi, wo, f_r, torch.tensor(rows), valid[rows], torch.zeros_like(valid[rows]))
+        dr.kernel_history()  # empties it
+        kernel(x[rows], layout.chunk(0, slots), prior_strength=torch.full((len(rows),), 1e-2))
+        return {entry["hash"] for entry in dr.kernel_history() if entry["type"] == dr.KernelType.JIT}
+
+    flag = dr.flag(dr.JitFlag.KernelHistory)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        first = launched([0], wi.shape[1])
+        assert first, "no kernel launched"
+        for rows, slots in (([0, 1, 1], wi.shape[1]), ([1, 0], 97), ([0, 1, 0, 1, 1], 250)):
+            assert launched(rows, slots) <= first, (rows, slots)
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, flag)
+
+
+@needs_drjit
 def test_a_step_repeats_to_the_bit_on_every_thread():
     """Two calls with the same rows give the same losses and gradients, bit for bit, on two threads: each
     row's gradient is summed over its samples in a fixed order (a scatter of the samples' gradients into
