@@ -124,7 +124,8 @@ def main(argv: list[str] | None = None) -> int:
     fitting_process()  # one torch and one Dr.Jit thread
     wait_quiet(args.max_wait, 0.3)
     env = machine()
-    measured = before_and_now(args, Path(__file__), lambda before: run(args.rgl, with_nbrdf=not before), ["--rgl", str(args.rgl.resolve())])
+    measured = before_and_now(args, Path(__file__), lambda before: run(args.rgl, with_nbrdf=not before),
+                              ["--rgl", str(args.rgl.resolve())])
     if measured is None:  # the run inside --before-rev's checkout
         return 0
     before, now = measured

@@ -101,7 +101,8 @@ def test_one_compiled_kernel_serves_every_number_of_rows_and_slots(corrections, 
     """A fit calls its kernel on layouts of many shapes (each stage's starts, the narrowing, several
     materials at once): the compiled code reads no count of rows or slots, so a layout of another shape
     launches only kernels already compiled (with a count in the code, every shape compiled anew: on the
-    shipped model 15 compiles and 28 s for a first latent fit of one material, docs/BENCHMARKS.md)."""
+    shipped model 11 compiles, 24-28 s of build, for a first latent fit of one material; docs/BENCHMARKS.md,
+    "Stop 81")."""
     import drjit as dr
 
     model = MODELS["F and S*D*F"]()
