@@ -25,8 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
-from bench.harness import absent, before_and_now, fitting_process, machine, machine_line, output_arguments, wait_quiet  # noqa: E402
-from bench.report import publish  # noqa: E402
+from bench.harness import absent, fitting_process, machine_line, output_arguments, side_by_side, wait_quiet  # noqa: E402
 
 SECTION = "## The jit fit kernel's compiles (issue 24)"
 RGL = ROOT.parent / "shared" / "data" / "rgl"
@@ -72,9 +71,9 @@ def run(rgl: Path) -> list[list[dict]]:
         env = {**os.environ, "HOME": home}
         passes = []
         for _ in range(2):
-            run = subprocess.run([sys.executable, __file__, "--child", "--rgl", str(rgl)], env=env, check=True,
-                                 capture_output=True, text=True)
-            passes.append(json.loads(run.stdout.strip().splitlines()[-1]))
+            done = subprocess.run([sys.executable, __file__, "--child", "--rgl", str(rgl)], env=env, check=True,
+                                  capture_output=True, text=True)
+            passes.append(json.loads(done.stdout.strip().splitlines()[-1]))
         return passes
 
 
@@ -112,13 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     if absent(args.rgl, "the RGL materials of ../shared"):
         return 0
     wait_quiet(args.max_wait, 0.3)
-    env = machine()
-    measured = before_and_now(args, Path(__file__), lambda before: run(args.rgl), ["--rgl", str(args.rgl.resolve())])
-    if measured is None:  # the run inside --before-rev's checkout
-        return 0
-    before, now = measured
-    command = " ".join(["python bench/bench_fit_compile.py", *(argv if argv is not None else sys.argv[1:])])
-    publish(markdown_section(env, now, before, command).splitlines(), args.write, SECTION)
+    side_by_side(args, Path(__file__), lambda before: run(args.rgl), ["--rgl", str(args.rgl.resolve())],
+                 markdown_section, SECTION, argv)
     return 0
 
 

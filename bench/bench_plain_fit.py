@@ -25,8 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # runnable from a checkout without installing
 
-from bench.harness import absent, before_and_now, fitting_process, machine, machine_line, output_arguments, wait_quiet  # noqa: E402
-from bench.report import publish  # noqa: E402
+from bench.harness import absent, fitting_process, machine_line, output_arguments, side_by_side, wait_quiet  # noqa: E402
 
 SECTION = "## Plain fits against NBRDF and before (issue 24)"
 RGL = ROOT.parent / "shared" / "data" / "rgl"
@@ -123,14 +122,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     fitting_process()  # one torch and one Dr.Jit thread
     wait_quiet(args.max_wait, 0.3)
-    env = machine()
-    measured = before_and_now(args, Path(__file__), lambda before: run(args.rgl, with_nbrdf=not before),
-                              ["--rgl", str(args.rgl.resolve())])
-    if measured is None:  # the run inside --before-rev's checkout
-        return 0
-    before, now = measured
-    command = " ".join(["python bench/bench_plain_fit.py", *(argv if argv is not None else sys.argv[1:])])
-    publish(markdown_section(env, now, before, command).splitlines(), args.write, SECTION)
+    side_by_side(args, Path(__file__), lambda before: run(args.rgl, with_nbrdf=not before),
+                 ["--rgl", str(args.rgl.resolve())], markdown_section, SECTION, argv)
     return 0
 
 

@@ -214,20 +214,26 @@ def run_at_revision(rev: str, script: Path, argv: list[str]) -> dict:
         return json.loads(out.read_text())
 
 
-def before_and_now(args, script: Path, run: Callable[[bool], Any], before_argv: list[str]) -> tuple[Any, Any] | None:
-    """A bench's numbers beside those of the revision ``args.before_rev`` names, measured in the same run.
-    Inside that revision's checkout (``args.before``, the flag ``run_at_revision`` passes on): ``run(True)``
-    written to ``args.json``, and None. Else ``(before, now)``: ``script`` run there first with
-    ``--before`` and ``before_argv`` (None without ``--before-rev``), then ``run(False)``, both also
-    written to ``args.json`` when given."""
+def side_by_side(args, script: Path, run: Callable[[bool], Any], before_argv: list[str],
+                 section: Callable[[dict, Any, Any, str], str], title: str, argv: list[str] | None) -> None:
+    """A bench's numbers beside those of the revision ``args.before_rev`` names, measured in the same run,
+    published. Inside that revision's checkout (``args.before``, the flag ``run_at_revision`` passes on):
+    ``run(True)`` written to ``args.json``, nothing else. Else ``script`` run there first with ``--before``
+    and ``before_argv`` (``before`` None without ``--before-rev``), then ``now = run(False)``, both written
+    to ``args.json`` when given, and ``section(machine(), now, before, command)`` published under ``title``
+    (``report.publish``; ``--write``), ``command`` the bench's command line (``argv``, default sys.argv's)."""
+    from bench.report import publish  # here: this module imports nothing of neuenh (run_at_revision)
+
     if args.before:
         write_json(args.json, run(True))
-        return None
+        return
+    env = machine()
     before = run_at_revision(args.before_rev, script, ["--before", *before_argv]) if args.before_rev else None
     now = run(False)
     if args.json:
         write_json(args.json, {"now": now, "before": before})
-    return before, now
+    command = " ".join([f"python bench/{script.name}", *(argv if argv is not None else sys.argv[1:])])
+    publish(section(env, now, before, command).splitlines(), args.write, title)
 
 
 def cpu_info() -> dict:

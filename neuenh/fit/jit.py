@@ -303,9 +303,9 @@ class JitRowKernel:
         by row (``_columns``: each name's first column and width in a row); ``factor_table`` the same
         for the corrections' factors (``_factor_columns``), read outside the derivative. ``taps``, when
         given, gets each corrected layer's inputs and the zeros added to its outputs, with their
-        derivative enabled: their gradient is the layer's output adjoint. ``leaves``,
-        when given, gets every column's gathered values, with their derivative enabled: their gradient is
-        each sample's share of the row's."""
+        derivative enabled: their gradient is the layer's output adjoint. ``leaves``, when given, gets
+        every column's gathered values, with their derivative enabled: their gradient is each sample's
+        share of the row's."""
         import drjit as dr
         from drjit.llvm.ad import Array3f, Float
 
