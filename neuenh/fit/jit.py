@@ -76,6 +76,11 @@ JIT_MIN_WORK = 200_000
 # torch, 0.20-0.32 without corrections, 0.34-0.40 with its last layers (198 a sample), 0.60-0.85 at rank 2
 # (1,022), 1.29-1.37 at rank 8 (3,014) (docs/BENCHMARKS.md, "Stop 66").
 JIT_FACTOR_READS = 2000
+# Samples a call (rows x slots) from which ``_row_sums`` sums each gradient column where it lies rather than
+# stacking them first: below it the sums' fixed cost per column is the larger (70 columns of the shipped model
+# at one thread: 1 x 10,000 samples 0.69 ms stacked against 0.72 ms, 1 x 20,000 1.01 against 0.86 ms, 4 x 20,000
+# 3.29 against 1.62 ms; docs/BENCHMARKS.md, "Stop 82").
+COLUMN_SUM_SAMPLES = 16_384
 _STATE: dict[str, Any] = {}
 
 
@@ -154,6 +159,21 @@ def _sample_columns(columns: list, rows: int, slots: int) -> torch.Tensor:
     return torch.from_numpy(np.stack([column.numpy() for column in columns])).reshape(-1, rows, slots)
 
 
+def _row_sums(columns: list, rows: int, slots: int) -> torch.Tensor:
+    """(rows, columns) float32: each Dr.Jit array of a value per sample (row by row) summed over each row's
+    slots by torch (a cascade sum, in a fixed order), the same sums to the bit however they are taken.
+
+    One sum of the columns stacked first costs a copy of them all; above ``COLUMN_SUM_SAMPLES`` samples a
+    call that copy costs more than a sum of each column where Dr.Jit left it (the latent fit of 100,000
+    samples: docs/BENCHMARKS.md, "Stop 82"). Each row's sum is then the same reduction of the same
+    values, one thread's: torch splits a reduction between threads over its outputs, but over the summed
+    slots themselves when it has only one output (a column of one row), so the column by column sums
+    are taken only at one torch thread (a fit's process: ``set_fit_threads``)."""
+    if rows * slots < COLUMN_SUM_SAMPLES or torch.get_num_threads() != 1:
+        return _sample_columns(columns, rows, slots).sum(2).t()
+    return torch.stack([torch.from_numpy(column.numpy()).view(rows, slots).sum(1) for column in columns], 1)
+
+
 class JitRowKernel:
     """``RowKernel``'s losses and gradients (the same call; module doc), computed by one Dr.Jit kernel a
     step in Dr.Jit's thread pool (all cores unless ``set_jit_threads``). Equal to ``RowKernel``'s up to
@@ -168,6 +188,7 @@ class JitRowKernel:
         self._frozen = {}
         self._columns: dict[str, tuple[int, int]] | None = None  # per-row values: name -> (first column, width)
         self._factor_columns: dict[str, tuple[int, int]] | None = None  # the same for the corrections' factors
+        self._inputs: tuple[RowLayout, tuple] | None = None  # the last layout and its samples as Dr.Jit arrays
 
     # -- what runs per row (torch) and what per sample (Dr.Jit) ----------------------------------------
     def _plan(self) -> None:
@@ -437,12 +458,25 @@ class JitRowKernel:
         val = torch.where(val_weight > 0, (per * layout.val).sum(1) / val_weight.clamp_min(1e-12), torch.nan)
         return RowLosses(train, val, objective, g, per)
 
+    def _samples(self, layout: RowLayout, weight: torch.Tensor) -> tuple:
+        """What the kernel reads per sample of ``layout`` as Dr.Jit arrays: its directions and targets,
+        its row, and its weight in its row's objective (``weight`` the row's sum, from the layout's
+        ``__call__``). Made once per layout: an Adam run's steps are calls on one layout."""
+        from drjit.llvm.ad import Array3f, Float, UInt32
+
+        if self._inputs is None or self._inputs[0] is not layout:
+            lanes = lambda t: Array3f(*(Float(t[:, j].contiguous()) for j in range(3)))
+            row = UInt32(torch.arange(layout.rows, dtype=torch.int32).repeat_interleave(layout.slots))
+            w = Float((layout.train / weight[:, None]).reshape(-1).contiguous())
+            self._inputs = (layout, (lanes(layout.wi), lanes(layout.wo), lanes(layout.f_r), row, w))
+        return self._inputs[1]
+
     def _pass(self, x: torch.Tensor, layout: RowLayout, weight: torch.Tensor, grad: bool, eps: float | None
               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """One kernel call over ``layout``: each slot's loss and fitted value (rows, slots) float64 and the
         gradient (rows, dim) of the sum of its train slots' fitted values over each row's ``weight``."""
         import drjit as dr
-        from drjit.llvm.ad import Array3f, Float, UInt32
+        from drjit.llvm.ad import Float
 
         rows, slots = layout.rows, layout.slots
         with torch.enable_grad() if grad else torch.no_grad():
@@ -459,9 +493,6 @@ class JitRowKernel:
                 self._factor_columns = _column_map(sample_factors)
             factor_table = Float(torch.cat([sample_factors[name] for name in self._factor_columns], dim=1)
                                  .contiguous().reshape(-1) if sample_factors else torch.zeros(1))
-            lanes = lambda t: Array3f(*(Float(t[:, j].contiguous()) for j in range(3)))
-            row = UInt32(torch.arange(rows, dtype=torch.int32).repeat_interleave(slots))
-            w = Float((layout.train / weight[:, None]).reshape(-1).contiguous())
             # recorded at a shape's first call, replayed after (drjit.freeze; one per shape: a recording's
             # reverse pass is bound to the sizes it saw)
             key = (eps, grad, rows, slots)
@@ -472,15 +503,14 @@ class JitRowKernel:
             collecting = gc.isenabled()
             gc.disable()
             try:
-                loss, fitted, gradient, tapped = self._frozen[key](table, factor_table, lanes(layout.wi),
-                                                                   lanes(layout.wo), lanes(layout.f_r), row, w)
+                loss, fitted, gradient, tapped = self._frozen[key](table, factor_table, *self._samples(layout, weight))
             finally:
                 if collecting:
                     gc.enable()
             g = None
             if grad:
                 # each row's sum over its samples, in a fixed order (module doc)
-                cotangent = _sample_columns(gradient, rows, slots).sum(2).t()  # float32: a cascade sum (torch)
+                cotangent = _row_sums(gradient, rows, slots)
                 outputs, cotangents = [values], [cotangent]
                 if self.corrected:  # each corrected layer's per-row gradient: sum over samples of G x^T
                     columns = _sample_columns(tapped, rows, slots)

@@ -154,6 +154,42 @@ def test_a_step_repeats_to_the_bit_on_every_thread():
 
 
 @needs_drjit
+@pytest.mark.parametrize("rows, slots", [(1, 3000), (1, 50_000), (3, 20_000), (2, 7)])
+def test_each_rows_gradient_sum_is_the_same_to_the_bit_column_by_column_or_stacked(rows, slots):
+    """Each row's sum of its samples' gradient columns is the same to the bit at one torch thread, where
+    large calls sum each column where Dr.Jit left it, and at two, where the columns are stacked and torch
+    sums them with one thread per output, as before stop 82: so a fit's end points do not depend on the
+    path. Values of both signs over a few orders of magnitude, where a sum's order shows in its bits."""
+    import drjit as dr
+    from drjit.llvm.ad import Float
+
+    from neuenh.fit.jit import COLUMN_SUM_SAMPLES, _row_sums, _sample_columns
+
+    generator = torch.Generator().manual_seed(rows * slots)
+    columns = []
+    for _ in range(5):
+        values = torch.randn(rows * slots, generator=generator) * torch.exp(
+            torch.empty(rows * slots).uniform_(-4, 4, generator=generator))
+        columns.append(Float(values))
+    dr.eval(columns)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        stacked = _sample_columns(columns, rows, slots).sum(2).t()
+        at_two = _row_sums(columns, rows, slots)
+        torch.set_num_threads(1)
+        at_one = _row_sums(columns, rows, slots)
+    finally:
+        torch.set_num_threads(threads)
+    assert stacked.shape == (rows, 5) and torch.isfinite(stacked).all()
+    assert torch.equal(at_one, stacked) and torch.equal(at_two, stacked)
+    if rows * slots >= COLUMN_SUM_SAMPLES:  # there the sums compared at one thread were column by column,
+        # and another order of the same sums (the slots reversed) is not the same to the bit
+        reversed_slots = torch.from_numpy(columns[0].numpy()).view(rows, slots).flip(1).contiguous().sum(1)
+        assert not torch.equal(reversed_slots, stacked[:, 0])
+
+
+@needs_drjit
 def test_a_dark_materials_losses_keep_float32_precision(zoo):
     """Albedos of 0.0025 and a target 1.5x the model: each sample's log-L1 is ~1e-4 of values ~1e-4, which
     log(1 + x) in float32 would get 10 % wrong (x's digits below 1's ulp); log1p keeps them, so each
