@@ -460,8 +460,9 @@ class JitRowKernel:
 
     def _samples(self, layout: RowLayout, weight: torch.Tensor) -> tuple:
         """What the kernel reads per sample of ``layout`` as Dr.Jit arrays: its directions and targets,
-        its row, and its weight in its row's objective (``weight`` the row's sum, from the layout's
-        ``__call__``). Made once per layout: an Adam run's steps are calls on one layout."""
+        its row, and its weight in its row's objective. Made once per layout (an Adam run's steps are
+        calls on one layout): a layout always comes with the same ``weight``, its own rows' train sums,
+        or its whole layout's for a chunk, which ``__call__`` makes anew at every call."""
         from drjit.llvm.ad import Array3f, Float, UInt32
 
         if self._inputs is None or self._inputs[0] is not layout:
