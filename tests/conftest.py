@@ -30,32 +30,33 @@ def _deterministic_threads():
 
 
 # The files that take longest, heaviest first (seconds of wall time summed over each file's tests in
-# a full run of `make test`'s command, under the suite's own load, on a 2-core Zen 4 EPYC with an empty
-# inductor cache, as in a clean clone; stop 50). `make test` hands files to its processes in collection
-# order (--no-loadscope-reorder; xdist's own reorder puts files with the most tests first, which left
-# test_compose's two tests to start near the end while another process sat idle): starting the
-# longest first leaves only short files for the end.
+# a full run of `make test`'s command, under the suite's own load, on a 2-core Zen 4 EPYC, stop 83:
+# warm caches, except test_train.py's, whose compiled step compiles from nothing in a clean clone).
+# `make test` hands files to its processes in collection order (--no-loadscope-reorder; xdist's own
+# reorder puts files with the most tests first, which left test_compose's two tests to start near the
+# end while another process sat idle): starting the longest first leaves only short files for the end.
 HEAVIEST_FIRST = (
-    "tests/api/test_shared_cluster.py",  # 105 s
-    "tests/cli/test_client.py",  # 70 s
-    "tests/api/test_plans.py",  # 69 s
-    "tests/deploy/test_compose.py",  # 64 s
-    "tests/api/test_dashboard.py",  # 57 s
-    "tests/neuenh/test_train.py",  # 54 s: its compiled step compiles from nothing in a new checkout
-    "tests/cli/test_service_demo.py",  # 52 s
-    "tests/neuenh/test_fit.py",  # 39 s
-    "tests/workers/test_ray_cluster.py",  # 43 s, a cluster per test (alone: 28.2 s, 18.8 s with one cluster for two)
-    "tests/cli/test_search_cli.py",  # 30 s
-    "tests/cli/test_report_cli.py",  # 27 s
+    "tests/api/test_shared_cluster.py",  # 81 s
+    "tests/neuenh/test_train.py",  # 74 s cold (its compiled step 62 s; 8 s with inductor's cache warm)
+    "tests/cli/test_client.py",  # 68 s
+    "tests/workers/test_ray_cluster.py",  # 63 s, a cluster per test
+    "tests/deploy/test_compose.py",  # 54 s
+    "tests/cli/test_service_demo.py",  # 49 s
+    "tests/api/test_dashboard.py",  # 45 s
+    "tests/cli/test_search_cli.py",  # 44 s
+    "tests/api/test_plans.py",  # 35 s
+    "tests/neuenh/test_fit.py",  # 33 s
+    "tests/cli/test_report_cli.py",  # 22 s
     "tests/cli/test_fit_cli.py",  # 22 s
-    "tests/api/test_openapi.py",  # 22 s
-    "tests/api/test_serve.py",  # 19 s
-    "tests/neuenh/scene/test_planner.py",  # 19 s
-    "tests/neuenh/export/test_equals_specialized.py",  # 19 s
-    "tests/deploy/test_scaling.py",  # 18 s
-    "tests/api/test_hostile_service.py",  # 18 s
-    "tests/neuenh/study/test_contenders.py",  # 16 s
-    "tests/orchestrator/test_runner.py",  # 15 s
+    "tests/api/test_serve.py",  # 21 s
+    "tests/neuenh/export/test_equals_specialized.py",  # 18 s
+    "tests/neuenh/scene/test_planner.py",  # 17 s
+    "tests/orchestrator/test_runner.py",  # 17 s
+    "tests/api/test_hostile_service.py",  # 16 s
+    "tests/deploy/test_scaling.py",  # 16 s
+    "tests/api/test_roles.py",  # 16 s
+    "tests/cli/test_export_cli.py",  # 14 s
+    "tests/cli/test_scene_cli.py",  # 14 s
 )
 
 
