@@ -37,7 +37,7 @@ def _deterministic_threads():
 # end while another process sat idle): starting the longest first leaves only short files for the end.
 HEAVIEST_FIRST = (
     "tests/api/test_shared_cluster.py",  # 81 s
-    "tests/neuenh/test_train.py",  # 74 s cold (its compiled step 62 s; 8 s with inductor's cache warm)
+    "tests/neuenh/test_train.py",  # ~74 s cold: 20 s warm, its compiled step 62 s cold instead of 8 s
     "tests/cli/test_client.py",  # 68 s
     "tests/workers/test_ray_cluster.py",  # 63 s, a cluster per test
     "tests/deploy/test_compose.py",  # 54 s
